@@ -1,0 +1,1 @@
+"""The safety gateway: delay-aware speed override for a closed robot controller."""

@@ -1,0 +1,220 @@
+"""The gateway's core: one step from an input snapshot and a time to one decision per robot.
+
+No I/O, no clock: the caller passes ``now_ns``. Faults (missing, stale or invalid input, an override
+path that is not confirmed) force δ = 0 for the robots they concern and put the robot in
+``safety_exception``, from which it recovers by the zone rules once the fault has cleared.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from gateway.delay import NS_PER_S, DelayBudget
+from gateway.inputs import InputSnapshot, JointSample
+from gateway.kinematics import link_kinematics
+from gateway.metric import NO_HUMANS, HumanCapsules, build_rows, clearance_m, override_from_rows
+from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
+from hrc_common.config import CellConfig
+from hrc_common.robot_model import RobotModel
+
+
+class Fault(NamedTuple):
+    code: str
+    reason: str
+
+
+class ClosestPair(NamedTuple):
+    human: str
+    capsule: str
+    link: str
+
+
+class RobotDecision(NamedTuple):
+    """The decision for one robot in one cycle; what the status shows and the override carries.
+
+    Attributes:
+        delta: the override to command, in [0, 1].
+        delta_bound: δ allowed by eq. (15) alone this cycle (before faults and the exception latch).
+        min_distance_m: smallest surface distance to any human, None with nobody seen [m].
+        closest: the pair at ``min_distance_m``.
+        delay: the parts of t_delay used [s].
+        clearance_m: Δ at the nominal human speed [m].
+        data_age_s: age of the newest data of each input at decision time, None if none yet [s].
+        controller_mode: mode reported by the controller, None before its first state.
+    """
+
+    robot: str
+    zone: Zone
+    delta: float
+    delta_bound: float
+    min_distance_m: float | None
+    closest: ClosestPair | None
+    delay: DelayBudget
+    clearance_m: float
+    thresholds: ZoneThresholds
+    faults: tuple[Fault, ...]
+    data_age_s: dict[str, float | None]
+    controller_mode: str | None
+
+
+def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
+    return None if stamp_ns is None else max(0.0, (now_ns - stamp_ns) / NS_PER_S)
+
+
+def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
+    """All capsules of several trackers in one set (duplicates are harmless: more rows)."""
+    frames = [f for f in frames if f.n_capsules]
+    if not frames:
+        return NO_HUMANS
+    if len(frames) == 1:
+        return frames[0]
+    return HumanCapsules(
+        np.concatenate([f.h_a_world for f in frames]),
+        np.concatenate([f.h_b_world for f in frames]),
+        np.concatenate([f.radius_m for f in frames]),
+        tuple(i for f in frames for i in f.human_ids),
+        tuple(n for f in frames for n in f.capsule_names),
+    )
+
+
+class SafetyCore:
+    """Holds the per-robot state between cycles (zone, Pinocchio data) and steps all robots."""
+
+    def __init__(self, config: CellConfig, robots: dict[str, RobotModel], delay_aware: bool = True) -> None:
+        self.config = config
+        self.robots = robots
+        self._data = {name: robot.model.createData() for name, robot in robots.items()}
+        self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
+        self._delay_aware = delay_aware
+
+    def step(self, inputs: InputSnapshot, now_ns: int, gateway_period_s: float) -> dict[str, RobotDecision]:
+        safety = self.config.safety
+        max_age_s = safety.max_data_age_s
+        tracker_faults: list[Fault] = []
+        tracker_ages: dict[str, float | None] = {}
+        for tracker, frame in inputs.humans.items():
+            age = _age_s(frame.stamp_ns if frame else None, now_ns)
+            tracker_ages[f"tracker/{tracker}"] = age
+            if frame is None:
+                tracker_faults.append(Fault("tracker_missing", f"no valid data from tracker {tracker!r} yet"))
+            elif age is not None and age > max_age_s:
+                tracker_faults.append(
+                    Fault("tracker_stale", f"tracker {tracker!r} data is {age:.3f} s old (limit {max_age_s} s)")
+                )
+            reason = inputs.invalid.get(f"tracker/{tracker}")
+            if reason:
+                tracker_faults.append(Fault("tracker_invalid", f"last message of tracker {tracker!r}: {reason}"))
+        humans = merge_humans([f.capsules for f in inputs.humans.values() if f is not None])
+        human_age_s = max((a if a is not None else max_age_s for a in tracker_ages.values()), default=max_age_s)
+
+        decisions = {}
+        for name, robot in self.robots.items():
+            decisions[name] = self._step_robot(
+                name,
+                robot,
+                inputs,
+                now_ns,
+                humans,
+                human_age_s,
+                tracker_faults,
+                tracker_ages,
+                gateway_period_s,
+            )
+        return decisions
+
+    def _step_robot(
+        self,
+        name: str,
+        robot: RobotModel,
+        inputs: InputSnapshot,
+        now_ns: int,
+        humans: HumanCapsules,
+        human_age_s: float,
+        tracker_faults: list[Fault],
+        tracker_ages: dict[str, float | None],
+        gateway_period_s: float,
+    ) -> RobotDecision:
+        safety = self.config.safety
+        max_age_s = safety.max_data_age_s
+        faults = list(tracker_faults)
+        joint: JointSample | None = inputs.joint[name]
+        joint_age = _age_s(joint.stamp_ns if joint else None, now_ns)
+        if joint is None:
+            faults.append(Fault("joint_state_missing", f"no valid joint state from robot {name!r} yet"))
+        elif joint_age is not None and joint_age > max_age_s:
+            faults.append(Fault("joint_state_stale", f"joint state is {joint_age:.3f} s old (limit {max_age_s} s)"))
+        reason = inputs.invalid.get(f"robot/{name}")
+        if reason:
+            faults.append(Fault("joint_state_invalid", f"last joint state message: {reason}"))
+
+        path = inputs.override_path[name]
+        ack_age = _age_s(path.acked_sent_ns, now_ns)
+        if path.latency_s is None or ack_age is None:
+            faults.append(Fault("override_path_unconfirmed", "the controller has not yet echoed an override"))
+        elif ack_age > max_age_s:
+            faults.append(
+                Fault(
+                    "override_path_stale",
+                    f"newest override echoed was sent {ack_age:.3f} s ago (limit {max_age_s} s)",
+                )
+            )
+
+        if self._delay_aware:
+            delay = DelayBudget(
+                t_reaction_s=safety.t_reaction_s,
+                human_age_s=human_age_s,
+                joint_state_age_s=joint_age if joint_age is not None else max_age_s,
+                override_path_s=path.latency_s if path.latency_s is not None else max_age_s,
+                controller_cycle_s=path.controller_cycle_s if path.controller_cycle_s is not None else max_age_s,
+                gateway_period_s=gateway_period_s,
+            )
+        else:  # test-only: shows that the delay terms matter
+            delay = DelayBudget(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        t_delay = delay.total_s
+        t_brake_max = float(robot.braking_time_s.max())
+        clearance = float(clearance_m(safety, np.array(np.inf), t_brake_max, t_delay))
+
+        delta_bound = 0.0
+        min_distance: float | None = None
+        closest: ClosestPair | None = None
+        speed_mps = 0.0
+        if joint is not None:
+            links = link_kinematics(robot, self._data[name], joint.q_rad, joint.qd_nominal_radps)
+            speed_mps = float(
+                max(
+                    np.linalg.norm(links.v_a_world, axis=1).max(),
+                    np.linalg.norm(links.v_b_world, axis=1).max(),
+                )
+            )
+            rows = build_rows(links, robot.link_radius_m, robot.t_brake_link_s, t_brake_max, humans, safety, t_delay)
+            delta_bound = override_from_rows(rows)
+            if humans.n_capsules:
+                i, j = np.unravel_index(int(np.argmin(rows.surface_distance_m)), rows.surface_distance_m.shape)
+                min_distance = float(rows.surface_distance_m[i, j])
+                closest = ClosestPair(humans.human_ids[j], humans.capsule_names[j], robot.link_names[i])
+
+        thresholds = zone_thresholds(self.config.zones, clearance, t_brake_max + t_delay, speed_mps)
+        if faults:
+            zone = Zone.SAFETY_EXCEPTION
+            delta = 0.0
+        else:
+            zone = next_zone(self._zones[name], min_distance, delta_bound, thresholds, self.config.zones)
+            delta = commanded_override(zone, delta_bound)
+        self._zones[name] = zone
+        ages = {"joint_state": joint_age, **tracker_ages}
+        return RobotDecision(
+            robot=name,
+            zone=zone,
+            delta=delta,
+            delta_bound=delta_bound,
+            min_distance_m=min_distance,
+            closest=closest,
+            delay=delay,
+            clearance_m=clearance,
+            thresholds=thresholds,
+            faults=tuple(faults),
+            data_age_s=ages,
+            controller_mode=joint.mode if joint else None,
+        )

@@ -1,0 +1,124 @@
+"""The gateway's HTTP server, run as a child process of the gateway so it cannot stall the safety loop.
+
+Protocol on standard input, one JSON document per line: the first line is the effective
+configuration, every further line a status document. End of input (the gateway exited or was killed)
+stops the server.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import subprocess
+import sys
+import threading
+from typing import IO, Any
+
+import uvicorn
+
+from gateway.http_api import StatusBoard, create_app
+
+log = logging.getLogger("hrc-gateway.http")
+
+
+def _feed(board: StatusBoard, lines: IO[str], server: uvicorn.Server) -> None:
+    for line in lines:
+        try:
+            board.publish(json.loads(line))
+        except ValueError:
+            log.warning("ignored a malformed status line from the gateway")
+    server.should_exit = True
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="HTTP server of hrc-gateway (started by hrc-gateway)")
+    parser.add_argument("--http-host", default="127.0.0.1")
+    parser.add_argument("--http-port", type=int, default=8080)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level="INFO", format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    first = sys.stdin.readline()
+    if not first:
+        return 0
+    board = StatusBoard(json.loads(first))
+    config = uvicorn.Config(
+        create_app(board),
+        host=args.http_host,
+        port=args.http_port,
+        log_level="warning",
+        timeout_graceful_shutdown=2,
+    )
+    server = uvicorn.Server(config)
+    threading.Thread(target=_feed, args=(board, sys.stdin, server), daemon=True).start()
+    server.run()
+    return 0 if server.started else 1
+
+
+class HttpServerProcess:
+    """The HTTP child process, fed with the newest status by a writer thread.
+
+    ``offer()`` never blocks the caller: it replaces the pending document, and a writer thread does
+    the (possibly blocking) pipe write. A slow or dead child only makes the API lag.
+    """
+
+    def __init__(self, host: str, port: int, effective_config: dict[str, Any]) -> None:
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "gateway.http_server", "--http-host", host, "--http-port", str(port)],
+            stdin=subprocess.PIPE,
+            start_new_session=True,  # Ctrl-C reaches the gateway only; it ends this child by closing stdin
+        )
+        if self._proc.stdin is not None:
+            # A few kB into a fresh pipe: never blocks.
+            self._proc.stdin.write(json.dumps(effective_config).encode() + b"\n")
+            self._proc.stdin.flush()
+        self._pending: bytes | None = None
+        self._cond = threading.Condition()
+        self._closed = False
+        self._writer = threading.Thread(target=self._write_loop, name="http-feed", daemon=True)
+        self._writer.start()
+
+    def offer(self, status_line: bytes) -> None:
+        """Hand over one status line (JSON + newline); replaces any line not yet written."""
+        with self._cond:
+            self._pending = status_line
+            self._cond.notify()
+
+    def _write_loop(self) -> None:
+        stdin = self._proc.stdin
+        if stdin is None:
+            return
+        while True:
+            with self._cond:
+                while self._pending is None and not self._closed:
+                    self._cond.wait()
+                if self._closed:
+                    break
+                data, self._pending = self._pending, None
+            if data is None:
+                continue
+            try:
+                stdin.write(data)
+                stdin.flush()
+            except (BrokenPipeError, ValueError, OSError):
+                return
+        with contextlib.suppress(OSError):
+            stdin.close()
+
+    def exit_code(self) -> int | None:
+        return self._proc.poll()
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._writer.join(timeout_s)
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._proc.terminate()
+            self._proc.wait(timeout_s)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""The separation constraint rows and the override δ of Zanchettin et al. 2016, eq. (15) with Sec. III-D.
+
+For each link i and human capsule j, with surface distance d and clearance Δ (eq. (10)–(12)):
+
+    f = max(0, d − Δ)²                                     (clamp first, then square)
+    e(r, v, h) = (h − r)ᵀ v      for r ∈ {r_a, r_b}, h ∈ {h_a, h_b}    (4 rows per pair, §2)
+    δ (t_b,→i + t_delay) e ≤ f                              (eq. (15b) with t_b → t_b + t_delay)
+
+Every row is an upper bound on δ; δ is the MINIMUM of the bounds, clipped to [0, 1]. Rows with
+e ≤ 0 (moving away or sideways) bound nothing.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from gateway.geometry import segment_distances
+from gateway.kinematics import LinkKinematics
+from hrc_common.config import SafetyConfig
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class HumanCapsules(NamedTuple):
+    """All human capsules seen by the gateway, flattened over trackers and humans.
+
+    Attributes:
+        h_a_world, h_b_world: capsule end points, shape (H, 3) [m].
+        radius_m: capsule radii, shape (H,) [m].
+        human_ids: id of the human each capsule belongs to (prefixed with the tracker name).
+        capsule_names: name of each capsule.
+    """
+
+    h_a_world: FloatArray
+    h_b_world: FloatArray
+    radius_m: FloatArray
+    human_ids: tuple[str, ...]
+    capsule_names: tuple[str, ...]
+
+    @property
+    def n_capsules(self) -> int:
+        return len(self.radius_m)
+
+
+NO_HUMANS = HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
+
+
+class ConstraintRows(NamedTuple):
+    """The rows of eq. (15) for one robot, with what they were built from.
+
+    Attributes:
+        surface_distance_m: d of every (link, capsule) pair, shape (L, H) [m].
+        clearance_m: Δ of every pair, shape (L, H) [m].
+        f_m2: right-hand side max(0, d − Δ)², shape (L, H) [m²].
+        e_m2ps: (h − r)ᵀ v, shape (L, H, 2, 2) indexed [link, capsule, link end, capsule end] [m²/s].
+        horizon_s: t_b,→i + t_delay of every link, shape (L,) [s].
+        bound: the largest δ each row allows (inf where e ≤ 0), shape (L, H, 2, 2).
+    """
+
+    surface_distance_m: FloatArray
+    clearance_m: FloatArray
+    f_m2: FloatArray
+    e_m2ps: FloatArray
+    horizon_s: FloatArray
+    bound: FloatArray
+
+
+def clearance_m(safety: SafetyConfig, separation_m: FloatArray, t_brake_max_s: float, t_delay_s: float) -> FloatArray:
+    """Δ = c + K (max_i t_b,i + t_delay), eq. (11)–(12); K = human_speed_close_mps below close_speed_below_m."""
+    speed_mps = np.where(
+        separation_m < safety.close_speed_below_m, safety.human_speed_close_mps, safety.human_speed_mps
+    )
+    return safety.clearance_static_m + speed_mps * (t_brake_max_s + t_delay_s)
+
+
+def build_rows(
+    links: LinkKinematics,
+    link_radius_m: FloatArray,
+    t_brake_link_s: FloatArray,
+    t_brake_max_s: float,
+    humans: HumanCapsules,
+    safety: SafetyConfig,
+    t_delay_s: float,
+) -> ConstraintRows:
+    """Build the constraint rows of every link × capsule pair (safety-math.md §2–§4).
+
+    Args:
+        links: link end points and their velocities at the programmed speed (q̇_nominal) [m, m/s].
+        link_radius_m: radius of each link capsule, shape (L,) [m].
+        t_brake_link_s: t_b,→i of each link, shape (L,) [s].
+        t_brake_max_s: max_i t_b,i over all joints, for the clearance [s].
+        humans: human capsules, world frame.
+        safety: safety parameters (human speed K, static clearance c).
+        t_delay_s: reaction time of the whole chain [s].
+    """
+    seg = segment_distances(links.p_a_world, links.p_b_world, humans.h_a_world, humans.h_b_world)
+    surface = np.maximum(0.0, seg.distance_m - link_radius_m[:, None] - humans.radius_m[None, :])
+    clearance = clearance_m(safety, surface, t_brake_max_s, t_delay_s)
+    f = np.square(np.maximum(0.0, surface - clearance))
+
+    r_ends = np.stack((links.p_a_world, links.p_b_world), axis=1)  # (L, 2, 3)
+    v_ends = np.stack((links.v_a_world, links.v_b_world), axis=1)  # (L, 2, 3)
+    h_ends = np.stack((humans.h_a_world, humans.h_b_world), axis=1)  # (H, 2, 3)
+    r_dot_v = (r_ends * v_ends).sum(-1)  # (L, 2)
+    e = np.einsum("hmj,lkj->lhkm", h_ends, v_ends) - r_dot_v[:, None, :, None]  # (L, H, 2, 2)
+
+    horizon = t_brake_link_s + t_delay_s
+    lhs = horizon[:, None, None, None] * e
+    approaching = lhs > 0.0
+    bound = np.where(approaching, f[:, :, None, None] / np.where(approaching, lhs, 1.0), np.inf)
+    return ConstraintRows(surface, clearance, f, e, horizon, bound)
+
+
+def override_from_rows(rows: ConstraintRows) -> float:
+    """δ = clip(min over rows of the bound, 0, 1); 1 when no row bounds anything."""
+    if rows.bound.size == 0:
+        return 1.0
+    return float(np.clip(rows.bound.min(), 0.0, 1.0))

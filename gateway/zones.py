@@ -1,0 +1,92 @@
+"""Zones of one robot and their state machine (Zanchettin et al. 2016, Sec. IV-B, Fig. 7; Sec. V-B).
+
+The zone is a label and a latch: it never raises δ. In ``safety_exception`` the commanded δ is held
+at 0 until the separation is safe again (automatic recovery, no acknowledgement).
+"""
+
+from __future__ import annotations
+
+import math
+from enum import StrEnum
+from typing import NamedTuple
+
+from hrc_common.config import ZonesConfig
+
+
+class Zone(StrEnum):
+    AUTONOMOUS = "autonomous"
+    GUARDED_DISTANCE = "guarded_distance"
+    REDUCED_SPEED = "reduced_speed"
+    SAFETY_EXCEPTION = "safety_exception"
+
+
+class ZoneThresholds(NamedTuple):
+    """Distance thresholds of one decision, all surface-to-surface [m].
+
+    Attributes:
+        protective_m: the clearance Δ; at or below it the robot must stand still.
+        resume_m: a safety exception ends only beyond this.
+        reduce_m: beyond it, a link point moving straight at the human at the reference speed
+            satisfies eq. (15) at full speed (rule (1) applied to the metric).
+        monitored_m: the monitored workspace; beyond it (plus hysteresis) the robot is autonomous.
+    """
+
+    protective_m: float
+    resume_m: float
+    reduce_m: float
+    monitored_m: float
+
+
+def zone_thresholds(
+    config: ZonesConfig, clearance_m: float, horizon_s: float, programmed_speed_mps: float
+) -> ZoneThresholds:
+    """Thresholds from the clearance Δ, the horizon T = t_b + t_delay and the link speed.
+
+    ``reduce_m`` solves (d − Δ)² = T d v, the row of a point at distance d moving straight at the
+    human with speed v: d = Δ + Tv/2 + sqrt((Δ + Tv/2)² − Δ²). With ``thresholds = "fixed"`` v is
+    ``fixed_speed_mps``; with ``"adaptive"`` it is the current programmed speed ``programmed_speed_mps``.
+    """
+    speed = config.fixed_speed_mps if config.thresholds == "fixed" else programmed_speed_mps
+    half = clearance_m + 0.5 * horizon_s * speed
+    reduce = half + math.sqrt(max(0.0, half * half - clearance_m * clearance_m))
+    return ZoneThresholds(
+        protective_m=clearance_m,
+        resume_m=max(config.resume_distance_m, clearance_m + config.hysteresis_m),
+        reduce_m=reduce,
+        monitored_m=max(config.monitored_distance_min_m, reduce + config.guard_margin_m),
+    )
+
+
+def next_zone(
+    zone: Zone,
+    min_distance_m: float | None,
+    delta_bound: float,
+    thresholds: ZoneThresholds,
+    config: ZonesConfig,
+) -> Zone:
+    """The zone after one decision.
+
+    Args:
+        zone: the zone of the previous decision.
+        min_distance_m: smallest surface distance to any human, None when nobody is seen [m].
+        delta_bound: δ allowed by the constraint rows (eq. (15)) this cycle.
+        thresholds: this cycle's thresholds.
+        config: hysteresis and the reduced-speed level.
+    """
+    if min_distance_m is None:
+        return Zone.AUTONOMOUS
+    if min_distance_m <= thresholds.protective_m or delta_bound <= 0.0:
+        return Zone.SAFETY_EXCEPTION
+    if zone is Zone.SAFETY_EXCEPTION and min_distance_m < thresholds.resume_m:
+        return Zone.SAFETY_EXCEPTION
+    leave_at_m = thresholds.monitored_m + (config.hysteresis_m if zone is not Zone.AUTONOMOUS else 0.0)
+    if min_distance_m > leave_at_m and delta_bound >= 1.0:
+        return Zone.AUTONOMOUS
+    if zone is Zone.REDUCED_SPEED:
+        return Zone.GUARDED_DISTANCE if delta_bound >= 1.0 else Zone.REDUCED_SPEED
+    return Zone.REDUCED_SPEED if delta_bound < config.reduced_speed_below else Zone.GUARDED_DISTANCE
+
+
+def commanded_override(zone: Zone, delta_bound: float) -> float:
+    """δ to command: the bound of eq. (15), held at 0 during a safety exception. Never above the bound."""
+    return 0.0 if zone is Zone.SAFETY_EXCEPTION else delta_bound

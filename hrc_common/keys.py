@@ -1,0 +1,31 @@
+"""Zenoh key expressions of the contract (`shared/docs/contract.md`)."""
+
+from __future__ import annotations
+
+
+def robot_state(cell: str, robot: str) -> str:
+    return f"hrc/{cell}/robot/{robot}/state"
+
+
+def robot_override(cell: str, robot: str) -> str:
+    return f"hrc/{cell}/robot/{robot}/override"
+
+
+def tracker_humans(cell: str, tracker: str) -> str:
+    return f"hrc/{cell}/tracker/{tracker}/humans"
+
+
+def gateway_status(cell: str) -> str:
+    return f"hrc/{cell}/gateway/status"
+
+
+def alive(cell: str, component: str) -> str:
+    return f"hrc/{cell}/alive/{component}"
+
+
+def name_from_key(key: str, kind: str) -> str | None:
+    """The robot or tracker name in ``hrc/<cell>/<kind>/<name>/...``, or None if the key is not of that kind."""
+    parts = key.split("/")
+    if len(parts) >= 5 and parts[0] == "hrc" and parts[2] == kind:
+        return parts[3]
+    return None

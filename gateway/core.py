@@ -7,6 +7,7 @@ path that is not confirmed) force δ = 0 for the robots they concern and put the
 
 from __future__ import annotations
 
+from collections import deque
 from typing import NamedTuple
 
 import numpy as np
@@ -59,6 +60,16 @@ class RobotDecision(NamedTuple):
     controller_mode: str | None
 
 
+def _peak_hold(window: deque[tuple[int, float]], now_ns: int, value: float, hold_ns: int) -> float:
+    """Push ``value`` and return the largest value of the last ``hold_ns``."""
+    while window and window[-1][1] <= value:
+        window.pop()  # a smaller, older value can never be the maximum again
+    window.append((now_ns, value))
+    while window[0][0] < now_ns - hold_ns:
+        window.popleft()
+    return window[0][1]
+
+
 def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
     return None if stamp_ns is None else max(0.0, (now_ns - stamp_ns) / NS_PER_S)
 
@@ -87,7 +98,12 @@ class SafetyCore:
         self.robots = robots
         self._data = {name: robot.model.createData() for name, robot in robots.items()}
         self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
+        self._speeds: dict[str, deque[tuple[int, float]]] = {name: deque() for name in robots}
         self._delay_aware = delay_aware
+
+    def _held_speed_mps(self, name: str, now_ns: int, speed_mps: float) -> float:
+        hold_ns = int(self.config.zones.adaptive_speed_hold_s * NS_PER_S)
+        return _peak_hold(self._speeds[name], now_ns, speed_mps, hold_ns)
 
     def step(self, inputs: InputSnapshot, now_ns: int, gateway_period_s: float) -> dict[str, RobotDecision]:
         safety = self.config.safety
@@ -195,7 +211,9 @@ class SafetyCore:
                 min_distance = float(rows.surface_distance_m[i, j])
                 closest = ClosestPair(humans.human_ids[j], humans.capsule_names[j], robot.link_names[i])
 
-        thresholds = zone_thresholds(self.config.zones, clearance, t_brake_max + t_delay, speed_mps)
+        thresholds = zone_thresholds(
+            self.config.zones, clearance, t_brake_max + t_delay, self._held_speed_mps(name, now_ns, speed_mps)
+        )
         if faults:
             zone = Zone.SAFETY_EXCEPTION
             delta = 0.0

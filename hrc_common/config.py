@@ -83,6 +83,9 @@ class ZonesConfig(_Frozen):
         description="Monitored distance from the current programmed speed, or from fixed_speed_mps.",
     )
     fixed_speed_mps: PositiveFloat = Field(1.5, description="Largest programmed link speed, for 'fixed' [m/s].")
+    adaptive_speed_hold_s: NonNegativeFloat = Field(
+        2.0, description="'adaptive' uses the largest programmed link speed of this last stretch of time [s]."
+    )
     monitored_distance_min_m: NonNegativeFloat = Field(
         1.0, description="A human closer than this (beyond the clearance) is always 'in the workspace' [m]."
     )

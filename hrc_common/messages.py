@@ -118,6 +118,13 @@ def _reject_constant(token: str) -> float:
     raise ValueError(f"non-finite number {token} is not allowed")
 
 
+def _finite_float(token: str) -> float:
+    value = float(token)
+    if value in (float("inf"), float("-inf")):
+        raise ValueError(f"non-finite number {token[:30]} is not allowed")
+    return value
+
+
 def parse_message(payload: bytes, model: type[M]) -> M:
     """Parse a UTF-8 JSON payload into ``model``.
 
@@ -128,7 +135,9 @@ def parse_message(payload: bytes, model: type[M]) -> M:
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise MessageError("too_large", f"{len(payload)} bytes, at most {MAX_PAYLOAD_BYTES} allowed")
     try:
-        raw = json.loads(payload, parse_constant=_reject_constant)
+        raw = json.loads(payload, parse_constant=_reject_constant, parse_float=_finite_float)
+    except RecursionError:
+        raise MessageError("not_json", "JSON nested too deeply") from None
     except ValueError as exc:
         reason = "non_finite" if "non-finite" in str(exc) else "not_json"
         raise MessageError(reason, str(exc)[:200]) from exc

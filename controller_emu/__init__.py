@@ -1,0 +1,1 @@
+"""Emulator of a closed industrial controller: runs a pre-planned program and accepts only a speed override δ."""

@@ -1,0 +1,194 @@
+"""The emulated controller as a pure state machine: override in, program time and joint state out.
+
+No I/O and no clocks: the caller passes the times. One cycle is::
+
+    state, reason = accept_override(state, newest_override, robot, now_ns)   # if one arrived
+    state = step(state, trajectory, config, now_s, dt_s)
+    message = joint_state(state, trajectory, robot, seq, stamp_ns)
+
+The applied override δ follows the commanded one through bounded rates: it falls by at most
+1/braking_time_s per second (full speed to standstill takes braking_time_s, never longer) and rises by at
+most 1/accel_time_s per second. The program time τ advances by δ·dt, so δ = 1 runs the program as
+planned and δ = 0 holds the robot where it is. Without a valid override for ``watchdog_s`` (or before
+the first one) the target is 0: the controller starts, and falls back, into a protective stop.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Literal
+
+import numpy as np
+
+from controller_emu.program import Trajectory
+from hrc_common.config import ConfigError, ControllerConfig
+from hrc_common.messages import JointState, Override
+from hrc_common.robot_model import RobotModel
+
+Mode = Literal["running", "stopped", "protective_stop"]
+
+MAX_FUTURE_S = 1.0
+"""An override stamped further than this ahead of the controller's clock is rejected as stale [s]."""
+
+_SNAP = 1e-12
+"""δ within this of its target is set to the target, so that a ramp ends exactly on it."""
+
+
+@dataclass(frozen=True)
+class ControllerState:
+    """Everything the controller remembers between cycles.
+
+    Attributes:
+        tau_s: program time, in [0, trajectory.duration_s) [s].
+        delta_applied: override applied in the last step, in [0, 1].
+        cycles_completed: number of times the program wrapped back to its start.
+        mode: ``running``, ``stopped`` (δ reached 0) or ``protective_stop`` (watchdog expired).
+        delta_commanded: ``delta`` of the last accepted override (not yet clipped).
+        override_stamp_ns: ``stamp_ns`` of the last accepted override; -1 before any [ns].
+        override_seq: ``seq`` of the last accepted override; -1 before any.
+        override_accepted_ns: the caller's clock when the last override was accepted; None before any [ns].
+        rejected: rejected overrides by reason (``wrong_robot``, ``old_or_repeated``, ``stale``).
+    """
+
+    tau_s: float = 0.0
+    delta_applied: float = 0.0
+    cycles_completed: int = 0
+    mode: Mode = "protective_stop"
+    delta_commanded: float = 0.0
+    override_stamp_ns: int = -1
+    override_seq: int = -1
+    override_accepted_ns: int | None = None
+    rejected: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+
+
+def _reject(state: ControllerState, reason: str) -> tuple[ControllerState, str]:
+    counts = dict(state.rejected)
+    counts[reason] = counts.get(reason, 0) + 1
+    return replace(state, rejected=MappingProxyType(counts)), reason
+
+
+def accept_override(
+    state: ControllerState, msg: Override, robot_name: str, now_ns: int, watchdog_s: float
+) -> tuple[ControllerState, str | None]:
+    """Take an override command if it is for this robot, newer than the last one and fresh.
+
+    Order is decided by ``stamp_ns``, not by ``seq``: a restarted gateway, whose ``seq`` starts again
+    at 0, is accepted as soon as its stamps are newer.
+
+    Args:
+        state: current state.
+        msg: a parsed, schema-valid override.
+        robot_name: the robot this controller drives.
+        now_ns: the controller's clock (Unix epoch, the clock of ``stamp_ns``) [ns].
+        watchdog_s: an override stamped longer ago than this is stale [s].
+
+    Returns:
+        The new state and None, or the state with the rejection counted and the reason:
+        ``wrong_robot``, ``old_or_repeated`` (stamp not newer than the last accepted) or ``stale``
+        (older than ``watchdog_s`` or more than :data:`MAX_FUTURE_S` in the future).
+    """
+    if msg.robot != robot_name:
+        return _reject(state, "wrong_robot")
+    if msg.stamp_ns <= state.override_stamp_ns:
+        return _reject(state, "old_or_repeated")
+    age_s = (now_ns - msg.stamp_ns) * 1e-9
+    if age_s > watchdog_s or age_s < -MAX_FUTURE_S:
+        return _reject(state, "stale")
+    accepted = replace(
+        state,
+        delta_commanded=msg.delta,
+        override_stamp_ns=msg.stamp_ns,
+        override_seq=msg.seq,
+        override_accepted_ns=now_ns,
+    )
+    return accepted, None
+
+
+def watchdog_expired(state: ControllerState, config: ControllerConfig, now_s: float) -> bool:
+    """True if no valid override was accepted within ``config.watchdog_s`` of ``now_s`` (or none yet)."""
+    if state.override_accepted_ns is None:
+        return True
+    return now_s - state.override_accepted_ns * 1e-9 > config.watchdog_s
+
+
+def _ramp(delta: float, target: float, config: ControllerConfig, dt_s: float) -> float:
+    """δ moved toward ``target`` at most by dt/braking_time_s (down) or dt/accel_time_s (up)."""
+    if target < delta:
+        moved = max(target, delta - dt_s / config.braking_time_s)
+    else:
+        moved = min(target, delta + dt_s / config.accel_time_s)
+    return target if abs(moved - target) < _SNAP else moved
+
+
+def step(
+    state: ControllerState, trajectory: Trajectory, config: ControllerConfig, now_s: float, dt_s: float
+) -> ControllerState:
+    """Advance the controller by one cycle.
+
+    Args:
+        state: state after the overrides of this cycle were taken (:func:`accept_override`).
+        trajectory: the program.
+        config: braking, acceleration and watchdog times.
+        now_s: the clock of ``accept_override``'s ``now_ns``, in seconds [s].
+        dt_s: time since the previous step [s] (negative values count as 0).
+
+    Returns:
+        The state with the new δ_applied, program time τ (wrapped, ``cycles_completed`` counted) and mode.
+    """
+    dt_s = max(dt_s, 0.0)
+    expired = watchdog_expired(state, config, now_s)
+    target = 0.0 if expired else min(max(state.delta_commanded, 0.0), 1.0)
+    delta = _ramp(state.delta_applied, target, config, dt_s)
+    # Trapezoidal rule: δ changes linearly within the step.
+    tau_s = state.tau_s + 0.5 * (state.delta_applied + delta) * dt_s
+    wraps = 0
+    if tau_s >= trajectory.duration_s:
+        wraps = math.floor(tau_s / trajectory.duration_s)
+        tau_s -= wraps * trajectory.duration_s
+        tau_s = min(max(tau_s, 0.0), math.nextafter(trajectory.duration_s, 0.0))
+    mode: Mode = "protective_stop" if expired else ("stopped" if delta == 0.0 else "running")
+    return replace(state, tau_s=tau_s, delta_applied=delta, cycles_completed=state.cycles_completed + wraps, mode=mode)
+
+
+def joint_state(state: ControllerState, trajectory: Trajectory, robot_name: str, seq: int, stamp_ns: int) -> JointState:
+    """The contract's joint state message for the current program point.
+
+    ``qd`` is the actual joint velocity δ_applied · qd_nominal; ``qd_nominal`` the programmed one at 100 %.
+    """
+    q_rad, qd_nominal_radps = trajectory.sample(state.tau_s)
+    qd_radps = state.delta_applied * qd_nominal_radps
+    return JointState(
+        robot=robot_name,
+        seq=seq,
+        stamp_ns=stamp_ns,
+        q=q_rad.tolist(),
+        qd=qd_radps.tolist(),
+        qd_nominal=qd_nominal_radps.tolist(),
+        override=state.delta_applied,
+        override_seq=state.override_seq,
+        mode=state.mode,
+    )
+
+
+def check_braking_time(config: ControllerConfig, robot: RobotModel) -> None:
+    """Refuse a braking time longer than the gateway assumes for any moving link.
+
+    The gateway sizes its separation distances with each link's braking time ``t_brake_link_s``; this
+    controller stops all joints together within ``config.braking_time_s``, so that must not be longer.
+
+    Raises:
+        ConfigError: ``braking_time_s`` exceeds the smallest braking time of a link moved by a joint.
+    """
+    moving = robot.t_brake_link_s[robot.t_brake_link_s > 0.0]
+    if moving.size == 0:
+        return
+    limit_s = float(np.min(moving))
+    if config.braking_time_s > limit_s:
+        link = robot.link_names[int(np.flatnonzero(robot.t_brake_link_s == limit_s)[0])]
+        raise ConfigError(
+            f"robot {robot.name!r}: controller.braking_time_s = {config.braking_time_s} s is longer than the "
+            f"braking time the gateway assumes for link {link!r}; allowed: <= {limit_s} s"
+        )

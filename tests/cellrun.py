@@ -1,0 +1,148 @@
+"""Helpers for end-to-end tests: start the real programs as subprocesses on loopback, watch the REST API."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def start_program(module: str, args: list[str], log_path: Path) -> subprocess.Popen[bytes]:
+    log = log_path.open("wb")
+    return subprocess.Popen(
+        [sys.executable, "-m", module, *args],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        cwd=REPO_ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+
+
+def stop_program(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT, timeout_s: float = 10.0) -> int:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        return proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise
+
+
+@dataclass
+class Cell:
+    """A running cell: the three programs and where to reach them."""
+
+    gateway: subprocess.Popen[bytes]
+    controller: subprocess.Popen[bytes]
+    tracker: subprocess.Popen[bytes]
+    http_port: int
+    gateway_endpoint: str
+    controller_endpoint: str
+    logs: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def base_url(self) -> str:
+        return f"http://127.0.0.1:{self.http_port}"
+
+    def get(self, path: str) -> httpx.Response:
+        return httpx.get(self.base_url + path, timeout=2.0)
+
+    def robot(self, name: str = "ur5") -> dict[str, Any] | None:
+        try:
+            response = self.get(f"/api/v1/robots/{name}")
+        except httpx.HTTPError:
+            return None
+        return response.json() if response.status_code == 200 else None
+
+    def wait_until(self, predicate: Any, timeout_s: float, what: str, robot: str = "ur5") -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < deadline:
+            last = self.robot(robot)
+            if last is not None and predicate(last):
+                return last
+            time.sleep(0.05)
+        raise AssertionError(f"timed out after {timeout_s} s waiting for {what}; last status: {last}\n{self.tail()}")
+
+    def tail(self, lines: int = 15) -> str:
+        out = []
+        for name, path in self.logs.items():
+            text = path.read_text(errors="replace").splitlines()[-lines:]
+            out.append(f"--- {name} ---\n" + "\n".join(text))
+        return "\n".join(out)
+
+
+@contextmanager
+def running_cell(
+    tmp_path: Path, config: Path | None = None, scenario: str | None = None, seed: int = 0
+) -> Iterator[Cell]:
+    """Start gateway, controller emulator and tracker emulator; stop them with SIGINT afterwards."""
+    gw_port, ctrl_port, http_port = free_port(), free_port(), free_port()
+    gw_ep, ctrl_ep = f"tcp/127.0.0.1:{gw_port}", f"tcp/127.0.0.1:{ctrl_port}"
+    cfg = ["--config", str(config)] if config else []
+    logs = {name: tmp_path / f"{name}.log" for name in ("gateway", "controller", "tracker")}
+    gateway = start_program(
+        "gateway.main", [*cfg, "--zenoh-listen", gw_ep, "--http-port", str(http_port)], logs["gateway"]
+    )
+    controller = start_program(
+        "controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep], logs["controller"]
+    )
+    tracker_args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed)]
+    tracker = start_program(
+        "tracker_emu.main", [*tracker_args, *(["--scenario", scenario] if scenario else [])], logs["tracker"]
+    )
+    cell = Cell(gateway, controller, tracker, http_port, gw_ep, ctrl_ep, logs)
+    try:
+        yield cell
+    finally:
+        for proc in (tracker, controller, gateway):
+            try:
+                stop_program(proc)
+            except subprocess.TimeoutExpired:
+                pass
+
+
+def record(cell: Cell, duration_s: float, period_s: float = 0.05, robot: str = "ur5") -> list[dict[str, Any]]:
+    """Poll one robot's status for ``duration_s``; each entry gets ``t_s`` (since the start)."""
+    trace = []
+    start = time.monotonic()
+    while (now := time.monotonic()) - start < duration_s:
+        status = cell.robot(robot)
+        if status is not None:
+            status["t_s"] = now - start
+            trace.append(status)
+        time.sleep(period_s)
+    return trace
+
+
+def collapse(values: list[str]) -> list[str]:
+    """Consecutive duplicates removed: the sequence of distinct states."""
+    out: list[str] = []
+    for v in values:
+        if not out or out[-1] != v:
+            out.append(v)
+    return out
+
+
+def is_subsequence(needle: list[str], haystack: list[str]) -> bool:
+    it = iter(haystack)
+    return all(any(x == y for y in it) for x in needle)

@@ -1,0 +1,349 @@
+"""SafetyCore.step with the real UR5 and InputStore-fed messages: decisions, faults, recovery, delay."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from gateway.core import RobotDecision, SafetyCore
+from gateway.inputs import InputStore
+from gateway.zones import Zone
+from hrc_common import keys
+from hrc_common.config import CellConfig
+from hrc_common.robot_model import RobotModel
+
+NOW = 1_790_000_000_000_000_000
+MS = 1_000_000
+PERIOD_S = 0.004
+Q = [0.3, -1.2, 1.4, -0.5, 1.2, 0.0]
+QD_NOMINAL = [0.6, -0.4, 0.5, 0.3, 0.2, 0.1]
+CYCLE_MS = 4
+LATENCY_MS = 12
+
+FAR_TORSO = {"name": "torso", "a": [4.0, 4.0, 0.8], "b": [4.0, 4.0, 1.6], "radius": 0.2}  # ≈ 5 m from the robot
+# A hand 1.8 m ahead of tool0 along its programmed velocity at (Q, QD_NOMINAL): 0 < δ < 1 at the default delays.
+NEAR_HAND = {"name": "hand_r", "a": [-0.88, 1.39, 1.08], "b": [-0.88, 1.39, 1.08], "radius": 0.05}
+
+
+class Cell:
+    """An InputStore and a SafetyCore fed like the real gateway: controller states every 4 ms up to a given age,
+    the newest echoing an override sent 12 ms before it; tracker frames with a given age."""
+
+    def __init__(self, config: CellConfig, ur5: RobotModel, delay_aware: bool = True) -> None:
+        self.config = config
+        self.store = InputStore({"ur5": ur5.n_joints}, list(config.trackers))
+        self.core = SafetyCore(config, {"ur5": ur5}, delay_aware=delay_aware)
+        self.joint_seq = 0
+        self.last_joint_stamp_ns: int | None = None
+        self.override_seq = -1
+        self.human_seq = dict.fromkeys(config.trackers, 0)
+
+    def joint(self, now_ns: int, age_ms: float = 4, new_override: bool = True, q=Q, qd_nominal=QD_NOMINAL) -> None:
+        newest = now_ns - int(age_ms * MS)
+        stamp = newest - CYCLE_MS * MS if self.last_joint_stamp_ns is None else self.last_joint_stamp_ns + CYCLE_MS * MS
+        echoed = self.override_seq
+        if new_override:  # sent 12 ms before the newest state, which is the first to echo it
+            self.override_seq += 1
+            self.store.on_override_sent("ur5", self.override_seq, newest - LATENCY_MS * MS)
+        while stamp <= newest:
+            if stamp == newest:
+                echoed = self.override_seq
+            self.joint_seq += 1
+            raw = {
+                "schema": "hrc.joint_state/1",
+                "robot": "ur5",
+                "seq": self.joint_seq,
+                "stamp_ns": stamp,
+                "q": list(q),
+                "qd": [0.0] * 6,
+                "qd_nominal": list(qd_nominal),
+                "override": 1.0,
+                "override_seq": echoed,
+                "mode": "running",
+            }
+            self.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), now_ns)
+            self.last_joint_stamp_ns = stamp
+            stamp += CYCLE_MS * MS
+
+    def humans(self, now_ns: int, capsules: list[dict], age_ms: float = 30, trackers=("front", "side")) -> None:
+        for tracker in trackers:
+            self.human_seq[tracker] += 1
+            raw = {
+                "schema": "hrc.humans/1",
+                "tracker": tracker,
+                "seq": self.human_seq[tracker],
+                "stamp_ns": now_ns - int(age_ms * MS),
+                "humans": [{"id": "h1", "capsules": capsules}] if capsules else [],
+            }
+            self.store.on_humans(keys.tracker_humans("demo", tracker), json.dumps(raw).encode(), now_ns)
+
+    def feed(self, now_ns: int, capsules: list[dict], human_age_ms: float = 30, joint_age_ms: float = 4) -> None:
+        self.joint(now_ns, joint_age_ms)
+        self.humans(now_ns, capsules, human_age_ms)
+
+    def step(self, now_ns: int) -> RobotDecision:
+        return self.core.step(self.store.snapshot(), now_ns, PERIOD_S)["ur5"]
+
+
+@pytest.fixture
+def cell(cell_config: CellConfig, ur5: RobotModel) -> Cell:
+    return Cell(cell_config, ur5)
+
+
+def codes(decision: RobotDecision) -> set[str]:
+    return {f.code for f in decision.faults}
+
+
+def assert_stopped(decision: RobotDecision, code: str) -> None:
+    assert code in codes(decision)
+    assert decision.delta == 0.0
+    assert decision.zone is Zone.SAFETY_EXCEPTION
+    assert all(f.reason for f in decision.faults)
+
+
+# -- fresh data ---------------------------------------------------------------------------------
+
+
+def test_far_human_full_speed_with_known_delay(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO])
+    d = cell.step(NOW)
+    assert d.faults == ()
+    assert d.zone is Zone.AUTONOMOUS
+    assert d.delta == 1.0
+    assert d.delta_bound == 1.0
+    assert d.min_distance_m is not None
+    assert d.min_distance_m > 4.0
+    assert d.closest is not None
+    assert d.closest.capsule == "torso"
+    # t_delay = reaction 0.040 + human age 0.030 + joint age 0.004 + override path 0.012 + cycle 0.004 + period 0.004
+    assert d.delay.t_reaction_s == pytest.approx(0.04)
+    assert d.delay.human_age_s == pytest.approx(0.030)
+    assert d.delay.joint_state_age_s == pytest.approx(0.004)
+    assert d.delay.override_path_s == pytest.approx(0.012)
+    assert d.delay.controller_cycle_s == pytest.approx(0.004)
+    assert d.delay.gateway_period_s == pytest.approx(0.004)
+    assert d.delay.total_s == pytest.approx(0.094)
+    # Δ = c + K (max t_b + t_delay) = 0.05 + 1.6 (0.530 + 0.094)
+    assert d.clearance_m == pytest.approx(0.05 + 1.6 * 0.624)
+    assert d.thresholds.protective_m == pytest.approx(d.clearance_m)
+    assert d.data_age_s == pytest.approx({"joint_state": 0.004, "tracker/front": 0.03, "tracker/side": 0.03})
+    assert d.controller_mode == "running"
+
+
+def test_nobody_seen_is_autonomous(cell: Cell) -> None:
+    cell.feed(NOW, [])
+    d = cell.step(NOW)
+    assert d.faults == ()
+    assert (d.zone, d.delta, d.min_distance_m, d.closest) == (Zone.AUTONOMOUS, 1.0, None, None)
+
+
+def test_closest_pair_and_distance_known_answer(cell: Cell, ur5: RobotModel) -> None:
+    """A point hand 0.5 m beyond tool0 on the tool axis: surface distance 0.5 − 0.07 − 0.05 = 0.38 m to 'tool'."""
+    data = ur5.model.createData()
+    pin.framesForwardKinematics(ur5.model, data, np.array(Q))
+    wrist_3 = data.oMf[ur5.model.getFrameId("wrist_3_link")].translation + ur5.p_world_base
+    tool0 = data.oMf[ur5.model.getFrameId("tool0")].translation + ur5.p_world_base
+    axis = (tool0 - wrist_3) / np.linalg.norm(tool0 - wrist_3)
+    hand = (tool0 + 0.5 * axis).tolist()
+    cell.joint(NOW)
+    cell.humans(NOW, [{"name": "hand_l", "a": hand, "b": hand, "radius": 0.05}], trackers=("front",))
+    cell.humans(NOW, [], trackers=("side",))
+    d = cell.step(NOW)
+    assert d.faults == ()
+    assert d.min_distance_m == pytest.approx(0.38)
+    assert d.closest == ("front/h1", "hand_l", "tool")
+    # 0.38 m is well inside Δ ≈ 1.05 m: standstill
+    assert d.zone is Zone.SAFETY_EXCEPTION
+    assert d.delta == 0.0
+
+
+def test_near_human_reduces_speed(cell: Cell) -> None:
+    cell.feed(NOW, [NEAR_HAND])
+    d = cell.step(NOW)
+    assert d.faults == ()
+    assert 0.0 < d.delta_bound < 1.0
+    assert d.zone is Zone.REDUCED_SPEED
+    assert d.delta == d.delta_bound
+
+
+# -- faults -------------------------------------------------------------------------------------
+
+
+def test_missing_tracker(cell: Cell, cell_config: CellConfig) -> None:
+    cell.joint(NOW)
+    cell.humans(NOW, [FAR_TORSO], trackers=("front",))
+    d = cell.step(NOW)
+    assert_stopped(d, "tracker_missing")
+    assert codes(d) == {"tracker_missing"}
+    assert "side" in d.faults[0].reason
+    assert d.delta_bound == 1.0  # the rows alone would allow full speed: the fault decides
+    assert d.delay.human_age_s == pytest.approx(cell_config.safety.max_data_age_s)  # unknown age → the limit
+    assert d.data_age_s["tracker/side"] is None
+
+
+def test_stale_tracker(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO], human_age_ms=250)
+    d = cell.step(NOW)
+    assert_stopped(d, "tracker_stale")
+    assert codes(d) == {"tracker_stale"}
+
+
+def test_missing_joint_state(cell: Cell) -> None:
+    cell.humans(NOW, [FAR_TORSO])
+    d = cell.step(NOW)
+    assert_stopped(d, "joint_state_missing")
+    assert d.controller_mode is None
+    assert d.min_distance_m is None
+
+
+def test_stale_joint_state(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO], joint_age_ms=300)
+    d = cell.step(NOW)
+    assert_stopped(d, "joint_state_stale")
+    # the override echoed with that old state is stale too; nothing else may be reported
+    assert codes(d) <= {"joint_state_stale", "override_path_stale"}
+
+
+def test_invalid_joint_state_latch(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO])
+    cell.store.on_joint_state(keys.robot_state("demo", "ur5"), b'{"schema": "hrc.joint_state/1", "q": [NaN]}', NOW)
+    d = cell.step(NOW)
+    assert_stopped(d, "joint_state_invalid")
+    assert codes(d) == {"joint_state_invalid"}
+    assert "non_finite" in d.faults[0].reason
+
+
+def test_invalid_tracker_latch(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO])
+    cell.store.on_humans(keys.tracker_humans("demo", "side"), b"not json", NOW)
+    d = cell.step(NOW)
+    assert_stopped(d, "tracker_invalid")
+    assert codes(d) == {"tracker_invalid"}
+
+
+def test_override_path_unconfirmed(cell: Cell) -> None:
+    cell.joint(NOW, new_override=False)  # the controller has never echoed an override
+    cell.humans(NOW, [FAR_TORSO])
+    d = cell.step(NOW)
+    assert_stopped(d, "override_path_unconfirmed")
+    assert codes(d) == {"override_path_unconfirmed"}
+    assert d.delay.override_path_s == pytest.approx(0.2)  # unknown latency → max_data_age_s
+
+
+def test_override_path_stale(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO])
+    later = NOW + 300 * MS
+    cell.joint(later, new_override=False)  # fresh states, but they still echo the override of 0.3 s ago
+    cell.humans(later, [FAR_TORSO])
+    d = cell.step(later)
+    assert_stopped(d, "override_path_stale")
+    assert codes(d) == {"override_path_stale"}
+
+
+def test_fault_clears_and_robot_recovers(cell: Cell) -> None:
+    cell.feed(NOW, [FAR_TORSO])
+    assert cell.step(NOW).zone is Zone.AUTONOMOUS
+    cell.store.on_humans(keys.tracker_humans("demo", "front"), b"{", NOW)
+    assert_stopped(cell.step(NOW), "tracker_invalid")
+    t1 = NOW + 20 * MS
+    cell.feed(t1, [FAR_TORSO])
+    d = cell.step(t1)
+    assert d.faults == ()
+    assert (d.zone, d.delta) == (Zone.AUTONOMOUS, 1.0)
+
+
+def test_recovery_follows_the_zone_rules(cell: Cell) -> None:
+    """After a fault the robot resumes through the zones: a nearby human gives reduced speed, not full speed."""
+    cell.feed(NOW, [NEAR_HAND], joint_age_ms=300)
+    assert_stopped(cell.step(NOW), "joint_state_stale")
+    t1 = NOW + 20 * MS
+    cell.feed(t1, [NEAR_HAND])
+    d = cell.step(t1)
+    assert d.faults == ()
+    assert d.zone is Zone.REDUCED_SPEED
+    assert 0.0 < d.delta < 1.0
+
+
+# -- delay ----------------------------------------------------------------------------------------
+
+
+def test_older_human_data_gives_larger_delay_and_no_larger_delta(cell_config: CellConfig, ur5: RobotModel) -> None:
+    ages_ms = [10, 40, 70, 100, 130, 160, 190]
+    decisions = []
+    for age in ages_ms:
+        cell = Cell(cell_config, ur5)
+        cell.feed(NOW, [NEAR_HAND], human_age_ms=age)
+        decisions.append(cell.step(NOW))
+    for d in decisions:
+        assert d.faults == ()
+    t_delay = np.array([d.delay.total_s for d in decisions])
+    np.testing.assert_allclose(np.diff(t_delay), np.diff(ages_ms) / 1000.0)  # the age enters t_delay 1:1
+    bounds = np.array([d.delta_bound for d in decisions])
+    assert (np.diff(bounds) <= 1e-12).all()
+    assert bounds[0] > bounds[-1]  # and it matters here
+    assert (np.array([d.delta for d in decisions]) <= bounds).all()
+
+
+def test_older_joint_state_gives_larger_delay(cell_config: CellConfig, ur5: RobotModel) -> None:
+    results = []
+    for age in (4, 50, 120):
+        cell = Cell(cell_config, ur5)
+        cell.feed(NOW, [NEAR_HAND], joint_age_ms=age)
+        results.append(cell.step(NOW))
+    assert [d.faults for d in results] == [(), (), ()]
+    assert np.diff([d.delay.total_s for d in results]) == pytest.approx([0.046, 0.070])
+    assert results[0].delta_bound >= results[1].delta_bound >= results[2].delta_bound
+    assert results[0].delta_bound > results[2].delta_bound
+
+
+def test_delay_unaware_core_uses_zero_delay(cell_config: CellConfig, ur5: RobotModel) -> None:
+    aware, unaware = Cell(cell_config, ur5), Cell(cell_config, ur5, delay_aware=False)
+    for cell in (aware, unaware):
+        cell.feed(NOW, [NEAR_HAND], human_age_ms=100)
+    d_aware, d_unaware = aware.step(NOW), unaware.step(NOW)
+    assert d_unaware.delay.total_s == 0.0
+    assert all(v == 0.0 for v in d_unaware.delay)
+    assert d_unaware.clearance_m == pytest.approx(0.05 + 1.6 * 0.53)
+    assert d_aware.delay.total_s == pytest.approx(0.164)
+    assert d_unaware.delta_bound > d_aware.delta_bound  # ignoring the delay lets the robot go faster
+
+
+def test_decision_is_deterministic(cell_config: CellConfig, ur5: RobotModel) -> None:
+    a, b = Cell(cell_config, ur5), Cell(cell_config, ur5)
+    for cell in (a, b):
+        cell.feed(NOW, [NEAR_HAND, FAR_TORSO])
+    assert a.step(NOW) == b.step(NOW)
+
+
+def test_random_inputs_invariants(cell_config: CellConfig, ur5: RobotModel) -> None:
+    """Seeded random joint states, humans and ages: δ ∈ [0, 1], δ ≤ bound, δ = 0 with any fault."""
+    rng = np.random.default_rng(31)
+    cell = Cell(cell_config, ur5)
+    seen: Counter[tuple[bool, Zone]] = Counter()
+    now = NOW
+    for _ in range(80):
+        now += 20 * MS
+        q = rng.uniform(-np.pi, np.pi, 6).tolist()
+        qd = rng.uniform(-2.0, 2.0, 6).tolist()
+        capsules = []
+        for k in range(int(rng.integers(0, 4))):
+            a = rng.uniform([-2.5, -2.5, 0.0], [2.5, 2.5, 2.0])
+            b = a + rng.uniform(-0.3, 0.3, 3)
+            capsules.append({"name": f"c{k}", "a": a.tolist(), "b": b.tolist(), "radius": float(rng.uniform(0, 0.15))})
+        cell.joint(now, age_ms=float(rng.uniform(1, 260)), q=q, qd_nominal=qd)
+        cell.humans(now, capsules, age_ms=float(rng.uniform(1, 260)))
+        d = cell.step(now)
+        assert 0.0 <= d.delta <= d.delta_bound <= 1.0
+        seen[(bool(d.faults), d.zone)] += 1
+        if d.faults:
+            assert d.delta == 0.0
+            assert d.zone is Zone.SAFETY_EXCEPTION
+        if d.zone is Zone.SAFETY_EXCEPTION:
+            assert d.delta == 0.0
+        assert d.delay.total_s >= cell_config.safety.t_reaction_s
+    assert seen[(True, Zone.SAFETY_EXCEPTION)] >= 10
+    assert sum(n for (fault, _), n in seen.items() if not fault) >= 20

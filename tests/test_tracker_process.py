@@ -1,0 +1,139 @@
+"""The tracker emulator as a process over loopback Zenoh: rates, seq, capture stamps, liveliness, exits."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from cellrun import REPO_ROOT, free_port, start_program, stop_program
+
+from hrc_common import keys
+from hrc_common.config import load_cell_config
+from hrc_common.messages import Humans, parse_message
+from hrc_common.zenoh_session import session_config
+from tracker_emu.scenario import available_scenarios
+
+pytestmark = pytest.mark.e2e
+
+LATENCY_S = 0.1
+COLLECT_S = 3.0
+
+
+def cell_with_latency(tmp_path: Path, latency_s: float) -> tuple[Path, str]:
+    """A copy of configs/ whose first tracker has the given latency. Returns (cell file, that tracker)."""
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO_ROOT / "configs", configs)
+    cell_path = configs / "cell.toml"
+    tracker = next(iter(load_cell_config(cell_path).trackers))
+    text, count = re.subn(
+        rf"(\[trackers\.{tracker}\][^\[]*?latency_s\s*=\s*)[0-9.eE+-]+",
+        rf"\g<1>{latency_s}",
+        cell_path.read_text(),
+    )
+    assert count == 1, "configs/cell.toml: cannot find the latency_s of the first tracker"
+    cell_path.write_text(text)
+    assert load_cell_config(cell_path).trackers[tracker].latency_s == latency_s
+    return cell_path, tracker
+
+
+def test_publishes_every_tracker_at_its_rate_with_capture_stamps(tmp_path: Path) -> None:
+    cell_path, slow_tracker = cell_with_latency(tmp_path, LATENCY_S)
+    config = load_cell_config(cell_path)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    log_path = tmp_path / "tracker.log"
+    proc = start_program(
+        "tracker_emu.main",
+        ["--config", str(cell_path), "--scenario", "standing_inside", "--zenoh-listen", endpoint, "--seed", "1"],
+        log_path,
+    )
+    received: list[tuple[int, str, bytes]] = []  # (receive time [ns], key, payload)
+    try:
+        with zenoh.open(session_config(connect=[endpoint])) as session:
+            subscriber = session.declare_subscriber(
+                f"hrc/{config.cell}/tracker/*/humans",
+                lambda sample: received.append((time.time_ns(), str(sample.key_expr), sample.payload.to_bytes())),
+            )
+            deadline = time.monotonic() + 10.0
+            while len({key for _, key, _ in received}) < len(config.trackers) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert received, f"no message within 10 s\n{log_path.read_text()}"
+            collected_from = len(received)
+            time.sleep(COLLECT_S)
+            alive = [
+                str(reply.ok.key_expr)
+                for reply in session.liveliness().get(keys.alive(config.cell, "tracker-emu"), timeout=2.0)
+                if reply.ok is not None
+            ]
+            del subscriber
+        assert alive == [keys.alive(config.cell, "tracker-emu")]
+        assert stop_program(proc, signal.SIGINT, timeout_s=5.0) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+    by_tracker: dict[str, list[tuple[int, Humans]]] = defaultdict(list)
+    for recv_ns, key, payload in received[collected_from:]:
+        message = parse_message(payload, Humans)
+        assert key == keys.tracker_humans(config.cell, message.tracker)
+        by_tracker[message.tracker].append((recv_ns, message))
+    assert set(by_tracker) == set(config.trackers)
+    for name, tracker in config.trackers.items():
+        frames = by_tracker[name]
+        recv_s = np.array([r for r, _ in frames]) / 1e9
+        rate_hz = (len(frames) - 1) / (recv_s[-1] - recv_s[0])
+        assert rate_hz == pytest.approx(tracker.rate_hz, rel=0.3), name
+        seqs = np.array([m.seq for _, m in frames])
+        assert np.all(np.diff(seqs) >= 1), name
+        assert np.mean(np.diff(seqs) == 1) > 0.95, name  # seq counts published frames, drops included
+        ages_s = np.array([(r - m.stamp_ns) / 1e9 for r, m in frames])
+        assert np.min(ages_s) >= tracker.latency_s - 0.01, name  # stamped at capture, not at publication
+        assert np.median(ages_s) < tracker.latency_s + 0.05, name
+        assert all(len(m.humans) == 1 and len(m.humans[0].capsules) >= 13 for _, m in frames), name
+    slow_ages_s = [(r - m.stamp_ns) / 1e9 for r, m in by_tracker[slow_tracker]]
+    assert min(slow_ages_s) >= 0.09
+    log = log_path.read_text()
+    assert "playing scenario 'standing_inside'" in log
+    assert "stopped;" in log
+
+
+def test_unknown_scenario_exits_2_listing_the_scenarios() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "tracker_emu.main", "--scenario", "nope", "--zenoh-listen", "tcp/127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        cwd=REPO_ROOT,
+        timeout=30,
+    )
+    assert result.returncode == 2
+    message = result.stderr.strip()
+    assert "\n" not in message
+    assert message.startswith("hrc-tracker-emu: ")
+    assert "unknown scenario 'nope'" in message
+    for name in available_scenarios(REPO_ROOT / "configs" / "scenarios"):
+        assert name in message
+
+
+def test_unknown_tracker_exits_2_listing_the_trackers() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "tracker_emu.main", "--tracker", "nope", "--zenoh-listen", "tcp/127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        cwd=REPO_ROOT,
+        timeout=30,
+    )
+    assert result.returncode == 2
+    message = result.stderr.strip()
+    assert "\n" not in message
+    assert "unknown tracker 'nope'" in message
+    for name in load_cell_config(None).trackers:
+        assert name in message

@@ -1,0 +1,157 @@
+"""The tracker emulator as a step function: which frames are captured and published when. No I/O, no clock.
+
+Every sensor captures at its own ``rate_hz`` from the start of the scenario; a capture takes the true
+humans at that scenario time through the sensor model and queues the measured frame for publication
+``latency_s`` later, stamped with the wall-clock time of the capture. The caller passes the clocks in:
+
+    emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
+    while running:
+        for tracker, message in emulator.step(time.monotonic(), time.time_ns()):
+            publish(tracker, message)
+        sleep until emulator.next_event_s()
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hrc_common.config import TrackerConfig
+from hrc_common.messages import Humans
+from tracker_emu.scenario import Scenario, TrackedHuman, humans_at, scenario_time
+from tracker_emu.sensor import humans_message, measure
+
+
+@dataclass
+class TrackerCounters:
+    """What one emulated sensor did so far.
+
+    Attributes:
+        captured: frames captured (published, queued or dropped).
+        published: frames handed out for publication (= the last ``seq``).
+        dropped: frames lost by the sensor model, never published.
+        skipped: capture instants missed because the caller came late (the loop overran).
+    """
+
+    captured: int = 0
+    published: int = 0
+    dropped: int = 0
+    skipped: int = 0
+
+
+@dataclass
+class _Sensor:
+    name: str
+    config: TrackerConfig
+    rng: np.random.Generator
+    period_s: float
+    next_capture_s: float
+    counters: TrackerCounters = field(default_factory=TrackerCounters)
+
+
+@dataclass(frozen=True, order=True)
+class _Pending:
+    due_s: float
+    order: int
+    tracker: str = field(compare=False)
+    stamp_ns: int = field(compare=False)
+    humans: list[TrackedHuman] = field(compare=False)
+
+
+def tracker_rng(seed: int, tracker: str) -> np.random.Generator:
+    """The random generator of one sensor: fixed by the seed and the sensor's name, whatever else runs."""
+    return np.random.default_rng([seed, zlib.crc32(tracker.encode())])
+
+
+class TrackerEmulator:
+    """Plays a scenario for one or several sensors.
+
+    Args:
+        scenario: the scripted humans.
+        trackers: the sensors to play, by name.
+        seed: seed of the sensors' noise and drops.
+        start_s: monotonic time at which the scenario starts (scenario time 0) [s].
+    """
+
+    def __init__(self, scenario: Scenario, trackers: Mapping[str, TrackerConfig], seed: int, start_s: float) -> None:
+        if not trackers:
+            raise ValueError("at least one tracker is required")
+        self.scenario = scenario
+        self.start_s = start_s
+        self._sensors = {
+            name: _Sensor(name, config, tracker_rng(seed, name), 1.0 / config.rate_hz, start_s)
+            for name, config in trackers.items()
+        }
+        self._pending: list[_Pending] = []
+        self._order = 0
+        self.present_ids: tuple[str, ...] = ()
+        """Ids of the humans present at the latest capture."""
+
+    @property
+    def counters(self) -> dict[str, TrackerCounters]:
+        return {name: sensor.counters for name, sensor in self._sensors.items()}
+
+    def elapsed_s(self, now_s: float) -> float:
+        """Time since the scenario started [s]."""
+        return now_s - self.start_s
+
+    def scenario_time_s(self, now_s: float) -> float:
+        """Scenario time at monotonic time ``now_s`` (wrapped when the scenario loops) [s]."""
+        return scenario_time(self.scenario, self.elapsed_s(now_s))
+
+    def loop_index(self, now_s: float) -> int:
+        """How many times the scenario has restarted by ``now_s`` (0 during the first run)."""
+        return math.floor(max(0.0, self.elapsed_s(now_s)) / self.scenario.duration_s)
+
+    def next_event_s(self) -> float:
+        """Monotonic time of the next capture or publication [s]."""
+        next_capture_s = min(sensor.next_capture_s for sensor in self._sensors.values())
+        return min(next_capture_s, self._pending[0].due_s) if self._pending else next_capture_s
+
+    def step(self, now_s: float, now_ns: int) -> list[tuple[str, Humans]]:
+        """Capture the frames that are due, then hand out the frames whose latency has passed.
+
+        Args:
+            now_s: monotonic time [s].
+            now_ns: wall-clock time at ``now_s``, nanoseconds since the Unix epoch (the capture stamp).
+
+        Returns:
+            ``(tracker, message)`` pairs to publish now, in capture order.
+        """
+        humans_true: list[TrackedHuman] | None = None
+        for sensor in self._sensors.values():
+            if sensor.next_capture_s > now_s:
+                continue
+            if humans_true is None:
+                humans_true = humans_at(self.scenario, self.elapsed_s(now_s))
+                self.present_ids = tuple(h.id for h in humans_true)
+            self._capture(sensor, humans_true, now_s, now_ns)
+        out = []
+        while self._pending and self._pending[0].due_s <= now_s:
+            frame = heapq.heappop(self._pending)
+            counters = self._sensors[frame.tracker].counters
+            counters.published += 1
+            out.append((frame.tracker, humans_message(frame.tracker, counters.published, frame.stamp_ns, frame.humans)))
+        return out
+
+    def _capture(self, sensor: _Sensor, humans_true: list[TrackedHuman], now_s: float, now_ns: int) -> None:
+        sensor.counters.captured += 1
+        measured = measure(humans_true, sensor.rng, sensor.config)
+        if measured is None:
+            sensor.counters.dropped += 1
+        else:
+            self._order += 1
+            heapq.heappush(
+                self._pending, _Pending(now_s + sensor.config.latency_s, self._order, sensor.name, now_ns, measured)
+            )
+        # Next capture on the sensor's own grid; instants already past are skipped, not caught up in a burst.
+        sensor.next_capture_s += sensor.period_s
+        if sensor.next_capture_s <= now_s:
+            missed = math.floor((now_s - sensor.next_capture_s) / sensor.period_s) + 1
+            sensor.counters.skipped += missed
+            sensor.next_capture_s += missed * sensor.period_s

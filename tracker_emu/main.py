@@ -1,0 +1,152 @@
+"""The tracker emulator process: plays a scenario's humans as one or several sensors over Zenoh.
+
+clock → TrackerEmulator.step(now) → publish the frames due → sleep until the next capture or publication
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections.abc import Sequence
+
+import zenoh
+
+from hrc_common import keys
+from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_config
+from hrc_common.messages import to_payload
+from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
+from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
+from tracker_emu.emulator import TrackerEmulator
+from tracker_emu.scenario import Scenario, load_scenario, scenario_path
+
+log = logging.getLogger("hrc-tracker-emu")
+
+PROG = "hrc-tracker-emu"
+PROGRESS_EVERY_S = 5.0
+COMPONENT = "tracker-emu"
+"""Name of the liveliness token: ``hrc/<cell>/alive/tracker-emu``."""
+
+
+def select_trackers(config: CellConfig, names: Sequence[str] | None) -> dict[str, TrackerConfig]:
+    """The trackers to play: the named ones, or all of the cell's when ``names`` is empty or None.
+
+    Raises:
+        ConfigError: a name is not a tracker of the cell; the message lists them.
+    """
+    if not names:
+        return dict(config.trackers)
+    unknown = [n for n in names if n not in config.trackers]
+    if unknown:
+        raise ConfigError(
+            f"unknown tracker {', '.join(map(repr, unknown))}; trackers of cell {config.cell!r}: "
+            f"{', '.join(config.trackers)}"
+        )
+    return {n: config.trackers[n] for n in dict.fromkeys(names)}
+
+
+def select_scenario(config: CellConfig, name: str | None) -> tuple[str, Scenario]:
+    """The scenario to play: the named one or the cell's default, loaded from the cell's scenarios folder.
+
+    Raises:
+        ConfigError: unknown name (the message lists the available scenarios) or invalid file.
+    """
+    name = name or config.default_scenario
+    return name, load_scenario(scenario_path(config.scenarios_dir, name))
+
+
+def _progress(emulator: TrackerEmulator, now_s: float) -> str:
+    counters = "; ".join(
+        f"{name}: {c.published} published, {c.dropped} dropped" + (f", {c.skipped} skipped" if c.skipped else "")
+        for name, c in emulator.counters.items()
+    )
+    return (
+        f"scenario t = {emulator.scenario_time_s(now_s):.1f} s, humans: {', '.join(emulator.present_ids) or 'none'}; "
+        + counters
+    )
+
+
+def main(
+    config: CellConfig,
+    scenario_name: str,
+    scenario: Scenario,
+    trackers: dict[str, TrackerConfig],
+    seed: int,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    stop: threading.Event,
+) -> int:
+    """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code."""
+    cell = config.cell
+    with zenoh.open(session_config(listen, connect)) as session:
+        publishers = {
+            name: session.declare_publisher(
+                keys.tracker_humans(cell, name), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
+            )
+            for name in trackers
+        }
+        token = session.liveliness().declare_token(keys.alive(cell, COMPONENT))
+        emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
+        log.info(
+            "cell %r: playing scenario %r (%.1f s%s: %s) as tracker(s) %s",
+            cell,
+            scenario_name,
+            scenario.duration_s,
+            ", loop" if scenario.loop else "",
+            scenario.description,
+            ", ".join(f"{n} ({t.rate_hz:g} Hz, latency {t.latency_s:g} s)" for n, t in trackers.items()),
+        )
+        next_progress_s = emulator.start_s + PROGRESS_EVERY_S
+        loop_index = 0
+        ended = False
+        while not stop.is_set():
+            now_s = time.monotonic()
+            for name, message in emulator.step(now_s, time.time_ns()):
+                publishers[name].put(to_payload(message))
+            if scenario.loop and emulator.loop_index(now_s) != loop_index:
+                loop_index = emulator.loop_index(now_s)
+                log.info("scenario %r restarts (run %d); %s", scenario_name, loop_index + 1, _progress(emulator, now_s))
+            elif not scenario.loop and not ended and emulator.elapsed_s(now_s) >= scenario.duration_s:
+                ended = True
+                log.info("scenario %r ended; publishing empty frames until stopped", scenario_name)
+            if now_s >= next_progress_s:
+                next_progress_s = now_s + PROGRESS_EVERY_S
+                log.info(_progress(emulator, now_s))
+            stop.wait(max(0.0, min(emulator.next_event_s(), next_progress_s) - time.monotonic()))
+        del token, publishers  # undeclared when the session closes
+    log.info("stopped; %s", _progress(emulator, time.monotonic()))
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog=PROG, description="Tracker emulator: scripted humans as capsules over Zenoh")
+    add_config_argument(parser)
+    parser.add_argument("--scenario", default=None, help="scenario name (default: the cell's default_scenario)")
+    parser.add_argument(
+        "--tracker",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="tracker of the cell to play (repeatable; default: all of them)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise and drops (default 0)")
+    add_zenoh_arguments(parser)
+    args = parser.parse_args(argv)
+    configure_logging(args.log_level)
+    try:
+        config = load_cell_config(args.config)
+        scenario_name, scenario = select_scenario(config, args.scenario)
+        trackers = select_trackers(config, args.tracker)
+    except ConfigError as exc:
+        print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)
+        sys.exit(2)
+    connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
+    with stop_on_signals() as stop:
+        code = main(config, scenario_name, scenario, trackers, args.seed, args.zenoh_listen, connect, stop)
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    cli()

@@ -190,7 +190,9 @@ class SafetyCore:
             delay = DelayBudget(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         t_delay = delay.total_s
         t_brake_max = float(robot.braking_time_s.max())
-        clearance = float(clearance_m(safety, np.array(np.inf), t_brake_max, t_delay))
+        # Δ at the walking speed; where that falls below close_speed_below_m, Δ at the close speed (ISO 13855).
+        clearance_far = clearance_m(safety, np.array(np.inf), t_brake_max, t_delay)
+        clearance = float(clearance_m(safety, clearance_far, t_brake_max, t_delay))
 
         delta_bound = 0.0
         min_distance: float | None = None

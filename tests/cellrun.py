@@ -9,7 +9,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -115,10 +115,8 @@ def running_cell(
         yield cell
     finally:
         for proc in (tracker, controller, gateway):
-            try:
+            with suppress(subprocess.TimeoutExpired):
                 stop_program(proc)
-            except subprocess.TimeoutExpired:
-                pass
 
 
 def record(cell: Cell, duration_s: float, period_s: float = 0.05, robot: str = "ur5") -> list[dict[str, Any]]:

@@ -347,3 +347,25 @@ def test_random_inputs_invariants(cell_config: CellConfig, ur5: RobotModel) -> N
         assert d.delay.total_s >= cell_config.safety.t_reaction_s
     assert seen[(True, Zone.SAFETY_EXCEPTION)] >= 10
     assert sum(n for (fault, _), n in seen.items() if not fault) >= 20
+
+
+def test_adaptive_thresholds_hold_the_peak_programmed_speed(cell_config: CellConfig, ur5: RobotModel) -> None:
+    """'adaptive' thresholds use the largest programmed speed of the last adaptive_speed_hold_s (2 s here)."""
+    fast, slow = [2 * v for v in QD_NOMINAL], [0.1 * v for v in QD_NOMINAL]
+    assert cell_config.zones.thresholds == "adaptive"
+    assert cell_config.zones.adaptive_speed_hold_s == pytest.approx(2.0)
+
+    def reduce_m(cell: Cell, now_ns: int, qd_nominal: list[float]) -> float:
+        cell.joint(now_ns, q=Q, qd_nominal=qd_nominal)
+        cell.humans(now_ns, [FAR_TORSO])
+        d = cell.step(now_ns)
+        assert d.faults == ()
+        return d.thresholds.reduce_m
+
+    reference_fast = reduce_m(Cell(cell_config, ur5), NOW, fast)
+    reference_slow = reduce_m(Cell(cell_config, ur5), NOW, slow)
+    assert reference_fast > reference_slow
+    cell = Cell(cell_config, ur5)
+    assert reduce_m(cell, NOW, fast) == pytest.approx(reference_fast)
+    assert reduce_m(cell, NOW + 1_000 * MS, slow) == pytest.approx(reference_fast)  # held
+    assert reduce_m(cell, NOW + 3_100 * MS, slow) == pytest.approx(reference_slow)  # released after 2 s

@@ -5,17 +5,19 @@ from __future__ import annotations
 import json
 import signal
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
+from cellrun import REPO_ROOT, collapse, is_subsequence, record, running_cell, stop_program
 
 from hrc_common import keys
 from hrc_common.messages import JointState, parse_message
 from hrc_common.zenoh_session import session_config
-from tests.cellrun import REPO_ROOT, collapse, is_subsequence, record, running_cell, stop_program
 
 pytestmark = pytest.mark.e2e
 
@@ -23,12 +25,14 @@ SCENARIO_S = 31.0  # walk_in_reach_leave: nobody, walk in, reach in, leave, nobo
 ZONE_SEQUENCE = ["autonomous", "guarded_distance", "reduced_speed", "safety_exception", "autonomous"]
 
 
-def _cell_config_with_tracker_latency(tmp_path: Path, latency_s: float) -> Path:
+def _cell_config_with_tracker_latency(tmp_path: Path, extra_latency_s: float) -> Path:
+    """A copy of the default cell whose trackers publish ``extra_latency_s`` later than by default."""
     text = (REPO_ROOT / "configs" / "cell.toml").read_text()
     lines = []
     for line in text.splitlines():
         if line.startswith("latency_s"):
-            line = f"latency_s = {latency_s}"
+            nominal_s = float(line.split("=")[1].split("#")[0])
+            line = f"latency_s = {nominal_s + extra_latency_s}"
         lines.append(line)
     text = "\n".join(lines).replace('model = "robots/', f'model = "{REPO_ROOT}/configs/robots/')
     text = text.replace('program = "programs/', f'program = "{REPO_ROOT}/configs/programs/')
@@ -68,13 +72,16 @@ def test_delta_falls_on_approach_and_returns_to_one(nominal_trace: list[dict[str
     assert present, "nobody was ever seen"
     far = [s["delta"] for s in present if s["min_distance_m"] > 3.0]
     near = [s["delta"] for s in present if s["min_distance_m"] < 1.0]
-    assert far and near
+    assert far
+    assert near
     assert statistics.mean(near) < 0.05 < 0.9 < statistics.mean(far)
     closest = min(present, key=lambda s: s["min_distance_m"])
-    assert closest["zone"] == "safety_exception" and closest["delta"] == 0.0
+    assert closest["zone"] == "safety_exception"
+    assert closest["delta"] == 0.0
     assert closest["closest"]["human"].endswith("h1")
     after = [s for s in nominal_trace if s["t_s"] > closest["t_s"] and s["zone"] == "autonomous"]
-    assert after and all(s["delta"] == 1.0 for s in after[-5:])
+    assert after
+    assert all(s["delta"] == 1.0 for s in after[-5:])
     # The gateway never commanded more than the math allowed, and nothing faulted.
     assert all(s["delta"] <= s["delta_bound"] + 1e-9 for s in nominal_trace)
     assert not [s for s in nominal_trace if s["faults"]]
@@ -133,10 +140,12 @@ def test_garbage_on_every_topic_is_counted_and_survived(tmp_path: Path) -> None:
         assert sum(rejected["tracker/front"].values()) >= len(garbage)
         assert rejected["robot/ghost"] == {"unknown_robot": len(garbage)}
         assert rejected["tracker/ghost"] == {"unknown_tracker": len(garbage)}
-        assert rejected["robot/ur5"]["not_json"] >= 2 and rejected["robot/ur5"]["non_finite"] >= 1
+        assert rejected["robot/ur5"]["not_json"] >= 2
+        assert rejected["robot/ur5"]["non_finite"] >= 1
         # Valid data resumes: the faults clear by themselves and the programs are alive.
         cell.wait_until(lambda s: not s["faults"], 5.0, "faults to clear after the garbage")
-        assert cell.gateway.poll() is None and cell.controller.poll() is None
+        assert cell.gateway.poll() is None
+        assert cell.controller.poll() is None
 
 
 def test_controller_stops_on_its_own_when_the_gateway_is_killed(tmp_path: Path) -> None:
@@ -149,7 +158,8 @@ def test_controller_stops_on_its_own_when_the_gateway_is_killed(tmp_path: Path) 
                 lambda sample: states.append(parse_message(sample.payload.to_bytes(), JointState)),
             )
             time.sleep(0.5)
-            assert states and states[-1].mode == "running"
+            assert states
+            assert states[-1].mode == "running"
             cell.gateway.send_signal(signal.SIGKILL)
             cell.gateway.wait(5)
             killed_ns = time.time_ns()
@@ -185,15 +195,14 @@ def test_every_program_exits_cleanly_on_signal(tmp_path: Path, sig: int) -> None
 def test_gateway_refuses_an_unsafe_config_with_one_line(tmp_path: Path) -> None:
     config = _cell_config_with_tracker_latency(tmp_path, 0.0)
     config.write_text(config.read_text().replace("human_speed_mps = 1.6", "human_speed_mps = 1.2"))
-    import subprocess
-    import sys
-
     result = subprocess.run(
         [sys.executable, "-m", "gateway.main", "--config", str(config)], capture_output=True, text=True, timeout=60
     )
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and "human_speed_mps" in lines[0] and "1.6" in lines[0], result.stderr
+    assert len(lines) == 1, result.stderr
+    assert "human_speed_mps" in lines[0], result.stderr
+    assert "1.6" in lines[0], result.stderr
 
 
 def test_status_is_also_published_on_zenoh(tmp_path: Path) -> None:
@@ -208,4 +217,5 @@ def test_status_is_also_published_on_zenoh(tmp_path: Path) -> None:
         assert len(docs) >= 10  # 25 Hz
         assert docs[-1]["robots"]["ur5"]["zone"] in {"guarded_distance", "reduced_speed", "safety_exception"}
         config = cell.get("/api/v1/config").json()
-        assert len(config["config_sha256"]) == 64 and config["robots"]["ur5"]["urdf"].endswith("ur5_robot.urdf")
+        assert len(config["config_sha256"]) == 64
+        assert config["robots"]["ur5"]["urdf"].endswith("ur5_robot.urdf")

@@ -291,14 +291,20 @@ def test_parse_reasons() -> None:
     assert _reason(joint_state_raw(q=[0.0] * 5), JointState) == "invalid"
 
 
-def test_overflowing_number_is_rejected() -> None:
-    # json turns 1e999 into inf without calling parse_constant; the model must still refuse it
+def test_overflowing_number_is_non_finite() -> None:
+    # json turns 1e999 into inf without calling parse_constant: it must still count as non-finite
     payload = _payload(joint_state_raw()).replace(b'"override": 0.62', b'"override": 1e999')
-    with pytest.raises(MessageError):
-        parse_message(payload, JointState)
+    assert _reason(payload, JointState) == "non_finite"
     payload = _payload(capsule_raw()).replace(b'"radius": 0.05', b'"radius": -1e999')
-    with pytest.raises(MessageError):
-        parse_message(payload, Capsule)
+    assert _reason(payload, Capsule) == "non_finite"
+    payload = _payload(override_raw()).replace(b'"delta": 0.62', b'"delta": 1e308')  # large but finite: range
+    assert _reason(payload, Override) == "invalid"
+
+
+def test_deeply_nested_json_is_not_json() -> None:
+    for depth in (1_000, 100_000):
+        assert _reason(b"[" * depth + b"]" * depth, Humans) == "not_json"
+        assert _reason(b'{"a":' * depth + b"1" + b"}" * depth, JointState) == "not_json"
 
 
 def test_message_error_carries_reason_and_detail() -> None:

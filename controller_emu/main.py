@@ -46,11 +46,6 @@ STATS_EVERY_S = 1.0
 PROGRESS_EVERY_S = 5.0
 
 
-def emu_stats_key(cell: str, robot: str) -> str:
-    """Key of the emulator's own statistics (not part of the contract)."""
-    return f"hrc/{cell}/robot/{robot}/emu_stats"
-
-
 class OverrideInbox:
     """The newest valid override from the subscriber, and the payloads rejected while parsing.
 
@@ -178,7 +173,7 @@ def run_controller(
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.DROP,
         )
-        stats_pub = session.declare_publisher(emu_stats_key(cell, robot))
+        stats_pub = session.declare_publisher(keys.robot_emu_stats(cell, robot))
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
         log.info(
             "controller %s of cell %r: program %.2f s per cycle, %.0f Hz; waiting for overrides on %s "

@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import httpx
+import zenoh
+
+from hrc_common import keys
+from hrc_common.zenoh_session import session_config
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,6 +64,7 @@ class Cell:
     gateway_endpoint: str
     controller_endpoint: str
     logs: dict[str, Path] = field(default_factory=dict)
+    name: str = "demo"
 
     @property
     def base_url(self) -> str:
@@ -119,17 +126,34 @@ def running_cell(
                 stop_program(proc)
 
 
-def record(cell: Cell, duration_s: float, period_s: float = 0.05, robot: str = "ur5") -> list[dict[str, Any]]:
-    """Poll one robot's status for ``duration_s``; each entry gets ``t_s`` (since the start)."""
-    trace = []
+def record(
+    cell: Cell,
+    duration_s: float,
+    robot: str = "ur5",
+    until: Callable[[list[dict[str, Any]]], bool] | None = None,
+) -> list[dict[str, Any]]:
+    """Every status document the gateway publishes on Zenoh (25 Hz) for ``duration_s``, or until ``until(trace)``.
+
+    Each entry is the robot's status with ``t_s`` (seconds since the start of the recording).
+    """
+    trace: list[dict[str, Any]] = []
+    lock = threading.Lock()
     start = time.monotonic()
-    while (now := time.monotonic()) - start < duration_s:
-        status = cell.robot(robot)
-        if status is not None:
-            status["t_s"] = now - start
-            trace.append(status)
-        time.sleep(period_s)
-    return trace
+
+    def on_status(sample: zenoh.Sample) -> None:
+        doc = json.loads(sample.payload.to_bytes())
+        with lock:
+            trace.append({**doc["robots"][robot], "t_s": time.monotonic() - start})
+
+    with zenoh.open(session_config(connect=[cell.gateway_endpoint])) as session:
+        session.declare_subscriber(keys.gateway_status(cell.name), on_status)
+        while time.monotonic() - start < duration_s:
+            time.sleep(0.1)
+            with lock:
+                if until is not None and until(trace):
+                    break
+    with lock:
+        return list(trace)
 
 
 def collapse(values: list[str]) -> list[str]:

@@ -17,7 +17,6 @@ from typing import Any
 import pytest
 import zenoh
 
-from controller_emu.main import emu_stats_key
 from hrc_common import keys
 from hrc_common.messages import JointState, Override, parse_message, to_payload
 from hrc_common.zenoh_session import session_config
@@ -109,7 +108,7 @@ def test_controller_follows_overrides_and_stops_on_its_own(
     stats = Recorder(json.loads)
     with zenoh.open(session_config(connect=[endpoint])) as session:
         state_sub = session.declare_subscriber(keys.robot_state(CELL, ROBOT), states.on_sample)
-        stats_sub = session.declare_subscriber(emu_stats_key(CELL, ROBOT), stats.on_sample)
+        stats_sub = session.declare_subscriber(keys.robot_emu_stats(CELL, ROBOT), stats.on_sample)
         pub = session.declare_publisher(keys.robot_override(CELL, ROBOT), express=True)
 
         # Before any override: joint states flow, the robot is in a protective stop.

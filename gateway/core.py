@@ -93,13 +93,13 @@ def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
 class SafetyCore:
     """Holds the per-robot state between cycles (zone, Pinocchio data) and steps all robots."""
 
-    def __init__(self, config: CellConfig, robots: dict[str, RobotModel], delay_aware: bool = True) -> None:
+    def __init__(self, config: CellConfig, robots: dict[str, RobotModel]) -> None:
         self.config = config
         self.robots = robots
         self._data = {name: robot.model.createData() for name, robot in robots.items()}
         self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
         self._speeds: dict[str, deque[tuple[int, float]]] = {name: deque() for name in robots}
-        self._delay_aware = delay_aware
+        self._delay_aware = not config.safety.unsafe_ignore_delay_for_tests
 
     def _held_speed_mps(self, name: str, now_ns: int, speed_mps: float) -> float:
         hold_ns = int(self.config.zones.adaptive_speed_hold_s * NS_PER_S)

@@ -91,12 +91,13 @@ def run_gateway(
     http_host: str,
     http_port: int,
     stop: threading.Event,
-    delay_aware: bool = True,
 ) -> int:
     """Run the gateway until ``stop`` is set. Returns the process exit code."""
     cell = config.cell
     store = InputStore({name: r.n_joints for name, r in robots.items()}, sorted(config.trackers))
-    core = SafetyCore(config, robots, delay_aware=delay_aware)
+    core = SafetyCore(config, robots)
+    if config.safety.unsafe_ignore_delay_for_tests:
+        log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
     period_s = 1.0 / config.gateway.rate_hz
     status_every = max(1, round(config.gateway.rate_hz / config.gateway.status_rate_hz))
     with zenoh.open(session_config(listen, connect)) as session:

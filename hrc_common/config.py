@@ -59,6 +59,9 @@ class SafetyConfig(_Frozen):
     t_reaction_s: NonNegativeFloat = 0.04
     max_data_age_s: PositiveFloat = 0.2
     allow_human_speed_below_iso13855: bool = False
+    unsafe_ignore_delay_for_tests: bool = Field(
+        False, description="TEST ONLY: t_delay = 0, to show that the delay terms matter. Never in a real cell."
+    )
 
     @model_validator(mode="after")
     def _human_speed_is_safe(self) -> SafetyConfig:

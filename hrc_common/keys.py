@@ -24,6 +24,16 @@ def gateway_status(cell: str) -> str:
     return f"hrc/{cell}/gateway/status"
 
 
+def truth_robot_state(cell: str, robot: str) -> str:
+    """Ground truth of the controller emulator (true joint state each cycle); never read by the gateway."""
+    return f"hrc/{cell}/truth/robot/{robot}/state"
+
+
+def truth_humans(cell: str) -> str:
+    """Ground truth of the tracker emulator (true capsules, before noise, drops and latency)."""
+    return f"hrc/{cell}/truth/humans"
+
+
 def alive(cell: str, component: str) -> str:
     return f"hrc/{cell}/alive/{component}"
 

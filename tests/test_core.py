@@ -36,7 +36,10 @@ class Cell:
     def __init__(self, config: CellConfig, ur5: RobotModel, delay_aware: bool = True) -> None:
         self.config = config
         self.store = InputStore({"ur5": ur5.n_joints}, list(config.trackers))
-        self.core = SafetyCore(config, {"ur5": ur5}, delay_aware=delay_aware)
+        if not delay_aware:
+            safety = config.safety.model_copy(update={"unsafe_ignore_delay_for_tests": True})
+            config = config.model_copy(update={"safety": safety})
+        self.core = SafetyCore(config, {"ur5": ur5})
         self.joint_seq = 0
         self.last_joint_stamp_ns: int | None = None
         self.override_seq = -1

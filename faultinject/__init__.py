@@ -1,0 +1,1 @@
+"""Communication fault injection on real Zenoh traffic between real processes."""

@@ -12,7 +12,7 @@ import hashlib
 import json
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -45,10 +45,19 @@ def example_robot_data_dir() -> Path:
     return Path(pinocchio.__file__).resolve().parents[4] / "share" / "example-robot-data" / "robots"
 
 
-class SafetyConfig(_Frozen):
-    """Parameters of the separation criterion (safety-math.md §3–§5)."""
+SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only"]
+"""The override methods the gateway can run (safety-math.md §4, §7, §8; ``gateway/methods.py``)."""
+SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
 
-    method: Literal["zanchettin2016"] = "zanchettin2016"
+
+class SafetyConfig(_Frozen):
+    """Parameters of the separation criterion (safety-math.md §3–§5) and of the selectable methods (§7–§8)."""
+
+    method: SafetyMethod = Field(
+        "zanchettin2016",
+        description="How δ is computed: eq. (15) with the measured delay (default), ISO/TS 15066 SSM, "
+        "three discrete zones on the tool point, or stop-only.",
+    )
     human_speed_mps: PositiveFloat = ISO13855_WALKING_SPEED_MPS
     human_speed_close_mps: PositiveFloat = 2.0
     close_speed_below_m: NonNegativeFloat = Field(
@@ -62,6 +71,50 @@ class SafetyConfig(_Frozen):
     unsafe_ignore_delay_for_tests: bool = Field(
         False, description="TEST ONLY: t_delay = 0, to show that the delay terms matter. Never in a real cell."
     )
+    # -- method "iso15066" (Pupa et al. 2021; safety-math.md §7) -----------------------------------------
+    iso15066_human_uncertainty_m: NonNegativeFloat = Field(
+        0.0, description="Z_d of ISO/TS 15066: position uncertainty of the operator (sensing) [m]."
+    )
+    iso15066_robot_uncertainty_m: NonNegativeFloat = Field(
+        0.0, description="Z_r of ISO/TS 15066: position uncertainty of the robot [m]."
+    )
+    iso15066_joint_acceleration_limit_radps2: PositiveFloat = Field(
+        10.0,
+        description="Joint acceleration limit of QP (12), every joint [rad/s²]; bounds how fast δ may rise.",
+    )
+    # -- method "three_zones" (Marvel 2013; safety-math.md §8) -------------------------------------------
+    three_zones_tool_frame: str | None = Field(
+        None, description="URDF frame of the tool point; None = frame_b of the robot's last link."
+    )
+    three_zones_stop_below_m: NonNegativeFloat = Field(
+        1.0, description="δ = 0 while a human surface is at or below this distance from the tool point [m]."
+    )
+    three_zones_slow_below_m: PositiveFloat = Field(
+        1.8, description="δ = 0.5 at or below this distance (and above the stop distance), else δ = 1 [m]."
+    )
+    # -- replan request, eq. (16) of Pupa et al. 2021 (every method) --------------------------------------
+    replan_delta_below: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.2, description="Request a replan when the commanded δ stays below this for replan_after_s; 0 = never."
+    )
+    replan_after_s: NonNegativeFloat = Field(
+        1.0, description="How long δ must stay below replan_delta_below before a replan is requested [s]."
+    )
+
+    @field_validator("method", mode="before")
+    @classmethod
+    def _known_method(cls, value: object) -> object:
+        if value not in SAFETY_METHODS:
+            raise ValueError(f"unknown method {value!r}; allowed: {', '.join(SAFETY_METHODS)}")
+        return value
+
+    @model_validator(mode="after")
+    def _three_zones_are_ordered(self) -> SafetyConfig:
+        if self.three_zones_slow_below_m <= self.three_zones_stop_below_m:
+            raise ValueError(
+                f"three_zones_slow_below_m = {self.three_zones_slow_below_m} is not beyond "
+                f"three_zones_stop_below_m = {self.three_zones_stop_below_m}; allowed: slow > stop"
+            )
+        return self
 
     @model_validator(mode="after")
     def _human_speed_is_safe(self) -> SafetyConfig:
@@ -95,7 +148,7 @@ class ZonesConfig(_Frozen):
     guard_margin_m: NonNegativeFloat = Field(
         0.5, description="The workspace reaches this far beyond the reduced-speed threshold [m]."
     )
-    hysteresis_m: NonNegativeFloat = 0.05
+    hysteresis_m: NonNegativeFloat = 0.15
     resume_distance_m: NonNegativeFloat = Field(
         0.4, description="Safety exception is left only beyond max(this, clearance + hysteresis) [m]."
     )

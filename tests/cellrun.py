@@ -32,7 +32,7 @@ def free_port() -> int:
 
 
 def start_program(module: str, args: list[str], log_path: Path) -> subprocess.Popen[bytes]:
-    log = log_path.open("wb")
+    log = log_path.open("ab")
     return subprocess.Popen(
         [sys.executable, "-m", module, *args],
         stdout=log,
@@ -55,16 +55,33 @@ def stop_program(proc: subprocess.Popen[bytes], sig: int = signal.SIGINT, timeou
 
 @dataclass
 class Cell:
-    """A running cell: the three programs and where to reach them."""
+    """A running cell: the programs (by name: gateway, controller, tracker[, tracker-2 ...]) and where to reach them."""
 
-    gateway: subprocess.Popen[bytes]
-    controller: subprocess.Popen[bytes]
-    tracker: subprocess.Popen[bytes]
+    procs: dict[str, subprocess.Popen[bytes]]
+    commands: dict[str, tuple[str, list[str]]]
     http_port: int
     gateway_endpoint: str
     controller_endpoint: str
     logs: dict[str, Path] = field(default_factory=dict)
     name: str = "demo"
+
+    @property
+    def gateway(self) -> subprocess.Popen[bytes]:
+        return self.procs["gateway"]
+
+    @property
+    def controller(self) -> subprocess.Popen[bytes]:
+        return self.procs["controller"]
+
+    @property
+    def tracker(self) -> subprocess.Popen[bytes]:
+        return self.procs["tracker"]
+
+    def start(self, name: str) -> subprocess.Popen[bytes]:
+        """(Re)start a program with its original command line; its log is appended to."""
+        module, args = self.commands[name]
+        self.procs[name] = start_program(module, args, self.logs[name])
+        return self.procs[name]
 
     @property
     def base_url(self) -> str:
@@ -100,29 +117,39 @@ class Cell:
 
 @contextmanager
 def running_cell(
-    tmp_path: Path, config: Path | None = None, scenario: str | None = None, seed: int = 0
+    tmp_path: Path,
+    config: Path | None = None,
+    scenario: str | None = None,
+    seed: int = 0,
+    trackers: list[list[str]] | None = None,
 ) -> Iterator[Cell]:
-    """Start gateway, controller emulator and tracker emulator; stop them with SIGINT afterwards."""
+    """Start gateway, controller emulator and tracker emulator(s); stop them with SIGINT afterwards.
+
+    ``trackers``: extra arguments of each tracker emulator process (default: one process, all trackers).
+    """
     gw_port, ctrl_port, http_port = free_port(), free_port(), free_port()
     gw_ep, ctrl_ep = f"tcp/127.0.0.1:{gw_port}", f"tcp/127.0.0.1:{ctrl_port}"
     cfg = ["--config", str(config)] if config else []
-    logs = {name: tmp_path / f"{name}.log" for name in ("gateway", "controller", "tracker")}
-    gateway = start_program(
-        "gateway.main", [*cfg, "--zenoh-listen", gw_ep, "--http-port", str(http_port)], logs["gateway"]
-    )
-    controller = start_program(
-        "controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep], logs["controller"]
-    )
-    tracker_args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed)]
-    tracker = start_program(
-        "tracker_emu.main", [*tracker_args, *(["--scenario", scenario] if scenario else [])], logs["tracker"]
-    )
-    cell = Cell(gateway, controller, tracker, http_port, gw_ep, ctrl_ep, logs)
+    scenario_args = ["--scenario", scenario] if scenario else []
+    commands = {
+        "gateway": ("gateway.main", [*cfg, "--zenoh-listen", gw_ep, "--http-port", str(http_port)]),
+        "controller": ("controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep]),
+    }
+    for i, extra in enumerate(trackers or [[]]):
+        name = "tracker" if i == 0 else f"tracker-{i + 1}"
+        args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed + i), *scenario_args, *extra]
+        commands[name] = ("tracker_emu.main", args)
+    logs = {name: tmp_path / f"{name}.log" for name in commands}
+    cell = Cell({}, commands, http_port, gw_ep, ctrl_ep, logs)
+    for name in commands:
+        cell.start(name)
     try:
         yield cell
     finally:
-        for proc in (tracker, controller, gateway):
-            with suppress(subprocess.TimeoutExpired):
+        for proc in reversed(cell.procs.values()):
+            with suppress(subprocess.TimeoutExpired, ProcessLookupError):
+                if proc.poll() is None:
+                    proc.send_signal(signal.SIGCONT)
                 stop_program(proc)
 
 

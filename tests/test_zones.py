@@ -11,7 +11,7 @@ import pytest
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_common.config import ZonesConfig
 
-CONFIG = ZonesConfig()  # hysteresis 0.05 m, resume 0.4 m, monitored ≥ 1.0 m, guard margin 0.5 m, reduce below 0.98
+CONFIG = ZonesConfig()  # hysteresis 0.15 m, resume 0.4 m, monitored ≥ 1.0 m, guard margin 0.5 m, reduce below 0.98
 # Fixed thresholds for the state-machine tests: protective 0.3, resume 0.4, reduce 0.8, monitored 1.5 [m].
 TH = ZoneThresholds(protective_m=0.3, resume_m=0.4, reduce_m=0.8, monitored_m=1.5)
 
@@ -27,7 +27,7 @@ def test_thresholds_known_answer_adaptive() -> None:
     assert th.reduce_m == pytest.approx(1.0 + math.sqrt(0.75))
     assert (th.reduce_m - 0.5) ** 2 == pytest.approx(0.5 * th.reduce_m * 2.0)  # it solves (d − Δ)² = T d v
     assert th.protective_m == 0.5
-    assert th.resume_m == pytest.approx(0.55)  # max(0.4, Δ + hysteresis)
+    assert th.resume_m == pytest.approx(0.5 + CONFIG.hysteresis_m)  # max(0.4, Δ + hysteresis)
     assert th.monitored_m == pytest.approx(1.0 + math.sqrt(0.75) + 0.5)  # reduce + guard margin > 1.0
 
 
@@ -88,7 +88,8 @@ def test_far_near_touching_far_sequence() -> None:
 
 def test_distance_oscillating_around_monitored_does_not_chatter() -> None:
     rng = np.random.default_rng(6)
-    wobble = rng.uniform(-0.049, 0.049, 200)  # less than hysteresis_m = 0.05
+    h = CONFIG.hysteresis_m
+    wobble = rng.uniform(-0.98 * h, 0.98 * h, 200)  # less than hysteresis_m
     zones = _run([(TH.monitored_m + w, 1.0) for w in wobble])
     changes = sum(a != b for a, b in itertools.pairwise(zones))
     assert changes == 0 or (changes == 1 and zones[-1] is G)
@@ -98,7 +99,8 @@ def test_distance_oscillating_around_monitored_does_not_chatter() -> None:
 
 def test_hysteresis_is_needed_for_a_larger_wobble() -> None:
     """Oscillating by more than the hysteresis does switch: the test above would catch a missing hysteresis."""
-    zones = _run([(TH.monitored_m - 0.06, 1.0), (TH.monitored_m + 0.06, 1.0)] * 3)
+    above_m = CONFIG.hysteresis_m + 0.01
+    zones = _run([(TH.monitored_m - 0.06, 1.0), (TH.monitored_m + above_m, 1.0)] * 3)
     assert zones == [G, A] * 3
 
 

@@ -15,7 +15,8 @@ import numpy as np
 from gateway.delay import NS_PER_S, DelayBudget
 from gateway.inputs import InputSnapshot, JointSample
 from gateway.kinematics import link_kinematics
-from gateway.metric import NO_HUMANS, HumanCapsules, build_rows, clearance_m, override_from_rows
+from gateway.methods import MethodInput, ReplanMonitor, build_method
+from gateway.metric import NO_HUMANS, HumanCapsules, build_rows, clearance_m
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_common.config import CellConfig
 from hrc_common.robot_model import RobotModel
@@ -37,13 +38,16 @@ class RobotDecision(NamedTuple):
 
     Attributes:
         delta: the override to command, in [0, 1].
-        delta_bound: δ allowed by eq. (15) alone this cycle (before faults and the exception latch).
+        delta_bound: δ allowed by the configured method alone this cycle (``safety.method``; eq. (15) by
+            default), before faults and the exception latch.
         min_distance_m: smallest surface distance to any human, None with nobody seen [m].
         closest: the pair at ``min_distance_m``.
         delay: the parts of t_delay used [s].
         clearance_m: Δ at the nominal human speed [m].
         data_age_s: age of the newest data of each input at decision time, None if none yet [s].
         controller_mode: mode reported by the controller, None before its first state.
+        replan_request: eq. (16) of Pupa et al. 2021: δ has stayed below ``safety.replan_delta_below``
+            for ``safety.replan_after_s`` (never while faulted).
     """
 
     robot: str
@@ -58,6 +62,7 @@ class RobotDecision(NamedTuple):
     faults: tuple[Fault, ...]
     data_age_s: dict[str, float | None]
     controller_mode: str | None
+    replan_request: bool = False
 
 
 def _peak_hold(window: deque[tuple[int, float]], now_ns: int, value: float, hold_ns: int) -> float:
@@ -100,6 +105,11 @@ class SafetyCore:
         self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
         self._speeds: dict[str, deque[tuple[int, float]]] = {name: deque() for name in robots}
         self._delay_aware = not config.safety.unsafe_ignore_delay_for_tests
+        self._method = build_method(config.safety, robots)
+        self._previous_delta = dict.fromkeys(robots, 0.0)
+        self._replan = {
+            name: ReplanMonitor(config.safety.replan_delta_below, config.safety.replan_after_s) for name in robots
+        }
 
     def _held_speed_mps(self, name: str, now_ns: int, speed_mps: float) -> float:
         hold_ns = int(self.config.zones.adaptive_speed_hold_s * NS_PER_S)
@@ -207,7 +217,20 @@ class SafetyCore:
                 )
             )
             rows = build_rows(links, robot.link_radius_m, robot.t_brake_link_s, t_brake_max, humans, safety, t_delay)
-            delta_bound = override_from_rows(rows)
+            delta_bound = self._method.bound(
+                MethodInput(
+                    robot,
+                    self._data[name],
+                    links,
+                    rows,
+                    humans,
+                    joint.qd_nominal_radps,
+                    t_delay,
+                    clearance,
+                    self._previous_delta[name],
+                    gateway_period_s,
+                )
+            )
             if humans.n_capsules:
                 i, j = np.unravel_index(int(np.argmin(rows.surface_distance_m)), rows.surface_distance_m.shape)
                 min_distance = float(rows.surface_distance_m[i, j])
@@ -223,6 +246,8 @@ class SafetyCore:
             zone = next_zone(self._zones[name], min_distance, delta_bound, thresholds, self.config.zones)
             delta = commanded_override(zone, delta_bound)
         self._zones[name] = zone
+        self._previous_delta[name] = delta
+        replan = self._replan[name].update(now_ns, delta, faulted=bool(faults))
         ages = {"joint_state": joint_age, **tracker_ages}
         return RobotDecision(
             robot=name,
@@ -237,4 +262,5 @@ class SafetyCore:
             faults=tuple(faults),
             data_age_s=ages,
             controller_mode=joint.mode if joint else None,
+            replan_request=replan,
         )

@@ -86,6 +86,7 @@ def _log_changes(previous: dict[str, RobotDecision], decisions: dict[str, RobotD
 def run_gateway(
     config: CellConfig,
     robots: dict[str, RobotModel],
+    core: SafetyCore,
     listen: list[str],
     connect: list[str],
     http_host: str,
@@ -95,7 +96,6 @@ def run_gateway(
     """Run the gateway until ``stop`` is set. Returns the process exit code."""
     cell = config.cell
     store = InputStore({name: r.n_joints for name, r in robots.items()}, sorted(config.trackers))
-    core = SafetyCore(config, robots)
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
     period_s = 1.0 / config.gateway.rate_hz
@@ -212,6 +212,7 @@ def cli(argv: list[str] | None = None) -> None:
     try:
         config = load_cell_config(args.config)
         robots = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
+        core = SafetyCore(config, robots)
     except ConfigError as exc:
         print(f"hrc-gateway: invalid configuration: {exc}", file=sys.stderr)
         sys.exit(2)
@@ -220,6 +221,7 @@ def cli(argv: list[str] | None = None) -> None:
         code = run_gateway(
             config,
             robots,
+            core,
             listen,
             args.zenoh_connect,
             args.http_host or config.gateway.http_host,

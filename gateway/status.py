@@ -29,6 +29,7 @@ def robot_status(decision: RobotDecision, override_seq: int) -> dict[str, Any]:
         "data_age_s": {k: _round(v) for k, v in decision.data_age_s.items()},
         "faults": [f._asdict() for f in decision.faults],
         "controller_mode": decision.controller_mode,
+        "replan_request": decision.replan_request,
     }
 
 

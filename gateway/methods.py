@@ -1,0 +1,217 @@
+"""The override methods the gateway can run, selected by ``safety.method`` (safety-math.md §4, §7, §8).
+
+Each method reduces one decision of one robot (kinematics, eq. (15) rows, humans, the measured delay)
+to one δ bound in [0, 1]. Faults, zones and the safety-exception latch are applied after it by
+:class:`gateway.core.SafetyCore`, the same for every method, so no method can command δ > 0 on a fault.
+
+- ``zanchettin2016`` — eq. (15) with the measured delay (:mod:`gateway.metric`), the default.
+- ``iso15066`` — ISO/TS 15066 speed and separation monitoring with the joint limits, QP (12) of
+  Pupa et al. 2021 in closed form (:mod:`gateway.iso15066`).
+- ``three_zones`` — Marvel 2013: δ = 0 / 0.5 / 1 from the distance of the tool point to the nearest
+  human surface (``three_zones_stop_below_m``, ``three_zones_slow_below_m``), the tool point only.
+- ``stop_only`` — δ = 0 while any human surface is within the protective distance (the clearance Δ of
+  the decision, safety-math.md §3) of any link, else 1.
+
+Default three-zone thresholds (``configs/cell.toml``): the ISO/TS 15066 protective distance S_p of a tool
+moving straight at the human, with v_h = 1.6 m/s, T_r = 0.15 s (the default cell's measured chain,
+≈ 0.13 s, rounded up), the UR5's worst braking time t_b = 0.53 s (T_s = δ t_b), C = 0.05 m, and the
+largest programmed link speed 1.5 m/s (``zones.fixed_speed_mps``; the shipped program peaks at 1.27 m/s):
+at δ = 1 S_p = 1.6·0.68 + 1.5·0.15 + 1.5·0.53/2 + 0.05 = 1.76 m → slow below 1.8 m; at δ = 0.5
+S_p = 1.6·0.415 + 0.75·0.15 + 0.75·0.265/2 + 0.05 = 0.93 m → stop below 1.0 m.
+
+Eq. (16) of Pupa et al. 2021, the replan request, is :class:`ReplanMonitor`: the status flag is raised
+while the commanded δ has stayed below ``replan_delta_below`` for ``replan_after_s``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from gateway import iso15066
+from gateway.delay import NS_PER_S
+from gateway.kinematics import LinkKinematics
+from gateway.metric import ConstraintRows, HumanCapsules, override_from_rows
+from hrc_common.config import ConfigError, SafetyConfig
+from hrc_common.robot_model import RobotModel
+
+FloatArray = npt.NDArray[np.float64]
+
+REDUCED_DELTA = 0.5
+"""δ of the middle zone of ``three_zones`` (Marvel 2013)."""
+
+
+class MethodInput(NamedTuple):
+    """One decision of one robot, as every method sees it.
+
+    Attributes:
+        robot: the robot's model.
+        data: its Pinocchio data, with the frame placements of this decision (after ``link_kinematics``).
+        links: link end points and velocities at the programmed speed [m, m/s].
+        rows: the eq. (15) rows of this decision (surface distances included).
+        humans: all human capsules seen.
+        qd_nominal_radps: programmed joint velocity at 100 % override [rad/s].
+        t_delay_s: the measured delay of the whole chain [s].
+        clearance_m: the protective distance Δ of this decision [m].
+        previous_delta: δ commanded in the previous cycle (after faults and zones).
+        period_s: the gateway period [s].
+    """
+
+    robot: RobotModel
+    data: pin.Data
+    links: LinkKinematics
+    rows: ConstraintRows
+    humans: HumanCapsules
+    qd_nominal_radps: FloatArray
+    t_delay_s: float
+    clearance_m: float
+    previous_delta: float
+    period_s: float
+
+
+class OverrideMethod(Protocol):
+    """A method: one decision → one δ bound in [0, 1]."""
+
+    name: str
+
+    def bound(self, x: MethodInput) -> float: ...
+
+
+class Zanchettin2016:
+    """Eq. (15) with the measured delay: the minimum of the row bounds (safety-math.md §4)."""
+
+    name = "zanchettin2016"
+
+    def bound(self, x: MethodInput) -> float:
+        return override_from_rows(x.rows)
+
+
+class Iso15066:
+    """ISO/TS 15066 SSM with the joint limits: QP (12) of Pupa et al. 2021 in closed form (safety-math.md §7)."""
+
+    name = "iso15066"
+
+    def __init__(self, safety: SafetyConfig) -> None:
+        self.safety = safety
+
+    def bound(self, x: MethodInput) -> float:
+        rows = iso15066.build_rows(
+            x.links, x.robot.link_radius_m, x.robot.t_brake_link_s, x.humans, self.safety, x.t_delay_s
+        )
+        joints = iso15066.joint_limit_bound(
+            x.qd_nominal_radps,
+            x.robot.velocity_limit_radps,
+            self.safety.iso15066_joint_acceleration_limit_radps2,
+            x.previous_delta,
+            x.period_s,
+        )
+        return iso15066.override(rows, joints)
+
+
+def point_surface_distance_m(p_world: FloatArray, humans: HumanCapsules) -> float:
+    """Distance of a point to the nearest human capsule surface, inf with nobody seen [m]."""
+    if not humans.n_capsules:
+        return float("inf")
+    d = humans.h_b_world - humans.h_a_world
+    length2 = (d * d).sum(-1)
+    safe = np.where(length2 > 1e-12, length2, 1.0)
+    t = np.where(length2 > 1e-12, np.clip(((p_world - humans.h_a_world) * d).sum(-1) / safe, 0.0, 1.0), 0.0)
+    axis = np.linalg.norm(humans.h_a_world + t[:, None] * d - p_world, axis=-1)
+    return float(np.maximum(0.0, axis - humans.radius_m).min())
+
+
+def three_zones_override(distance_m: float, stop_below_m: float, slow_below_m: float) -> float:
+    """Marvel 2013: 0 at or below ``stop_below_m``, 0.5 at or below ``slow_below_m``, else 1."""
+    if distance_m <= stop_below_m:
+        return 0.0
+    if distance_m <= slow_below_m:
+        return REDUCED_DELTA
+    return 1.0
+
+
+class ThreeZones:
+    """Three discrete zones on the tool point only (Marvel 2013; safety-math.md §8).
+
+    The tool point is ``three_zones_tool_frame`` of each robot's URDF, or the ``frame_b`` of its last link.
+    """
+
+    name = "three_zones"
+
+    def __init__(self, safety: SafetyConfig, robots: dict[str, RobotModel]) -> None:
+        self.safety = safety
+        self._tool_frame_id: dict[str, int | None] = {}
+        frame = safety.three_zones_tool_frame
+        for name, robot in robots.items():
+            if frame is None:
+                self._tool_frame_id[name] = None
+            elif robot.model.existFrame(frame):
+                self._tool_frame_id[name] = int(robot.model.getFrameId(frame))
+            else:
+                frames = ", ".join(f.name for f in robot.model.frames)
+                raise ConfigError(
+                    f"safety.three_zones_tool_frame = {frame!r} is not a frame of robot {name!r}; allowed: {frames}"
+                )
+
+    def tool_point_world(self, x: MethodInput) -> FloatArray:
+        """The tool point in the world frame [m]."""
+        frame_id = self._tool_frame_id[x.robot.name]
+        if frame_id is None:
+            return np.asarray(x.links.p_b_world[-1], dtype=float)
+        p_base = np.asarray(x.data.oMf[frame_id].translation, dtype=float)
+        return np.asarray(x.robot.R_world_base @ p_base + x.robot.p_world_base, dtype=float)
+
+    def bound(self, x: MethodInput) -> float:
+        distance = point_surface_distance_m(self.tool_point_world(x), x.humans)
+        return three_zones_override(
+            distance, self.safety.three_zones_stop_below_m, self.safety.three_zones_slow_below_m
+        )
+
+
+class StopOnly:
+    """δ = 0 while any human is within the protective distance Δ of any link, else 1 (safety-math.md §8)."""
+
+    name = "stop_only"
+
+    def bound(self, x: MethodInput) -> float:
+        d = x.rows.surface_distance_m
+        return 0.0 if d.size and float(d.min()) <= x.clearance_m else 1.0
+
+
+def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> OverrideMethod:
+    """The method named by ``safety.method``, checked against the robots.
+
+    Raises:
+        ConfigError: ``three_zones_tool_frame`` is not a frame of every robot.
+    """
+    if safety.method == "iso15066":
+        return Iso15066(safety)
+    if safety.method == "three_zones":
+        return ThreeZones(safety, robots)
+    if safety.method == "stop_only":
+        return StopOnly()
+    return Zanchettin2016()
+
+
+class ReplanMonitor:
+    """Eq. (16) of Pupa et al. 2021: request a replan once δ has stayed below a threshold for a while.
+
+    A faulted decision clears the request and restarts the wait: replanning cannot help while the
+    gateway cannot see, and the request is about a robot that people keep slow, not one that is blind.
+    """
+
+    def __init__(self, delta_below: float, after_s: float) -> None:
+        self.delta_below = delta_below
+        self._after_ns = int(after_s * NS_PER_S)
+        self._below_since_ns: int | None = None
+
+    def update(self, now_ns: int, delta: float, faulted: bool) -> bool:
+        """Record the commanded δ of a decision at ``now_ns``; True while a replan is requested."""
+        if faulted or delta >= self.delta_below:
+            self._below_since_ns = None
+            return False
+        if self._below_since_ns is None:
+            self._below_since_ns = now_ns
+        return now_ns - self._below_since_ns >= self._after_ns

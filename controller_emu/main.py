@@ -1,7 +1,11 @@
 """The controller emulator process: override in over Zenoh, program step, joint state out every cycle.
 
 newest override (OverrideInbox.take) → accept_override → step(state, trajectory, config, now, dt)
-→ joint_state → publish → rate.sleep()
+→ joint_state → publish (state and ground truth) → rate.sleep()
+
+The same joint state also goes out on the ground-truth key (``hrc/<cell>/truth/robot/<robot>/state``) for
+the auditor: the emulator knows its true state exactly, so truth and report are the same message here. A
+fault injector may delay or drop the report on its way to the gateway; the truth key is not for the gateway.
 """
 
 from __future__ import annotations
@@ -173,6 +177,11 @@ def run_controller(
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.DROP,
         )
+        truth_pub = session.declare_publisher(
+            keys.truth_robot_state(cell, robot),
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
         stats_pub = session.declare_publisher(keys.robot_emu_stats(cell, robot))
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
         log.info(
@@ -201,7 +210,9 @@ def run_controller(
                     if reason is not None:
                         log.debug("override seq %d rejected: %s", override.seq, reason)
                 state = step(state, trajectory, config, now_ns * 1e-9, dt_s)
-                state_pub.put(to_payload(joint_state(state, trajectory, robot, seq, now_ns)))
+                payload = to_payload(joint_state(state, trajectory, robot, seq, now_ns))
+                state_pub.put(payload)
+                truth_pub.put(payload)
                 seq += 1
                 if state.mode != before.mode:
                     _log_mode_change(before, state, config, now_ns * 1e-9)

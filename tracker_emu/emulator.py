@@ -155,3 +155,52 @@ class TrackerEmulator:
             missed = math.floor((now_s - sensor.next_capture_s) / sensor.period_s) + 1
             sensor.counters.skipped += missed
             sensor.next_capture_s += missed * sensor.period_s
+
+
+TRUTH_TRACKER = "truth"
+"""``tracker`` field of the ground-truth messages (``hrc/<cell>/truth/humans``)."""
+
+
+class TruthSampler:
+    """The true humans at a fixed rate, for the auditor: no noise, no drops, no latency.
+
+    Samples the scenario on its own grid from the scenario start (``start_s``); each sample is stamped
+    with the wall-clock time of that instant and handed out at once. Instants missed by a late caller are
+    skipped (counted), not caught up in a burst.
+
+    Args:
+        scenario: the scripted humans.
+        rate_hz: sampling rate [Hz] (> 0).
+        start_s: monotonic time of scenario time 0 (the :class:`TrackerEmulator`'s ``start_s``) [s].
+    """
+
+    def __init__(self, scenario: Scenario, rate_hz: float, start_s: float) -> None:
+        if not (rate_hz > 0.0 and math.isfinite(rate_hz)):
+            raise ValueError(f"truth rate {rate_hz} Hz; allowed: a finite rate > 0")
+        self.scenario = scenario
+        self.start_s = start_s
+        self.period_s = 1.0 / rate_hz
+        self._next_index = 0  # the grid is start_s + k · period_s: no drift from adding periods up
+        self.published = 0
+        self.skipped = 0
+
+    def next_event_s(self) -> float:
+        """Monotonic time of the next truth sample [s]."""
+        return self.start_s + self._next_index * self.period_s
+
+    def step(self, now_s: float, now_ns: int) -> Humans | None:
+        """The truth message of this instant if a sample is due, else None.
+
+        Args:
+            now_s: monotonic time [s].
+            now_ns: wall-clock time at ``now_s``, nanoseconds since the Unix epoch (the stamp).
+        """
+        if now_s < self.next_event_s():
+            return None
+        # The next instant after now on the grid; the ones in between are skipped, not caught up.
+        following = max(self._next_index + 1, math.floor((now_s - self.start_s) / self.period_s) + 1)
+        self.skipped += following - self._next_index - 1
+        self._next_index = following
+        self.published += 1
+        humans = humans_at(self.scenario, now_s - self.start_s)
+        return humans_message(TRUTH_TRACKER, self.published, now_ns, humans)

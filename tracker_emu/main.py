@@ -1,6 +1,11 @@
 """The tracker emulator process: plays a scenario's humans as one or several sensors over Zenoh.
 
-clock → TrackerEmulator.step(now) → publish the frames due → sleep until the next capture or publication
+clock → TrackerEmulator.step(now) → publish the frames due → TruthSampler.step(now) → publish the truth
+→ sleep until the next capture, publication or truth sample
+
+The ground truth (the scenario's capsules before noise, drops and latency) goes out at ``--truth-rate-hz``
+on ``hrc/<cell>/truth/humans`` as a humans message of tracker ``truth``, stamped and published at once.
+It is for the auditor; the gateway subscribes only to ``hrc/<cell>/tracker/*/humans``.
 """
 
 from __future__ import annotations
@@ -19,13 +24,15 @@ from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_
 from hrc_common.messages import to_payload
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
-from tracker_emu.emulator import TrackerEmulator
+from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
 
 log = logging.getLogger("hrc-tracker-emu")
 
 PROG = "hrc-tracker-emu"
 PROGRESS_EVERY_S = 5.0
+DEFAULT_TRUTH_RATE_HZ = 100.0
+MAX_TRUTH_RATE_HZ = 1000.0
 COMPONENT = "tracker-emu"
 """Name of the liveliness token: ``hrc/<cell>/alive/tracker-emu``."""
 
@@ -77,8 +84,12 @@ def main(
     listen: Sequence[str],
     connect: Sequence[str],
     stop: threading.Event,
+    truth_rate_hz: float = DEFAULT_TRUTH_RATE_HZ,
 ) -> int:
-    """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code."""
+    """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code.
+
+    ``truth_rate_hz``: rate of the ground truth on ``hrc/<cell>/truth/humans`` [Hz]; 0 publishes none.
+    """
     cell = config.cell
     with zenoh.open(session_config(listen, connect)) as session:
         publishers = {
@@ -87,8 +98,12 @@ def main(
             )
             for name in trackers
         }
+        truth_pub = session.declare_publisher(
+            keys.truth_humans(cell), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
+        )
         token = session.liveliness().declare_token(keys.alive(cell, COMPONENT))
         emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
+        truth = TruthSampler(scenario, truth_rate_hz, emulator.start_s) if truth_rate_hz > 0.0 else None
         log.info(
             "cell %r: playing scenario %r (%.1f s%s: %s) as tracker(s) %s",
             cell,
@@ -103,8 +118,12 @@ def main(
         ended = False
         while not stop.is_set():
             now_s = time.monotonic()
-            for name, message in emulator.step(now_s, time.time_ns()):
+            now_ns = time.time_ns()
+            for name, message in emulator.step(now_s, now_ns):
                 publishers[name].put(to_payload(message))
+            truth_message = truth.step(now_s, now_ns) if truth is not None else None
+            if truth_message is not None:
+                truth_pub.put(to_payload(truth_message))
             if scenario.loop and emulator.loop_index(now_s) != loop_index:
                 loop_index = emulator.loop_index(now_s)
                 log.info("scenario %r restarts (run %d); %s", scenario_name, loop_index + 1, _progress(emulator, now_s))
@@ -114,8 +133,11 @@ def main(
             if now_s >= next_progress_s:
                 next_progress_s = now_s + PROGRESS_EVERY_S
                 log.info(_progress(emulator, now_s))
-            stop.wait(max(0.0, min(emulator.next_event_s(), next_progress_s) - time.monotonic()))
-        del token, publishers  # undeclared when the session closes
+            next_s = min(emulator.next_event_s(), next_progress_s)
+            if truth is not None:
+                next_s = min(next_s, truth.next_event_s())
+            stop.wait(max(0.0, next_s - time.monotonic()))
+        del token, publishers, truth_pub  # undeclared when the session closes
     log.info("stopped; %s", _progress(emulator, time.monotonic()))
     return 0
 
@@ -132,8 +154,23 @@ def cli(argv: list[str] | None = None) -> None:
         help="tracker of the cell to play (repeatable; default: all of them)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the sensor noise and drops (default 0)")
+    parser.add_argument(
+        "--truth-rate-hz",
+        type=float,
+        default=DEFAULT_TRUTH_RATE_HZ,
+        metavar="HZ",
+        help="rate of the ground truth on hrc/<cell>/truth/humans, for the auditor "
+        f"(default {DEFAULT_TRUTH_RATE_HZ:g}; 0 = none)",
+    )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
+    if not 0.0 <= args.truth_rate_hz <= MAX_TRUTH_RATE_HZ:  # also rejects NaN
+        print(
+            f"{PROG}: invalid configuration: --truth-rate-hz {args.truth_rate_hz}; allowed: 0 (none) to "
+            f"{MAX_TRUTH_RATE_HZ:g} Hz",
+            file=sys.stderr,
+        )
+        sys.exit(2)
     configure_logging(args.log_level)
     try:
         config = load_cell_config(args.config)
@@ -144,7 +181,17 @@ def cli(argv: list[str] | None = None) -> None:
         sys.exit(2)
     connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
     with stop_on_signals() as stop:
-        code = main(config, scenario_name, scenario, trackers, args.seed, args.zenoh_listen, connect, stop)
+        code = main(
+            config,
+            scenario_name,
+            scenario,
+            trackers,
+            args.seed,
+            args.zenoh_listen,
+            connect,
+            stop,
+            truth_rate_hz=args.truth_rate_hz,
+        )
     sys.exit(code)
 
 

@@ -101,9 +101,10 @@ def run_gateway(
     period_s = 1.0 / config.gateway.rate_hz
     status_every = max(1, round(config.gateway.rate_hz / config.gateway.status_rate_hz))
     with zenoh.open(session_config(listen, connect)) as session:
+        states_key, humans_key = keys.gateway_subscriptions(cell)
         subscribers = [
-            session.declare_subscriber(f"hrc/{cell}/robot/*/state", _callback(store, "robot")),
-            session.declare_subscriber(f"hrc/{cell}/tracker/*/humans", _callback(store, "tracker")),
+            session.declare_subscriber(states_key, _callback(store, "robot")),
+            session.declare_subscriber(humans_key, _callback(store, "tracker")),
         ]
         override_pubs = {
             name: session.declare_publisher(

@@ -20,6 +20,11 @@ def tracker_humans(cell: str, tracker: str) -> str:
     return f"hrc/{cell}/tracker/{tracker}/humans"
 
 
+def gateway_subscriptions(cell: str) -> tuple[str, str]:
+    """What the gateway reads: every robot's joint state and every tracker's humans (never the truth keys)."""
+    return f"hrc/{cell}/robot/*/state", f"hrc/{cell}/tracker/*/humans"
+
+
 def gateway_status(cell: str) -> str:
     return f"hrc/{cell}/gateway/status"
 

@@ -4,7 +4,6 @@ the controller's true joint state each cycle, on ``truth`` keys that the gateway
 
 from __future__ import annotations
 
-import re
 import signal
 import statistics
 import subprocess
@@ -39,11 +38,8 @@ def _wall_ns(now_s: float) -> int:
 
 
 def _gateway_subscriptions() -> list[str]:
-    """The key expressions the gateway subscribes to, read from its source (cell 'demo')."""
-    source = (REPO_ROOT / "gateway" / "main.py").read_text()
-    found = re.findall(r'declare_subscriber\(\s*f"([^"]+)"', source)
-    assert len(found) >= 2, "gateway/main.py: subscriptions not found; update this test"
-    return [f.replace("{cell}", "demo") for f in found]
+    """The key expressions the gateway subscribes to (gateway/main.py declares exactly these)."""
+    return list(keys.gateway_subscriptions("demo"))
 
 
 def test_truth_keys_are_never_read_by_the_gateway() -> None:

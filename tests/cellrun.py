@@ -64,6 +64,7 @@ class Cell:
     controller_endpoint: str
     logs: dict[str, Path] = field(default_factory=dict)
     name: str = "demo"
+    relay_endpoint: str = ""
 
     @property
     def gateway(self) -> subprocess.Popen[bytes]:
@@ -122,25 +123,30 @@ def running_cell(
     scenario: str | None = None,
     seed: int = 0,
     trackers: list[list[str]] | None = None,
+    controller_relay: list[str] | None = None,
 ) -> Iterator[Cell]:
     """Start gateway, controller emulator and tracker emulator(s); stop them with SIGINT afterwards.
 
     ``trackers``: extra arguments of each tracker emulator process (default: one process, all trackers).
+    ``controller_relay``: if given, the controller reaches the gateway only through ``hrc-fault-relay``
+    (these are its extra arguments); the relay's side A listens on ``cell.relay_endpoint``.
     """
     gw_port, ctrl_port, http_port = free_port(), free_port(), free_port()
     gw_ep, ctrl_ep = f"tcp/127.0.0.1:{gw_port}", f"tcp/127.0.0.1:{ctrl_port}"
     cfg = ["--config", str(config)] if config else []
     scenario_args = ["--scenario", scenario] if scenario else []
-    commands = {
-        "gateway": ("gateway.main", [*cfg, "--zenoh-listen", gw_ep, "--http-port", str(http_port)]),
-        "controller": ("controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep]),
-    }
+    relay_ep = f"tcp/127.0.0.1:{free_port()}"
+    commands = {"gateway": ("gateway.main", [*cfg, "--zenoh-listen", gw_ep, "--http-port", str(http_port)])}
+    if controller_relay is not None:
+        commands["relay"] = ("faultinject.relay", ["--a-listen", relay_ep, "--b-connect", gw_ep, *controller_relay])
+    upstream = relay_ep if controller_relay is not None else gw_ep
+    commands["controller"] = ("controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", upstream])
     for i, extra in enumerate(trackers or [[]]):
         name = "tracker" if i == 0 else f"tracker-{i + 1}"
         args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed + i), *scenario_args, *extra]
         commands[name] = ("tracker_emu.main", args)
     logs = {name: tmp_path / f"{name}.log" for name in commands}
-    cell = Cell({}, commands, http_port, gw_ep, ctrl_ep, logs)
+    cell = Cell({}, commands, http_port, gw_ep, ctrl_ep, logs, relay_endpoint=relay_ep)
     for name in commands:
         cell.start(name)
     try:

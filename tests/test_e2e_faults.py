@@ -5,6 +5,7 @@ program crashes, the fault shows in ``GET /api/v1/status`` with a reason, and op
 
 from __future__ import annotations
 
+import json
 import signal
 import threading
 import time
@@ -185,3 +186,22 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
             publish_for(1.0)
             assert _healthy(cell.robot() or {"faults": [1]}), cell.robot()
         _assert_alive(cell, "gateway", "controller", "tracker")
+
+
+def test_partition_between_gateway_and_controller_stops_and_resumes(tmp_path: Path) -> None:
+    watch = _StateWatch()
+    with running_cell(tmp_path, scenario="standing_inside", controller_relay=[]) as cell:
+        cell.wait_until(_healthy, READY_S, "a moving robot (controller behind the relay)")
+        with zenoh.open(session_config(connect=[cell.controller_endpoint, cell.relay_endpoint])) as session:
+            session.declare_subscriber(keys.robot_state("demo", "ur5"), watch.on_sample)
+            time.sleep(0.3)
+            cut_ns = time.time_ns()
+            session.put("hrc/demo/faultinject/control", json.dumps({"partition_for_s": 2.0}))
+            status = cell.wait_until(_stopped_with("joint_state_stale"), DETECT_S, "the gateway to see the partition")
+            assert "override_path_stale" in _fault_codes(status)
+            time.sleep(0.5)
+            assert any(s.mode == "protective_stop" and s.override == 0.0 for s in watch.since(cut_ns)), (
+                "the controller did not stop on its own behind the partition"
+            )
+            cell.wait_until(_healthy, RECOVER_S, "recovery after the partition healed")
+        _assert_alive(cell, "gateway", "controller", "tracker", "relay")

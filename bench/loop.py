@@ -1,0 +1,414 @@
+"""Sustained loop: the real gateway at 500 Hz and 250 Hz, with and without HTTP load on its REST API.
+
+Each run starts a whole cell on loopback (gateway with ``gateway.rate_hz`` changed in a temporary copy
+of the cell, controller emulator, tracker emulator playing a looping scenario) and, for ``duration``
+seconds, records:
+
+- the period: differences of consecutive override ``stamp_ns`` (the gateway takes it at the start of
+  every cycle, and sends one override per robot per cycle), p50/p99/max; pairs with a missing seq in
+  between (a message this subscriber did not get) are left out and counted;
+- missed cycles: the growth of ``loop.missed_cycles`` in the gateway's status over the window, plus the
+  periods longer than 1.5 nominal periods seen here;
+- ``loop.last_lateness_s`` and ``loop.compute_max_s`` from every status document.
+
+With load, a generator in this process sends ``--http-rate`` requests/s (status, one robot, readyz,
+config) to the gateway's REST API on 127.0.0.1, at most rate × duration requests, each with a 1 s timeout.
+
+    python -m bench.loop [--duration 60] [--rates 500,250] [--http-rates 0,200] [--json out/bench/loop.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import httpx
+import numpy as np
+import zenoh
+
+from bench._procs import (
+    BenchError,
+    StartupError,
+    exited_programs,
+    free_port,
+    log_tail,
+    programs,
+    wait_for,
+    with_gateway_rate,
+    with_retries,
+    write_cell_config,
+)
+from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
+from hrc_common import keys
+from hrc_common.config import CellConfig, load_cell_config
+from hrc_common.zenoh_session import session_config
+
+NAME = "loop"
+TARGET_P99_PERIODS = 1.1
+LATE_PERIODS = 1.5
+HTTP_PATHS = ["/api/v1/status"] * 10 + ["/api/v1/robots/{robot}"] * 5 + ["/readyz"] * 3 + ["/api/v1/config"] * 2
+"""The request mix of the load: half status, a quarter one robot, the rest readyz and config."""
+
+
+class Stamp(NamedTuple):
+    seq: int
+    stamp_ns: int
+
+
+class LoopStatus(NamedTuple):
+    received_s: float
+    cycles: int | None
+    missed_cycles: int | None
+    last_lateness_s: float | None
+    compute_max_s: float | None
+
+
+@dataclass
+class Recorder:
+    """Zenoh callbacks of one robot's overrides and of the status; appends only while ``on`` is set."""
+
+    on: threading.Event = field(default_factory=threading.Event)
+    overrides: list[Stamp] = field(default_factory=list)
+    statuses: list[LoopStatus] = field(default_factory=list)
+    any_status: threading.Event = field(default_factory=threading.Event)
+
+    def on_override(self, sample: zenoh.Sample) -> None:
+        if self.on.is_set():
+            msg = json.loads(sample.payload.to_bytes())
+            self.overrides.append(Stamp(int(msg["seq"]), int(msg["stamp_ns"])))
+
+    def on_status(self, sample: zenoh.Sample) -> None:
+        self.any_status.set()
+        if self.on.is_set():
+            loop = json.loads(sample.payload.to_bytes()).get("loop", {})
+            self.statuses.append(
+                LoopStatus(
+                    time.monotonic(),
+                    loop.get("cycles"),
+                    loop.get("missed_cycles"),
+                    loop.get("last_lateness_s"),
+                    loop.get("compute_max_s"),
+                )
+            )
+
+
+# -- HTTP load ---------------------------------------------------------------------------------------
+
+
+class HttpLoad:
+    """``rate`` GET requests/s spread over ``workers`` threads, each with its own keep-alive connection.
+
+    Each worker keeps its own schedule; a worker that falls behind does not burst to catch up. At most
+    ``rate × duration_s`` requests are sent, none after ``duration_s``.
+    """
+
+    def __init__(self, base_url: str, robot: str, rate: float, duration_s: float, workers: int = 4) -> None:
+        self.base_url = base_url
+        self.paths = [p.format(robot=robot) for p in HTTP_PATHS]
+        self.rate = rate
+        self.duration_s = duration_s
+        self.workers = workers
+        self.latency_ns: list[int] = []
+        self.codes: Counter[str] = Counter()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._started_s = 0.0
+        self._ended_s = 0.0
+
+    def start(self) -> None:
+        self._started_s = time.monotonic()
+        budget = int(self.rate * self.duration_s)
+        for w in range(self.workers):
+            count = budget // self.workers + (1 if w < budget % self.workers else 0)
+            thread = threading.Thread(target=self._work, args=(w, count), name=f"http-load-{w}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+
+    def _work(self, worker: int, count: int) -> None:
+        interval_s = self.workers / self.rate
+        next_s = self._started_s + worker * interval_s / self.workers
+        deadline = self._started_s + self.duration_s
+        paths = itertools.cycle(self.paths[worker:] + self.paths[:worker])
+        with httpx.Client(base_url=self.base_url, timeout=1.0) as client:
+            for _ in range(count):
+                now = time.monotonic()
+                next_s = max(next_s, now)
+                if next_s >= deadline or self._stop.wait(next_s - now):
+                    break
+                started = time.perf_counter_ns()
+                try:
+                    code = str(client.get(next(paths)).status_code)
+                except httpx.HTTPError as exc:
+                    code = type(exc).__name__
+                elapsed = time.perf_counter_ns() - started
+                with self._lock:
+                    self.codes[code] += 1
+                    self.latency_ns.append(elapsed)
+                next_s += interval_s
+
+    def stop(self) -> dict[str, Any]:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(5.0)
+        self._ended_s = time.monotonic()
+        sent = sum(self.codes.values())
+        elapsed_s = max(1e-9, min(self._ended_s - self._started_s, self.duration_s))
+        return {
+            "target_rate_per_s": self.rate,
+            "requests": sent,
+            "achieved_rate_per_s": round(sent / elapsed_s, 1),
+            "responses": dict(self.codes),
+            "latency_ms": summary(self.latency_ns, 1e-6, 2),
+        }
+
+
+# -- one run ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    rate_hz: float
+    http_rate: float
+    duration_s: float
+    warmup_s: float
+    scenario: str
+    seed: int
+
+
+def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
+    """Periods between consecutive overrides [ns] and the number of pairs skipped for a missing seq."""
+    ordered = sorted(set(stamps))
+    seq = np.array([s.seq for s in ordered], dtype=np.int64)
+    stamp = np.array([s.stamp_ns for s in ordered], dtype=np.int64)
+    if len(seq) < 2:
+        return np.zeros(0, dtype=np.int64), 0
+    consecutive = np.diff(seq) == 1
+    return np.diff(stamp)[consecutive], int((~consecutive).sum())
+
+
+def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
+    robot = next(iter(base.robots))
+    gw_port, http_port = free_port(), free_port()
+    gw_ep = f"tcp/127.0.0.1:{gw_port}"
+    tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps"
+    config_path = write_cell_config(with_gateway_rate(base, settings.rate_hz, http_port), work_dir / f"cell-{tag}.toml")
+    logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", "controller", "tracker")}
+    cfg = ["--config", str(config_path)]
+    specs = [
+        ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
+        ("controller_emu.main", [*cfg, "--robot", robot, "--zenoh-connect", gw_ep], logs["controller"]),
+        (
+            "tracker_emu.main",
+            [*cfg, "--scenario", settings.scenario, "--seed", str(settings.seed), "--zenoh-connect", gw_ep],
+            logs["tracker"],
+        ),
+    ]
+    recorder = Recorder()
+    base_url = f"http://127.0.0.1:{http_port}"
+    http_result: dict[str, Any] | None = None
+    with programs(specs) as procs, zenoh.open(session_config(connect=[gw_ep])) as session:
+        subscribers = [
+            session.declare_subscriber(keys.robot_override(base.cell, robot), recorder.on_override),
+            session.declare_subscriber(keys.gateway_status(base.cell), recorder.on_status),
+        ]
+        try:
+            wait_for(recorder.any_status.is_set, 30.0, "the gateway's first status", procs)
+            wait_for(lambda: _http_up(base_url), 30.0, "the gateway's REST API", procs)
+        except StartupError as exc:
+            exited = exited_programs(procs, [log for _, _, log in specs])
+            raise StartupError(f"{exc}\n{exited or log_tail(logs['gateway'])}") from None
+        time.sleep(settings.warmup_s)
+        load = HttpLoad(base_url, robot, settings.http_rate, settings.duration_s) if settings.http_rate > 0 else None
+        recorder.on.set()
+        started_s = time.monotonic()
+        if load is not None:
+            load.start()
+        while time.monotonic() - started_s < settings.duration_s:
+            time.sleep(0.1)
+            exited = exited_programs(procs, [log for _, _, log in specs])
+            if exited is not None:
+                if load is not None:
+                    load.stop()
+                raise BenchError(f"a program exited during the run: {exited}")
+        recorder.on.clear()
+        if load is not None:
+            http_result = load.stop()
+        del subscribers
+    return analyse(settings, recorder, http_result)
+
+
+def _http_up(base_url: str) -> bool:
+    try:
+        return httpx.get(base_url + "/healthz", timeout=0.5).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+def _growth(values: list[int | None]) -> int | None:
+    known = [v for v in values if v is not None]
+    return known[-1] - known[0] if len(known) >= 2 else None
+
+
+def analyse(settings: RunSettings, recorder: Recorder, http: dict[str, Any] | None) -> dict[str, Any]:
+    period_ns, skipped = periods(recorder.overrides)
+    nominal_ms = 1e3 / settings.rate_hz
+    statuses = recorder.statuses
+    period = summary(period_ns, 1e-6, 3)
+    return {
+        "rate_hz": settings.rate_hz,
+        "nominal_period_ms": nominal_ms,
+        "http_rate_per_s": settings.http_rate,
+        "duration_s": settings.duration_s,
+        "period_ms": period,
+        "p99_over_nominal": round(period["p99"] / nominal_ms, 3) if period_ns.size else None,
+        "periods_over_1_5_nominal": int((period_ns > LATE_PERIODS * nominal_ms * 1e6).sum()),
+        "pairs_skipped_missing_seq": skipped,
+        "cycles_in_window": _growth([s.cycles for s in statuses]),
+        "missed_cycles_in_window": _growth([s.missed_cycles for s in statuses]),
+        "lateness_ms": summary([s.last_lateness_s for s in statuses if s.last_lateness_s is not None], 1e3, 3),
+        "compute_max_per_status_ms": summary(
+            [s.compute_max_s for s in statuses if s.compute_max_s is not None], 1e3, 3
+        ),
+        "http": http,
+    }
+
+
+# -- the benchmark ----------------------------------------------------------------------------------
+
+
+def run(
+    rates: list[float],
+    http_rates: list[float],
+    duration_s: float,
+    warmup_s: float,
+    scenario: str,
+    seed: int,
+    config_path: Path | None,
+    work_dir: Path,
+) -> Report:
+    base = load_cell_config(config_path)
+    report = Report(
+        NAME,
+        {
+            "rates_hz": rates,
+            "http_rates_per_s": http_rates,
+            "duration_s": duration_s,
+            "warmup_s": warmup_s,
+            "scenario": scenario,
+            "seed": seed,
+            "http_paths": sorted(set(HTTP_PATHS)),
+            "config": str(config_path) if config_path else "configs/cell.toml",
+        },
+    )
+    runs = []
+    for rate in rates:
+        for http_rate in http_rates:
+            print(f"... {rate:g} Hz, {http_rate:g} HTTP requests/s, {duration_s:g} s")
+            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed)
+            runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz, {http_rate:g} req/s"))
+    report.results["runs"] = runs
+    loaded = max(http_rates)
+    for r in runs:
+        if r["http_rate_per_s"] == loaded and r["period_ms"].get("n"):
+            report.targets.append(
+                Target(
+                    f"period p99 at {r['rate_hz']:g} Hz with {loaded:g} req/s",
+                    r["period_ms"]["p99"],
+                    round(TARGET_P99_PERIODS * r["nominal_period_ms"], 3),
+                    "ms",
+                )
+            )
+    report.notes = [
+        "period = difference of consecutive override stamp_ns, i.e. of the gateway's cycle starts "
+        "(time.time_ns in the gateway; the loop itself sleeps on the monotonic clock).",
+        "missed_cycles_in_window is the gateway's own count (RateLoop: boundaries skipped after an overrun).",
+        "The HTTP server is a child process of the gateway; the load generator runs in this process; all "
+        "share the same 2 cores with the controller and tracker emulators.",
+        "Figures on a shared 2-core machine are indicative: see load_average.",
+    ]
+    return report
+
+
+def print_report(doc: dict[str, Any]) -> None:
+    rows = []
+    for r in doc["results"]["runs"]:
+        p = r["period_ms"]
+        http = r["http"] or {}
+        rows.append(
+            [
+                f"{r['rate_hz']:g} Hz",
+                f"{r['http_rate_per_s']:g}",
+                http.get("achieved_rate_per_s", "-"),
+                p.get("n"),
+                p.get("p50"),
+                p.get("p99"),
+                p.get("max"),
+                r["p99_over_nominal"],
+                r["missed_cycles_in_window"],
+                r["periods_over_1_5_nominal"],
+                r["compute_max_per_status_ms"].get("max"),
+            ]
+        )
+    print(
+        "\n"
+        + table(
+            [
+                "gateway",
+                "req/s",
+                "achieved",
+                "periods",
+                "p50 [ms]",
+                "p99 [ms]",
+                "max [ms]",
+                "p99/T",
+                "missed",
+                ">1.5T",
+                "compute max [ms]",
+            ],
+            rows,
+        )
+    )
+    for r in doc["results"]["runs"]:
+        if r["http"]:
+            h = r["http"]
+            print(
+                f"{r['rate_hz']:g} Hz with load: {h['requests']} requests, responses {h['responses']}, "
+                f"latency p50 {h['latency_ms'].get('p50')} ms p99 {h['latency_ms'].get('p99')} ms"
+            )
+    print("\n" + targets_table([Target(t["name"], t["measured"], t["target"], t["unit"]) for t in doc["targets"]]))
+    load = doc["load_average"]
+    print(f"\nload average start {load['start']} end {load['end']}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.loop", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
+    parser.add_argument("--warmup", type=float, default=2.0, help="seconds after start-up before measuring")
+    parser.add_argument("--rates", default="500,250", help="gateway rates, comma-separated [Hz]")
+    parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
+    parser.add_argument("--scenario", default="two_people", help="tracker scenario (looping)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
+    parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
+    args = parser.parse_args(argv)
+    rates = [float(x) for x in args.rates.split(",") if x.strip()]
+    http_rates = [float(x) for x in args.http_rates.split(",") if x.strip()]
+    print_header("sustained loop: period and missed cycles of the real gateway, with and without HTTP load")
+    report = run(rates, http_rates, args.duration, args.warmup, args.scenario, args.seed, args.config, args.json.parent)
+    doc = report.finish(args.json)
+    print_report(doc)
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -7,12 +7,11 @@ path that is not confirmed) force δ = 0 for the robots they concern and put the
 
 from __future__ import annotations
 
-from collections import deque
 from typing import NamedTuple
 
 import numpy as np
 
-from gateway.delay import NS_PER_S, DelayBudget
+from gateway.delay import NS_PER_S, DelayBudget, WindowMax
 from gateway.inputs import InputSnapshot, JointSample
 from gateway.kinematics import link_kinematics
 from gateway.methods import MethodInput, ReplanMonitor, build_method
@@ -65,16 +64,6 @@ class RobotDecision(NamedTuple):
     replan_request: bool = False
 
 
-def _peak_hold(window: deque[tuple[int, float]], now_ns: int, value: float, hold_ns: int) -> float:
-    """Push ``value`` and return the largest value of the last ``hold_ns``."""
-    while window and window[-1][1] <= value:
-        window.pop()  # a smaller, older value can never be the maximum again
-    window.append((now_ns, value))
-    while window[0][0] < now_ns - hold_ns:
-        window.popleft()
-    return window[0][1]
-
-
 def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
     return None if stamp_ns is None else max(0.0, (now_ns - stamp_ns) / NS_PER_S)
 
@@ -103,7 +92,8 @@ class SafetyCore:
         self.robots = robots
         self._data = {name: robot.model.createData() for name, robot in robots.items()}
         self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
-        self._speeds: dict[str, deque[tuple[int, float]]] = {name: deque() for name in robots}
+        hold_ns = int(config.zones.adaptive_speed_hold_s * NS_PER_S)
+        self._speeds = {name: WindowMax(hold_ns) for name in robots}
         self._delay_aware = not config.safety.unsafe_ignore_delay_for_tests
         self._method = build_method(config.safety, robots)
         self._previous_delta = dict.fromkeys(robots, 0.0)
@@ -112,8 +102,7 @@ class SafetyCore:
         }
 
     def _held_speed_mps(self, name: str, now_ns: int, speed_mps: float) -> float:
-        hold_ns = int(self.config.zones.adaptive_speed_hold_s * NS_PER_S)
-        return _peak_hold(self._speeds[name], now_ns, speed_mps, hold_ns)
+        return self._speeds[name].push(now_ns, speed_mps)
 
     def step(self, inputs: InputSnapshot, now_ns: int, gateway_period_s: float) -> dict[str, RobotDecision]:
         safety = self.config.safety

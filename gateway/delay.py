@@ -38,6 +38,26 @@ class DelayBudget(NamedTuple):
         )
 
 
+class WindowMax:
+    """Largest value pushed within the last ``window_ns`` (monotonic deque: O(1) amortised per push)."""
+
+    def __init__(self, window_ns: int) -> None:
+        self._window_ns = window_ns
+        self._values: deque[tuple[int, float]] = deque()  # (stamp_ns, value), values decreasing
+
+    def push(self, stamp_ns: int, value: float) -> float:
+        """Add a value at ``stamp_ns`` and return the window's maximum."""
+        while self._values and self._values[-1][1] <= value:
+            self._values.pop()  # a smaller, older value can never be the maximum again
+        self._values.append((stamp_ns, value))
+        while self._values[0][0] < stamp_ns - self._window_ns:
+            self._values.popleft()
+        return self._values[0][1]
+
+    def max(self) -> float | None:
+        return self._values[0][1] if self._values else None
+
+
 class OverridePath:
     """Learns the gateway → controller latency and the controller cycle from the joint states.
 
@@ -50,8 +70,8 @@ class OverridePath:
         self._sent_ns: dict[int, int] = {}
         self._sent_order: deque[int] = deque()
         self._history = history
-        self._latency: deque[tuple[int, int]] = deque()  # (stamp_ns, latency_ns)
-        self._cycle: deque[tuple[int, int]] = deque()  # (stamp_ns, cycle_ns)
+        self._latency_ns = WindowMax(self._window_ns)
+        self._cycle_ns = WindowMax(self._window_ns)
         self._last_ack_seq: int | None = None
         self._last_state_stamp_ns: int | None = None
         self.acked_sent_ns: int | None = None
@@ -66,7 +86,7 @@ class OverridePath:
     def on_state(self, override_seq: int, stamp_ns: int) -> None:
         """Record a joint state's echo of the override seq and its stamp."""
         if self._last_state_stamp_ns is not None and stamp_ns > self._last_state_stamp_ns:
-            self._push(self._cycle, stamp_ns, stamp_ns - self._last_state_stamp_ns)
+            self._cycle_ns.push(stamp_ns, stamp_ns - self._last_state_stamp_ns)
         self._last_state_stamp_ns = stamp_ns
         sent = self._sent_ns.get(override_seq)
         if sent is None:
@@ -74,17 +94,14 @@ class OverridePath:
         if override_seq != self._last_ack_seq:
             self._last_ack_seq = override_seq
             self.acked_sent_ns = sent
-            self._push(self._latency, stamp_ns, max(0, stamp_ns - sent))
-
-    def _push(self, window: deque[tuple[int, int]], stamp_ns: int, value_ns: int) -> None:
-        window.append((stamp_ns, value_ns))
-        while window and window[0][0] < stamp_ns - self._window_ns:
-            window.popleft()
+            self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent))
 
     def latency_s(self) -> float | None:
         """Largest override path latency within the window, None before the first echo [s]."""
-        return max(v for _, v in self._latency) / NS_PER_S if self._latency else None
+        latency_ns = self._latency_ns.max()
+        return None if latency_ns is None else latency_ns / NS_PER_S
 
     def controller_cycle_s(self) -> float | None:
         """Largest interval between joint states within the window, None before two states [s]."""
-        return max(v for _, v in self._cycle) / NS_PER_S if self._cycle else None
+        cycle_ns = self._cycle_ns.max()
+        return None if cycle_ns is None else cycle_ns / NS_PER_S

@@ -116,3 +116,13 @@ def test_cycle_random_against_max_of_intervals() -> None:
         for s in stamps:
             path.on_state(-1, int(s))
         assert path.controller_cycle_s() == pytest.approx(np.diff(stamps).max() / 1e9)
+
+
+def test_window_max_forgets_values_older_than_the_window() -> None:
+    from gateway.delay import WindowMax
+
+    window = WindowMax(window_ns=10)
+    pushes = [(0, 1.0), (1, 3.0), (2, 2.0), (5, 1.0), (12, 0.5), (13, 0.2), (20, 0.1)]
+    assert [window.push(t, v) for t, v in pushes] == [1.0, 3.0, 3.0, 3.0, 2.0, 1.0, 0.5]
+    assert window.max() == 0.5
+    assert WindowMax(10).max() is None

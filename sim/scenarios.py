@@ -1,0 +1,305 @@
+"""A seeded generator of sweep cases: scripted people, sensors and faulty links around one robot.
+
+Each case is a :class:`tracker_emu.scenario.Scenario` built programmatically (valid by its validators), the
+trackers that watch it (rate, noise, drops, latency) and the faults of the three links. People are of
+three kinds:
+
+- ``approach``: appears 3.5–5 m away on a bearing anywhere over the robot's front half and sides, walks
+  straight at the robot at up to 2.0 m/s, stops 0.7–2.0 m from its base (some inside its reach), may
+  reach in with one or both arms, then turns and walks away;
+- ``cross``: walks across the cell in front of the robot at up to 2.0 m/s, 0.9–3 m from its base;
+- ``standing``: is inside the cell from the start, 0.8–1.8 m from the base, and may reach in.
+
+Link delays are drawn within the gateway's data age budget (``max_data_age_s``) for most cases, and beyond
+it for some (the gateway must then see stale data and stop the robot).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from hrc_common.config import CellConfig, TrackerConfig
+from sim.links import LinkFault, LinkFaults
+from tracker_emu.scenario import HumanScript, Keyframe, Scenario, pose_at
+
+MAX_SPEED_MPS = 2.0
+"""Fastest walking speed of a generated person [m/s]."""
+BEARING_LIMIT_RAD = math.radians(110.0)
+"""People come from bearings within ±this of the robot's front (+x): the front half and the sides [rad]."""
+REACH_S_PER_UNIT = 0.4
+"""Shortest time per unit of reach [s]: the hand moves at most 0.78 m per unit of reach, so at most
+~2.0 m/s (the ISO 13855 hand speed)."""
+BEYOND_BUDGET_FRACTION = 0.15
+"""Share of the cases with a link delay beyond the gateway's max_data_age_s."""
+
+Kind = Literal["approach", "cross", "standing"]
+Path = Literal["tracker_to_gateway", "controller_to_gateway", "gateway_to_controller"]
+KINDS: tuple[Kind, ...] = ("approach", "cross", "standing")
+PATHS: tuple[Path, ...] = ("tracker_to_gateway", "controller_to_gateway", "gateway_to_controller")
+
+
+@dataclass(frozen=True)
+class SweepCase:
+    """One generated case: what happens in the cell and how the network behaves.
+
+    Attributes:
+        index: number of the case in its sweep.
+        seed: seed of the simulation of this case (sensor noise and drops, links, phases).
+        scenario: the scripted people.
+        trackers: the sensors watching them.
+        links: faults of the three paths.
+        beyond_budget: True if a delay was drawn beyond the gateway's data age limit.
+        params: what was drawn, for the report (kinds, speeds, bearings, delays).
+    """
+
+    index: int
+    seed: int
+    scenario: Scenario
+    trackers: dict[str, TrackerConfig]
+    links: LinkFaults
+    beyond_budget: bool
+    params: dict[str, Any]
+
+    def config(self, base: CellConfig) -> CellConfig:
+        """``base`` with this case's trackers (validated)."""
+        raw = base.model_dump()
+        raw["trackers"] = {name: t.model_dump() for name, t in self.trackers.items()}
+        return CellConfig.model_validate(raw)
+
+
+def _heading_to_origin(x_m: float, y_m: float) -> float:
+    return math.atan2(-y_m, -x_m)
+
+
+def _at(bearing_rad: float, distance_m: float) -> tuple[float, float]:
+    return distance_m * math.cos(bearing_rad), distance_m * math.sin(bearing_rad)
+
+
+def _clip_to(human_id: str, both_arms: bool, keyframes: list[Keyframe], duration_s: float) -> HumanScript | None:
+    """The script cut at ``duration_s`` (the pose there interpolated), None if it starts too late."""
+    script = HumanScript(id=human_id, both_arms=both_arms, keyframes=keyframes)
+    if script.start_s >= duration_s - 0.1:
+        return None
+    if script.end_s <= duration_s:
+        return script
+    pose = pose_at(script, duration_s)
+    if pose is None:  # cannot happen: start_s < duration_s < end_s
+        return None
+    kept = [k for k in keyframes if k.t_s < duration_s]
+    kept.append(Keyframe(t_s=duration_s, xy_m=(pose.x_m, pose.y_m), heading_rad=pose.heading_rad, reach=pose.reach))
+    return HumanScript(id=human_id, both_arms=both_arms, keyframes=kept)
+
+
+def _approach(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript | None, dict[str, Any]]:
+    bearing = float(rng.uniform(-BEARING_LIMIT_RAD, BEARING_LIMIT_RAD))
+    start_m = float(rng.uniform(3.5, 5.0))
+    stop_m = float(rng.uniform(0.7, 2.0))
+    speed = float(rng.uniform(0.8, MAX_SPEED_MPS))
+    t0 = float(rng.uniform(0.0, 1.5))
+    reach = float(rng.choice([0.0, 1.0, rng.uniform(0.3, 1.0)]))
+    both_arms = bool(rng.random() < 0.3)
+    reach_time = max(0.1, reach * float(rng.uniform(REACH_S_PER_UNIT, 1.2)))
+    hold = float(rng.uniform(0.2, 2.0))
+    leave_speed = float(rng.uniform(0.6, MAX_SPEED_MPS))
+    x0, y0 = _at(bearing, start_m)
+    x1, y1 = _at(bearing, stop_m)
+    facing = _heading_to_origin(x0, y0)
+    t = t0
+    frames = [Keyframe(t_s=t, xy_m=(x0, y0), heading_rad=facing)]
+    t += (start_m - stop_m) / speed
+    frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing))
+    if reach > 0.0:
+        t += reach_time
+        frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing, reach=reach))
+        t += hold
+        frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing, reach=reach))
+        t += reach_time
+        frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing))
+    else:
+        t += hold
+        frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing))
+    t += 0.5
+    frames.append(Keyframe(t_s=t, xy_m=(x1, y1), heading_rad=facing + math.pi))
+    t += (start_m - stop_m) / leave_speed
+    frames.append(Keyframe(t_s=t, xy_m=(x0, y0), heading_rad=facing + math.pi))
+    params = {
+        "kind": "approach",
+        "bearing_deg": round(math.degrees(bearing), 1),
+        "speed_mps": round(speed, 3),
+        "stop_m": round(stop_m, 3),
+        "reach": round(reach, 3),
+        "both_arms": both_arms,
+        "t_start_s": round(t0, 3),
+    }
+    return _clip_to(human_id, both_arms, frames, duration_s), params
+
+
+def _cross(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript | None, dict[str, Any]]:
+    offset = float(rng.uniform(0.9, 3.0))  # distance of the walking line from the base
+    line_bearing = float(rng.uniform(-math.radians(60.0), math.radians(60.0)))
+    speed = float(rng.uniform(0.6, MAX_SPEED_MPS))
+    half_length = float(rng.uniform(2.5, 4.0))
+    t0 = float(rng.uniform(0.0, 3.0))
+    direction = 1.0 if rng.random() < 0.5 else -1.0
+    cx, cy = _at(line_bearing, offset)
+    ux, uy = -math.sin(line_bearing) * direction, math.cos(line_bearing) * direction  # along the line
+    start = (cx - half_length * ux, cy - half_length * uy)
+    end = (cx + half_length * ux, cy + half_length * uy)
+    heading = math.atan2(uy, ux)
+    t1 = t0 + 2.0 * half_length / speed
+    frames = [Keyframe(t_s=t0, xy_m=start, heading_rad=heading), Keyframe(t_s=t1, xy_m=end, heading_rad=heading)]
+    params = {
+        "kind": "cross",
+        "bearing_deg": round(math.degrees(line_bearing), 1),
+        "offset_m": round(offset, 3),
+        "speed_mps": round(speed, 3),
+        "t_start_s": round(t0, 3),
+    }
+    return _clip_to(human_id, False, frames, duration_s), params
+
+
+def _standing(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript | None, dict[str, Any]]:
+    bearing = float(rng.uniform(-BEARING_LIMIT_RAD, BEARING_LIMIT_RAD))
+    distance = float(rng.uniform(0.8, 1.8))
+    x, y = _at(bearing, distance)
+    facing = _heading_to_origin(x, y) + float(rng.uniform(-0.5, 0.5))
+    both_arms = bool(rng.random() < 0.3)
+    frames = [Keyframe(t_s=0.0, xy_m=(x, y), heading_rad=facing)]
+    t = 0.0
+    reaches = 0
+    while True:
+        wait = float(rng.uniform(0.5, 3.0))
+        reach = float(rng.uniform(0.3, 1.0))
+        reach_time = reach * float(rng.uniform(REACH_S_PER_UNIT, 1.2))
+        hold = float(rng.uniform(0.0, 1.5))
+        if t + wait + 2.0 * reach_time + hold + 0.1 >= duration_s:
+            break
+        t += wait
+        frames.append(Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing))
+        t += reach_time
+        frames.append(Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing, reach=reach))
+        t += hold
+        frames.append(Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing, reach=reach))
+        t += reach_time
+        frames.append(Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing))
+        reaches += 1
+    frames.append(Keyframe(t_s=duration_s, xy_m=(x, y), heading_rad=facing))
+    params = {
+        "kind": "standing",
+        "bearing_deg": round(math.degrees(bearing), 1),
+        "distance_m": round(distance, 3),
+        "reaches": reaches,
+        "both_arms": both_arms,
+    }
+    return _clip_to(human_id, both_arms, frames, duration_s), params
+
+
+def _trackers(rng: np.random.Generator) -> dict[str, TrackerConfig]:
+    names = ["front"] if rng.random() < 0.6 else ["front", "side"]
+    return {
+        name: TrackerConfig(
+            rate_hz=float(rng.choice([15.0, 20.0, 30.0, 60.0])),
+            noise_std_m=float(rng.uniform(0.0, 0.03)),
+            drop_probability=float(rng.choice([0.0, rng.uniform(0.0, 0.2)])),
+            latency_s=float(rng.uniform(0.0, 0.06)),
+        )
+        for name in names
+    }
+
+
+def _path_fault(rng: np.random.Generator, budget_s: float) -> LinkFault:
+    """A fault whose worst delay (delay + jitter) stays within ``budget_s``."""
+    total = float(rng.uniform(0.0, budget_s))
+    jitter = float(rng.uniform(0.0, min(0.03, total)))
+    return LinkFault(
+        delay_s=total - jitter,
+        jitter_s=jitter,
+        loss=float(rng.choice([0.0, rng.uniform(0.0, 0.1)])),
+        duplication=float(rng.choice([0.0, rng.uniform(0.0, 0.1)])),
+    )
+
+
+def _links(
+    rng: np.random.Generator, trackers: dict[str, TrackerConfig], max_data_age_s: float, watchdog_s: float
+) -> tuple[LinkFaults, bool, Path | None]:
+    """Faults of the three paths: within the data age budget, or (sometimes) one path beyond it.
+
+    Within budget: the human data's age (sensor latency + link) and the override round trip
+    (gateway → controller → gateway) each stay below ``max_data_age_s``; the override path alone stays
+    below the controller's watchdog.
+    """
+    latency = max(t.latency_s for t in trackers.values())
+    round_trip_budget = 0.8 * max_data_age_s
+    override_budget = min(0.8 * watchdog_s, 0.5 * round_trip_budget)
+    faults = {
+        "tracker_to_gateway": _path_fault(rng, max(0.0, 0.7 * max_data_age_s - latency)),
+        "gateway_to_controller": _path_fault(rng, override_budget),
+        "controller_to_gateway": _path_fault(rng, round_trip_budget - override_budget),
+    }
+    beyond: Path | None = None
+    if rng.random() < BEYOND_BUDGET_FRACTION:
+        beyond = PATHS[int(rng.integers(0, len(PATHS)))]
+        base = faults[beyond]
+        faults[beyond] = LinkFault(
+            delay_s=float(rng.uniform(1.05, 2.0)) * max_data_age_s,
+            jitter_s=base.jitter_s,
+            loss=base.loss,
+            duplication=base.duplication,
+        )
+    return LinkFaults(**faults), beyond is not None, beyond
+
+
+def generate_case(
+    sweep_seed: int,
+    index: int,
+    duration_s: float,
+    max_data_age_s: float,
+    watchdog_s: float = 0.1,
+) -> SweepCase:
+    """Case number ``index`` of the sweep seeded ``sweep_seed`` (the same numbers give the same case).
+
+    Args:
+        sweep_seed: seed of the sweep.
+        index: number of the case.
+        duration_s: length of the scenario (and of the run) [s].
+        max_data_age_s: the gateway's data age limit, the budget of the link delays [s].
+        watchdog_s: the controller's override watchdog [s].
+    """
+    rng = np.random.default_rng([sweep_seed, index])
+    people = int(rng.choice([1, 1, 2, 3]))
+    humans: list[HumanScript] = []
+    people_params: list[dict[str, Any]] = []
+    makers = {"approach": _approach, "cross": _cross, "standing": _standing}
+    for i in range(people):
+        kind: Kind = KINDS[int(rng.choice([0, 0, 1, 2]))] if i else "approach"
+        script, person = makers[kind](rng, f"h{i + 1}", duration_s)
+        if script is not None:
+            humans.append(script)
+            people_params.append(person)
+    trackers = _trackers(rng)
+    links, beyond, beyond_path = _links(rng, trackers, max_data_age_s, watchdog_s)
+    scenario = Scenario(
+        description=f"generated case {index} of sweep {sweep_seed}",
+        duration_s=duration_s,
+        loop=False,
+        humans=humans,
+    )
+    params: dict[str, Any] = {
+        "people": people_params,
+        "trackers": {n: t.model_dump() for n, t in trackers.items()},
+        "links": {path: {k: round(v, 4) for k, v in vars(getattr(links, path)).items()} for path in PATHS},
+        "beyond_budget": beyond_path,
+    }
+    return SweepCase(
+        index=index,
+        seed=int(rng.integers(0, 2**31 - 1)),
+        scenario=scenario,
+        trackers=trackers,
+        links=links,
+        beyond_budget=beyond,
+        params=params,
+    )

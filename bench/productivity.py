@@ -1,0 +1,396 @@
+"""Productivity of every override method on the same seeded scenario suite (issue 4, benchmark 4).
+
+    .venv/bin/python -m bench.productivity --scenarios 40 --seed 0 --workers 2 --duration-s 30
+
+Every case of the suite (:func:`sim.scenarios.generate_case`: people, trackers, link faults, simulation
+seed) runs in :func:`sim.cell.simulate` once per variant, with the same seed (so the same sensor noise,
+drops, link draws, gateway phase and program phase) and the same program:
+
+- ``zanchettin2016``, ``iso15066``, ``three_zones``, ``stop_only``: ``safety.method`` set, nothing else
+  changed;
+- ``zanchettin2016_zero_delay``: eq. (15) with every link delay and jitter 0 and the trackers' latency 0
+  (loss and duplication kept): the physical upper bound of the method;
+- ``no_human``: the same case with nobody in the cell (same trackers and links): the robot alone.
+
+Per variant: program cycles completed per hour (over all robots and all simulated time), time stopped
+(δ_applied = 0) [%], time-weighted mean δ applied, smallest safety margin while the robot moved [m], and
+violations (audited cycles). A figure counts only if the variant had 0 violations. The targets are the
+ratios of cycles per hour, eq. (15) ≥ 1.3 × three_zones and ≥ 2 × stop_only (issue 4).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import multiprocessing
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from bench._report import Report, Target, default_json_path, print_header, table
+from hrc_common.config import CellConfig, load_cell_config
+from hrc_common.robot_model import RobotModel, load_robot_model
+from sim.cell import simulate
+from sim.links import LinkFault, LinkFaults
+from sim.scenarios import SweepCase, generate_case
+from tracker_emu.scenario import Scenario
+
+NAME = "productivity"
+METHODS = ("zanchettin2016", "iso15066", "three_zones", "stop_only")
+ZERO_DELAY = "zanchettin2016_zero_delay"
+NO_HUMAN = "no_human"
+VARIANTS = (*METHODS, ZERO_DELAY, NO_HUMAN)
+"""Every variant run on every case, in table order."""
+RATIO_TARGETS = (("three_zones", 1.3), ("stop_only", 2.0))
+"""zanchettin2016 must complete at least this many times the cycles per hour of these methods (issue 4)."""
+SECONDS_PER_HOUR = 3600.0
+
+
+@dataclass(frozen=True)
+class AtLeast(Target):
+    """A target where larger is better; it passes only if the figures it compares had no violation."""
+
+    counts: bool = True
+
+    @property
+    def verdict(self) -> str:
+        return "PASS" if self.counts and self.measured >= self.limit else "MISS"
+
+    def as_dict(self) -> dict[str, Any]:
+        measured = self.measured if math.isfinite(self.measured) else None
+        return {**super().as_dict(), "measured": measured, "comparison": ">=", "counts": self.counts}
+
+
+@dataclass(frozen=True)
+class VariantRun:
+    """One variant on one case (JSON-ready).
+
+    Attributes:
+        index, seed: the case and its simulation seed.
+        variant: the variant's name (see :data:`VARIANTS`).
+        beyond_budget: the path whose delay the generator drew beyond max_data_age_s, None if within budget.
+        program_cycles: program cycles completed (all robots).
+        audited_s: audited controller time (all robots) [s].
+        time_stopped_s: time at δ_applied = 0 (all robots) [s].
+        mean_delta: time-weighted mean δ applied.
+        smallest_margin_moving_m: smallest margin while a robot moved (None: never) [m].
+        violations: audited cycles with a violation.
+        duration_s: simulated time [s]; wall_s: wall-clock time [s].
+    """
+
+    index: int
+    seed: int
+    variant: str
+    beyond_budget: str | None
+    program_cycles: int
+    audited_s: float
+    time_stopped_s: float
+    mean_delta: float
+    smallest_margin_moving_m: float | None
+    violations: int
+    duration_s: float
+    wall_s: float
+
+
+# -- one run (in a worker) ----------------------------------------------------------------------------
+
+
+def with_method(config: CellConfig, method: str) -> CellConfig:
+    """``config`` with ``safety.method`` set (validated)."""
+    raw = config.model_dump()
+    raw["safety"]["method"] = method
+    return CellConfig.model_validate(raw)
+
+
+def _zero_delay(links: LinkFaults) -> LinkFaults:
+    def zero(fault: LinkFault) -> LinkFault:
+        return LinkFault(delay_s=0.0, jitter_s=0.0, loss=fault.loss, duplication=fault.duplication)
+
+    return LinkFaults(
+        tracker_to_gateway=zero(links.tracker_to_gateway),
+        controller_to_gateway=zero(links.controller_to_gateway),
+        gateway_to_controller=zero(links.gateway_to_controller),
+    )
+
+
+def _case(config: CellConfig, suite_seed: int, index: int, duration_s: float) -> SweepCase:
+    return generate_case(
+        suite_seed,
+        index,
+        duration_s,
+        config.safety.max_data_age_s,
+        watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
+    )
+
+
+def run_variant(
+    config: CellConfig, robots: dict[str, RobotModel], suite_seed: int, index: int, duration_s: float, variant: str
+) -> VariantRun:
+    """Generate case ``index`` of the suite ``suite_seed`` and simulate it with ``variant``."""
+    case = _case(config, suite_seed, index, duration_s)
+    cell = case.config(config)
+    scenario = case.scenario
+    links = case.links
+    if variant in METHODS:
+        cell = with_method(cell, variant)
+    elif variant == ZERO_DELAY:
+        raw = with_method(cell, "zanchettin2016").model_dump()
+        for tracker in raw["trackers"].values():
+            tracker["latency_s"] = 0.0
+        cell = CellConfig.model_validate(raw)
+        links = _zero_delay(links)
+    elif variant == NO_HUMAN:
+        cell = with_method(cell, "zanchettin2016")
+        scenario = Scenario(description=f"{scenario.description}, nobody", duration_s=duration_s, loop=False)
+    else:
+        raise ValueError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
+    result = simulate(cell, robots, scenario, links, duration_s, case.seed)
+    audit = result.audit
+    margin = audit.smallest_margin_moving_m
+    return VariantRun(
+        index=index,
+        seed=case.seed,
+        variant=variant,
+        beyond_budget=case.params["beyond_budget"],
+        program_cycles=audit.program_cycles_completed,
+        audited_s=audit.duration_s,
+        time_stopped_s=audit.time_stopped_s,
+        mean_delta=audit.mean_delta_applied,
+        smallest_margin_moving_m=margin if math.isfinite(margin) else None,
+        violations=audit.violations,
+        duration_s=result.duration_s,
+        wall_s=result.wall_s,
+    )
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(config_path: str | None) -> None:
+    config = load_cell_config(config_path)
+    _WORKER["config"] = config
+    _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
+
+
+def _run_in_worker(task: tuple[int, int, float, str]) -> VariantRun:
+    suite_seed, index, duration_s, variant = task
+    return run_variant(_WORKER["config"], _WORKER["robots"], suite_seed, index, duration_s, variant)
+
+
+def iter_runs(
+    scenarios: int, seed: int, workers: int, duration_s: float, config_path: str | None = None
+) -> Iterator[VariantRun]:
+    """Every variant on cases ``0 .. scenarios-1`` of suite ``seed``; yields runs as they finish (any order)."""
+    tasks = [(seed, index, duration_s, variant) for index in range(scenarios) for variant in VARIANTS]
+    if workers <= 1:
+        _init_worker(config_path)
+        for task in tasks:
+            yield _run_in_worker(task)
+        return
+    context = multiprocessing.get_context("spawn")
+    with context.Pool(workers, initializer=_init_worker, initargs=(config_path,)) as pool:
+        yield from pool.imap_unordered(_run_in_worker, tasks, chunksize=1)
+
+
+# -- the figures --------------------------------------------------------------------------------------
+
+
+def aggregate(runs: Sequence[VariantRun]) -> dict[str, Any]:
+    """The figures of one variant over its runs."""
+    simulated_s = sum(r.duration_s for r in runs)
+    audited_s = sum(r.audited_s for r in runs)
+    cycles = sum(r.program_cycles for r in runs)
+    margins = [r.smallest_margin_moving_m for r in runs if r.smallest_margin_moving_m is not None]
+    violations = sum(r.violations for r in runs)
+    return {
+        "runs": len(runs),
+        "program_cycles": cycles,
+        "simulated_s": simulated_s,
+        "cycles_per_hour": round(cycles / simulated_s * SECONDS_PER_HOUR, 2) if simulated_s > 0 else None,
+        "time_stopped_pct": round(100.0 * sum(r.time_stopped_s for r in runs) / audited_s, 2) if audited_s else None,
+        "mean_delta": round(sum(r.mean_delta * r.audited_s for r in runs) / audited_s, 4) if audited_s else None,
+        "smallest_margin_moving_m": round(min(margins), 4) if margins else None,
+        "violations": violations,
+        "cases_with_violations": sum(1 for r in runs if r.violations),
+        "counts": violations == 0,
+    }
+
+
+def _ratio(figures: dict[str, dict[str, Any]], method: str, baseline: str) -> float | None:
+    a = figures[method]["cycles_per_hour"]
+    b = figures[baseline]["cycles_per_hour"]
+    if a is None or b is None:
+        return None
+    return round(a / b, 3) if b > 0 else None
+
+
+def ratios(figures: dict[str, dict[str, Any]]) -> list[AtLeast]:
+    """The targets: cycles per hour of zanchettin2016 over three_zones and stop_only."""
+    targets: list[AtLeast] = []
+    for baseline, limit in RATIO_TARGETS:
+        ratio = _ratio(figures, "zanchettin2016", baseline)
+        counts = bool(figures["zanchettin2016"]["counts"] and figures[baseline]["counts"] and ratio is not None)
+        targets.append(
+            AtLeast(
+                name=f"cycles/h zanchettin2016 / {baseline}",
+                measured=ratio if ratio is not None else math.nan,
+                limit=limit,
+                unit="x",
+                counts=counts,
+            )
+        )
+    return targets
+
+
+def figures_table(figures: dict[str, dict[str, Any]]) -> str:
+    rows = []
+    for variant, f in figures.items():
+        mark = "" if f["counts"] else " *"
+        rows.append(
+            (
+                variant,
+                f"{f['cycles_per_hour']:.1f}{mark}" if f["cycles_per_hour"] is not None else "-",
+                f"{f['time_stopped_pct']:.1f}" if f["time_stopped_pct"] is not None else "-",
+                f"{f['mean_delta']:.3f}" if f["mean_delta"] is not None else "-",
+                f"{f['smallest_margin_moving_m']:.3f}" if f["smallest_margin_moving_m"] is not None else "-",
+                f["violations"],
+                f["program_cycles"],
+            )
+        )
+    return table(
+        ["variant", "cycles/h", "stopped [%]", "mean δ", "min margin moving [m]", "violations", "cycles"], rows
+    )
+
+
+def ratios_table(targets: Sequence[AtLeast]) -> str:
+    return table(
+        ["target", "measured", "at least", "verdict"],
+        [
+            (
+                t.name,
+                f"{t.measured:.2f}x" if math.isfinite(t.measured) else "-",
+                f"{t.limit:.1f}x",
+                t.verdict if t.counts else f"{t.verdict} (violations or no figure: does not count)",
+            )
+            for t in targets
+        ],
+    )
+
+
+def _by_variant(runs: Sequence[VariantRun], keep: set[int] | None = None) -> dict[str, dict[str, Any]]:
+    return {v: aggregate([r for r in runs if r.variant == v and (keep is None or r.index in keep)]) for v in VARIANTS}
+
+
+def run(
+    scenarios: int, seed: int, workers: int, duration_s: float, config_path: str | None, quiet: bool = False
+) -> Report:
+    """Run the suite and build the report (figures over all cases and over the cases within budget)."""
+    report = Report(
+        NAME,
+        {
+            "scenarios": scenarios,
+            "seed": seed,
+            "workers": workers,
+            "duration_s": duration_s,
+            "config": config_path,
+            "variants": list(VARIANTS),
+        },
+    )
+    started_s = time.perf_counter()
+    runs: list[VariantRun] = []
+    total = scenarios * len(VARIANTS)
+    for r in iter_runs(scenarios, seed, workers, duration_s, config_path):
+        runs.append(r)
+        if not quiet:
+            flag = "  VIOLATION" if r.violations else ""
+            print(
+                f"[{len(runs)}/{total}] case {r.index} {r.variant}: {r.program_cycles} cycles, "
+                f"mean δ {r.mean_delta:.2f}, {r.duration_s / r.wall_s:.1f}x{flag}",
+                file=sys.stderr,
+                flush=True,
+            )
+    wall_s = time.perf_counter() - started_s
+    runs.sort(key=lambda r: (r.index, VARIANTS.index(r.variant)))
+    within = {r.index for r in runs if r.beyond_budget is None}
+    figures = _by_variant(runs)
+    figures_within = _by_variant(runs, within)
+    targets = ratios(figures)
+    report.targets.extend(targets)
+    report.results = {
+        "all_cases": figures,
+        "within_budget": {"cases": len(within), "figures": figures_within},
+        "ratios_within_budget": [t.as_dict() for t in ratios(figures_within)],
+        "wall_s": round(wall_s, 1),
+        "simulated_s": sum(r.duration_s for r in runs),
+        "runs": [asdict(r) for r in runs],
+    }
+    report.notes.extend(
+        [
+            "Every variant runs every case with the case's seed: same people, sensors, noise, drops, link draws, "
+            "gateway phase and program phase.",
+            "A figure counts only if its variant had 0 violations (marked * otherwise); a ratio target passes "
+            "only if both of its methods had 0 violations.",
+            f"{ZERO_DELAY}: every link delay and jitter 0 and tracker latency 0 (loss and duplication kept).",
+            f"{NO_HUMAN}: the same case with nobody in the cell (same trackers and links, zanchettin2016); cases "
+            "with a delay beyond max_data_age_s stop the robot on stale data even then.",
+            "within_budget: the same figures over the cases whose link delays the generator kept within "
+            "max_data_age_s (in the others every method stops on stale data).",
+            "Program cycles are whole wraps of the program, counted per run: with short runs the figure is "
+            "coarse (one cycle of the shipped program is about 6.4 s at δ = 1).",
+        ]
+    )
+    return report
+
+
+def print_report(doc: dict[str, Any]) -> None:
+    results = doc["results"]
+    print(f"\nall {doc['parameters']['scenarios']} cases, {doc['parameters']['duration_s']:g} s each:")
+    print(figures_table(results["all_cases"]))
+    print("* = violations: the figure does not count")
+    print()
+    print(ratios_table([_target(t) for t in doc["targets"]]))
+    within = results["within_budget"]
+    print(f"\ncases with link delays within max_data_age_s ({within['cases']}):")
+    print(figures_table(within["figures"]))
+    print()
+    print(ratios_table([_target(t) for t in results["ratios_within_budget"]]))
+    speed = results["simulated_s"] / results["wall_s"] if results["wall_s"] > 0 else math.inf
+    print(f"\nwall time {results['wall_s']:.1f} s ({doc['parameters']['workers']} workers, {speed:.1f}x real time)")
+
+
+def _target(d: dict[str, Any]) -> AtLeast:
+    measured = d["measured"]
+    return AtLeast(
+        name=d["name"],
+        measured=math.nan if measured is None else float(measured),
+        limit=d["target"],
+        unit=d["unit"],
+        counts=d["counts"],
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.productivity", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenarios", type=int, default=40, help="cases of the suite (default 40)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the suite (default 0)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 1 = in process)")
+    parser.add_argument("--duration-s", type=float, default=30.0, help="simulated time per case (default 30)")
+    parser.add_argument("--config", default=None, help="cell configuration (default configs/cell.toml)")
+    parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    args = parser.parse_args(argv)
+    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
+        parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
+    print_header("productivity: every method on the same seeded scenario suite")
+    report = run(args.scenarios, args.seed, args.workers, args.duration_s, args.config, args.quiet)
+    doc = report.finish(args.json)
+    print_report(doc)
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

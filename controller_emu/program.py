@@ -20,7 +20,6 @@ short to reach the speed cap). :meth:`Trajectory.sample` is a pure function of t
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -29,7 +28,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from hrc_common.config import ConfigError
+from hrc_common.config import ConfigError, one_line, read_toml
 from hrc_common.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -171,16 +170,6 @@ def _read_only(array: FloatArray) -> FloatArray:
     return out
 
 
-def _one_line(exc: ValidationError, source: str) -> str:
-    parts = []
-    for err in exc.errors()[:3]:
-        where = ".".join(str(p) for p in err["loc"])
-        msg = err["msg"].removeprefix("Value error, ")
-        parts.append(f"{where}: {msg}" if where else msg)
-    more = f" (and {exc.error_count() - 3} more)" if exc.error_count() > 3 else ""
-    return f"{source}: " + "; ".join(parts) + more
-
-
 def parse_program(raw: dict[str, Any], source: str = "program") -> Program:
     """Validate a program given as a dictionary (the parsed TOML).
 
@@ -190,7 +179,7 @@ def parse_program(raw: dict[str, Any], source: str = "program") -> Program:
     try:
         return Program.model_validate(raw)
     except ValidationError as exc:
-        raise ConfigError(_one_line(exc, source)) from None
+        raise ConfigError(one_line(exc, source)) from None
 
 
 def load_program(path: Path | str) -> Program:
@@ -200,13 +189,7 @@ def load_program(path: Path | str) -> Program:
         ConfigError: the file is missing, not TOML, or not a valid program.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    raw = read_toml(path)
     return parse_program(raw, str(path))
 
 

@@ -244,7 +244,8 @@ class CellConfig(_Frozen):
         return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
+def read_toml(path: Path) -> dict[str, Any]:
+    """A TOML file as a dictionary. Raises ConfigError (one line) when missing or not TOML."""
     try:
         with path.open("rb") as f:
             return tomllib.load(f)
@@ -271,14 +272,15 @@ def resolve_urdf(urdf: str, config_dir: Path) -> Path:
     )
 
 
-def _one_line(exc: ValidationError, path: Path) -> str:
+def one_line(exc: ValidationError, source: Path | str) -> str:
+    """A pydantic validation error as one line: ``source: field: message; ...`` (at most three errors)."""
     parts = []
     for err in exc.errors()[:3]:
         where = ".".join(str(p) for p in err["loc"])
         msg = err["msg"].removeprefix("Value error, ")
         parts.append(f"{where}: {msg}" if where else msg)
     more = f" (and {exc.error_count() - 3} more)" if exc.error_count() > 3 else ""
-    return f"{path}: " + "; ".join(parts) + more
+    return f"{source}: " + "; ".join(parts) + more
 
 
 def load_cell_config(path: Path | str | None = None) -> CellConfig:
@@ -289,7 +291,7 @@ def load_cell_config(path: Path | str | None = None) -> CellConfig:
     """
     cell_path = Path(path) if path is not None else DEFAULT_CELL_PATH
     cell_path = cell_path.resolve()
-    raw = _read_toml(cell_path)
+    raw = read_toml(cell_path)
     config_dir = cell_path.parent
     robots_raw = raw.get("robots", {})
     if not isinstance(robots_raw, dict):
@@ -300,7 +302,7 @@ def load_cell_config(path: Path | str | None = None) -> CellConfig:
         model_ref = robot.get("model")
         if isinstance(model_ref, str):
             model_path = _resolve(config_dir, model_ref)
-            model = _read_toml(model_path)
+            model = read_toml(model_path)
             if isinstance(model.get("urdf"), str):
                 model["urdf"] = str(resolve_urdf(model["urdf"], model_path.parent))
             robot["model"] = model
@@ -314,4 +316,4 @@ def load_cell_config(path: Path | str | None = None) -> CellConfig:
     try:
         return CellConfig.model_validate(raw)
     except ValidationError as exc:
-        raise ConfigError(_one_line(exc, cell_path)) from None
+        raise ConfigError(one_line(exc, cell_path)) from None

@@ -26,13 +26,12 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-import tomllib
 from pathlib import Path
 from typing import Annotated, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from hrc_common.config import ConfigError
+from hrc_common.config import ConfigError, one_line, read_toml
 from tracker_emu.body import BodyCapsule, BodyPose, body_capsules
 
 MAX_WALKING_SPEED_MPS = 3.0
@@ -159,16 +158,6 @@ def humans_at(scenario: Scenario, t_s: float) -> list[TrackedHuman]:
     return present
 
 
-def _one_line(exc: ValidationError) -> str:
-    parts = []
-    for err in exc.errors()[:3]:
-        where = ".".join(str(p) for p in err["loc"])
-        msg = err["msg"].removeprefix("Value error, ")
-        parts.append(f"{where}: {msg}" if where else msg)
-    more = f" (and {exc.error_count() - 3} more)" if exc.error_count() > 3 else ""
-    return "; ".join(parts) + more
-
-
 def load_scenario(path: Path | str) -> Scenario:
     """Load and validate a scenario file.
 
@@ -176,17 +165,11 @@ def load_scenario(path: Path | str) -> Scenario:
         ConfigError: the file is missing, not TOML, or not a valid scenario (one line, with the file name).
     """
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    raw = read_toml(path)
     try:
         return Scenario.model_validate(raw)
     except ValidationError as exc:
-        raise ConfigError(f"{path}: {_one_line(exc)}") from None
+        raise ConfigError(one_line(exc, path)) from None
 
 
 def available_scenarios(scenarios_dir: Path | str) -> list[str]:

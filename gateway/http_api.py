@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, FastAPI, HTTPException, Request
@@ -19,9 +20,15 @@ STATUS_STALE_AFTER_S = 1.0
 class StatusBoard:
     """The newest status document and the effective configuration, shared with the API (thread-safe)."""
 
-    def __init__(self, effective_config: dict[str, Any], stale_after_s: float = STATUS_STALE_AFTER_S) -> None:
+    def __init__(
+        self,
+        effective_config: dict[str, Any],
+        stale_after_s: float = STATUS_STALE_AFTER_S,
+        clock_s: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.effective_config = effective_config
         self.stale_after_s = stale_after_s
+        self._clock_s = clock_s
         self._lock = threading.Lock()
         self._doc: dict[str, Any] | None = None
         self._received_s = 0.0
@@ -29,14 +36,14 @@ class StatusBoard:
     def publish(self, doc: dict[str, Any]) -> None:
         with self._lock:
             self._doc = doc
-            self._received_s = time.monotonic()
+            self._received_s = self._clock_s()
 
     def latest(self) -> tuple[dict[str, Any] | None, float | None]:
         """The newest document and its age [s] (None, None before the first)."""
         with self._lock:
             if self._doc is None:
                 return None, None
-            return self._doc, time.monotonic() - self._received_s
+            return self._doc, self._clock_s() - self._received_s
 
 
 def _board(request: Request) -> StatusBoard:

@@ -89,7 +89,7 @@ class Cell:
         return f"http://127.0.0.1:{self.http_port}"
 
     def get(self, path: str) -> httpx.Response:
-        return httpx.get(self.base_url + path, timeout=2.0)
+        return httpx.get(self.base_url + path, timeout=10.0)
 
     def robot(self, name: str = "ur5") -> dict[str, Any] | None:
         try:

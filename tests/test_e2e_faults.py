@@ -9,6 +9,7 @@ import json
 import signal
 import threading
 import time
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -165,12 +166,17 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
                 while time.monotonic() < end:
                     seq += 1
                     pub.put(_humans(seq, time.time_ns() + offset_ns))
-                    time.sleep(1 / 30)
+                    time.sleep(1 / 50)  # 50 Hz: a late frame under load stays well inside max_data_age_s
 
-            deadline = time.monotonic() + READY_S
-            while time.monotonic() < deadline and not _healthy(cell.robot() or {"faults": [1]}):
-                publish_for(0.2)
-            assert _healthy(cell.robot() or {"faults": [1]}), cell.tail()
+            def publish_until_healthy(timeout_s: float) -> bool:
+                deadline = time.monotonic() + timeout_s
+                while time.monotonic() < deadline:
+                    publish_for(0.2)
+                    if _healthy(cell.robot() or {"faults": [1]}):
+                        return True
+                return False
+
+            assert publish_until_healthy(READY_S), cell.tail()
             offset_ns = 10_000_000_000  # the tracker's clock jumps 10 s ahead
             publish_for(0.5)
             status = cell.robot()
@@ -183,8 +189,7 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
             publish_for(0.5)
             assert cell.robot()["delta"] == 0.0  # type: ignore[index]
             offset_ns = 0
-            publish_for(1.0)
-            assert _healthy(cell.robot() or {"faults": [1]}), cell.robot()
+            assert publish_until_healthy(RECOVER_S), cell.tail()
         _assert_alive(cell, "gateway", "controller", "tracker")
 
 
@@ -196,8 +201,14 @@ def test_partition_between_gateway_and_controller_stops_and_resumes(tmp_path: Pa
             session.declare_subscriber(keys.robot_state("demo", "ur5"), watch.on_sample)
             time.sleep(0.3)
             cut_ns = time.time_ns()
-            session.put("hrc/demo/faultinject/control", json.dumps({"partition_for_s": 2.0}))
-            status = cell.wait_until(_stopped_with("joint_state_stale"), DETECT_S, "the gateway to see the partition")
+            # Repeated until seen: the session may still be connecting to the relay (slow under load).
+            status = None
+            deadline = time.monotonic() + 15.0
+            while status is None and time.monotonic() < deadline:
+                session.put("hrc/demo/faultinject/control", json.dumps({"partition_for_s": 2.0}))
+                with suppress(AssertionError):
+                    status = cell.wait_until(_stopped_with("joint_state_stale"), 1.0, "the partition")
+            assert status is not None, f"the gateway never saw the partition\n{cell.tail()}"
             assert "override_path_stale" in _fault_codes(status)
             time.sleep(0.5)
             assert any(s.mode == "protective_stop" and s.override == 0.0 for s in watch.since(cut_ns)), (

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 from typing import Any
 
@@ -70,11 +69,12 @@ def test_newest_document_wins(board: StatusBoard, client: TestClient) -> None:
 
 
 def test_status_503_when_stale(cell_config: CellConfig) -> None:
-    board = StatusBoard(effective_config(cell_config), stale_after_s=0.02)
+    now_s = [100.0]
+    board = StatusBoard(effective_config(cell_config), stale_after_s=0.02, clock_s=lambda: now_s[0])
     client = TestClient(create_app(board))
     board.publish(status_doc(ur5=robot_entry()))
     assert client.get("/api/v1/status").status_code == 200
-    time.sleep(0.05)
+    now_s[0] += 0.05
     for path in ("/api/v1/status", "/api/v1/robots/ur5", "/readyz"):
         response = client.get(path)
         assert response.status_code == 503, path

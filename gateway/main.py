@@ -24,7 +24,7 @@ from gateway.status import effective_config, robot_status, status_document
 from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, load_cell_config
 from hrc_common.messages import Override, to_payload
-from hrc_common.robot_model import RobotModel, load_robot_model
+from hrc_common.robot_model import load_robot_model
 from hrc_common.service import (
     RateLoop,
     add_config_argument,
@@ -85,7 +85,6 @@ def _log_changes(previous: dict[str, RobotDecision], decisions: dict[str, RobotD
 
 def run_gateway(
     config: CellConfig,
-    robots: dict[str, RobotModel],
     core: SafetyCore,
     listen: list[str],
     connect: list[str],
@@ -95,6 +94,7 @@ def run_gateway(
 ) -> int:
     """Run the gateway until ``stop`` is set. Returns the process exit code."""
     cell = config.cell
+    robots = core.robots
     store = InputStore({name: r.n_joints for name, r in robots.items()}, sorted(config.trackers))
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
@@ -221,7 +221,6 @@ def cli(argv: list[str] | None = None) -> None:
     with stop_on_signals() as stop:
         code = run_gateway(
             config,
-            robots,
             core,
             listen,
             args.zenoh_connect,

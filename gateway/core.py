@@ -210,6 +210,7 @@ class SafetyCore:
                 MethodInput(
                     robot,
                     self._data[name],
+                    joint.q_rad,
                     links,
                     rows,
                     humans,

@@ -49,7 +49,8 @@ class MethodInput(NamedTuple):
 
     Attributes:
         robot: the robot's model.
-        data: its Pinocchio data, with the frame placements of this decision (after ``link_kinematics``).
+        data: its Pinocchio data (scratch space; a method that needs frames runs its own kinematics).
+        q_rad: joint positions of this decision [rad].
         links: link end points and velocities at the programmed speed [m, m/s].
         rows: the eq. (15) rows of this decision (surface distances included).
         humans: all human capsules seen.
@@ -62,6 +63,7 @@ class MethodInput(NamedTuple):
 
     robot: RobotModel
     data: pin.Data
+    q_rad: FloatArray
     links: LinkKinematics
     rows: ConstraintRows
     humans: HumanCapsules
@@ -160,6 +162,7 @@ class ThreeZones:
         frame_id = self._tool_frame_id[x.robot.name]
         if frame_id is None:
             return np.asarray(x.links.p_b_world[-1], dtype=float)
+        pin.framesForwardKinematics(x.robot.model, x.data, x.q_rad)
         p_base = np.asarray(x.data.oMf[frame_id].translation, dtype=float)
         return np.asarray(x.robot.R_world_base @ p_base + x.robot.p_world_base, dtype=float)
 

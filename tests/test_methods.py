@@ -295,13 +295,14 @@ def test_three_zones_tool_point_default_and_configured(ur5: RobotModel) -> None:
     data = ur5.model.createData()
     links = link_kinematics(ur5, data, q, np.zeros(6))
     pin.framesForwardKinematics(ur5.model, data, q)
+    scratch = ur5.model.createData()  # the method runs its own kinematics
     tool0 = ur5.R_world_base @ data.oMf[ur5.model.getFrameId("tool0")].translation + ur5.p_world_base
     wrist = ur5.R_world_base @ data.oMf[ur5.model.getFrameId("wrist_2_link")].translation + ur5.p_world_base
     from gateway.methods import MethodInput
     from gateway.metric import NO_HUMANS, build_rows
 
     rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, NO_HUMANS, SAFETY, 0.1)
-    x = MethodInput(ur5, data, links, rows, NO_HUMANS, np.zeros(6), 0.1, 1.0, 0.0, 0.004)
+    x = MethodInput(ur5, scratch, q, links, rows, NO_HUMANS, np.zeros(6), 0.1, 1.0, 0.0, 0.004)
     assert ThreeZones(SAFETY, {"ur5": ur5}).tool_point_world(x) == pytest.approx(tool0)
     at_wrist = ThreeZones(SafetyConfig(three_zones_tool_frame="wrist_2_link"), {"ur5": ur5})
     assert at_wrist.tool_point_world(x) == pytest.approx(wrist)

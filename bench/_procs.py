@@ -111,11 +111,15 @@ def write_cell_config(config: CellConfig, path: Path) -> Path:
     return path
 
 
-def with_gateway_rate(config: CellConfig, rate_hz: float, http_port: int | None = None) -> CellConfig:
-    """``config`` with ``gateway.rate_hz`` (and the HTTP port) changed, validated."""
+def with_gateway_rate(
+    config: CellConfig, rate_hz: float, http_port: int | None = None, event_driven: bool | None = None
+) -> CellConfig:
+    """``config`` with ``gateway.rate_hz`` (and the HTTP port, and ``gateway.event_driven``) changed, validated."""
     update: dict[str, Any] = {"rate_hz": rate_hz}
     if http_port is not None:
         update["http_port"] = http_port
+    if event_driven is not None:
+        update["event_driven"] = event_driven
     gateway = config.gateway.model_validate({**config.gateway.model_dump(), **update})
     return config.model_copy(update={"gateway": gateway})
 

@@ -4,17 +4,23 @@ Each run starts a whole cell on loopback (gateway with ``gateway.rate_hz`` chang
 of the cell, controller emulator, tracker emulator playing a looping scenario) and, for ``duration``
 seconds, records:
 
-- the period: differences of consecutive override ``stamp_ns`` (the gateway takes it at the start of
-  every cycle, and sends one override per robot per cycle), p50/p99/max; pairs with a missing seq in
-  between (a message this subscriber did not get) are left out and counted;
+- the period of the fixed-rate ticks: differences of the ``stamp_ns`` of consecutive ticks' overrides
+  (the gateway takes it at the start of every cycle, and sends one override per robot per cycle),
+  p50/p99/max. The gateway also decides when a tracker frame arrives (event cycles, between ticks);
+  the status documents list their override seqs (``loop.event_seqs``), which tells ticks from event
+  cycles. Pairs that cannot be told (a status lost) are left out and counted;
+- the interval between consecutive decisions, ticks and event cycles alike (consecutive seqs; pairs
+  with a seq this subscriber did not get are left out and counted);
 - missed cycles: the growth of ``loop.missed_cycles`` in the gateway's status over the window, plus the
-  periods longer than 1.5 nominal periods seen here;
+  tick periods longer than 1.5 nominal periods seen here; event cycles: the growth of
+  ``loop.event_cycles``;
 - ``loop.last_lateness_s`` and ``loop.compute_max_s`` from every status document.
 
 With load, a generator in this process sends ``--http-rate`` requests/s (status, one robot, readyz,
 config) to the gateway's REST API on 127.0.0.1, at most rate × duration requests, each with a 1 s timeout.
 
-    python -m bench.loop [--duration 60] [--rates 500,250] [--http-rates 0,200] [--json out/bench/loop.json]
+    python -m bench.loop [--duration 60] [--rates 500,250] [--http-rates 0,200] [--fixed-rate]
+                         [--json out/bench/loop.json]
 """
 
 from __future__ import annotations
@@ -69,12 +75,17 @@ class LoopStatus(NamedTuple):
     missed_cycles: int | None
     last_lateness_s: float | None
     compute_max_s: float | None
+    override_seq: int | None = None
+    tick_cycles: int | None = None
+    event_cycles: int | None = None
+    event_seqs: tuple[int, ...] = ()
 
 
 @dataclass
 class Recorder:
     """Zenoh callbacks of one robot's overrides and of the status; appends only while ``on`` is set."""
 
+    robot: str = ""
     on: threading.Event = field(default_factory=threading.Event)
     overrides: list[Stamp] = field(default_factory=list)
     statuses: list[LoopStatus] = field(default_factory=list)
@@ -88,7 +99,8 @@ class Recorder:
     def on_status(self, sample: zenoh.Sample) -> None:
         self.any_status.set()
         if self.on.is_set():
-            loop = json.loads(sample.payload.to_bytes()).get("loop", {})
+            doc = json.loads(sample.payload.to_bytes())
+            loop = doc.get("loop", {})
             self.statuses.append(
                 LoopStatus(
                     time.monotonic(),
@@ -96,6 +108,10 @@ class Recorder:
                     loop.get("missed_cycles"),
                     loop.get("last_lateness_s"),
                     loop.get("compute_max_s"),
+                    doc.get("robots", {}).get(self.robot, {}).get("override_seq"),
+                    loop.get("tick_cycles"),
+                    loop.get("event_cycles"),
+                    tuple(int(seq) for seq in loop.get("event_seqs", ())),
                 )
             )
 
@@ -182,6 +198,7 @@ class RunSettings:
     warmup_s: float
     scenario: str
     seed: int
+    event_driven: bool = True
 
 
 def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
@@ -195,12 +212,43 @@ def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
     return np.diff(stamp)[consecutive], int((~consecutive).sum())
 
 
+def tick_periods(stamps: list[Stamp], statuses: list[LoopStatus]) -> tuple[np.ndarray, int]:
+    """Periods between consecutive ticks [ns], and the number of tick pairs left out.
+
+    A pair of received overrides ``(t1, t2)`` is a pair of consecutive ticks when both are known ticks and
+    every seq between them is a known event cycle. Known: inside a window between two statuses whose
+    ``event_seqs`` is complete (as long as the growth of ``event_cycles``; a status lost on the way makes
+    the next one's list shorter, unless that window had no event cycle).
+    """
+    ordered = [s for s in statuses if s.override_seq is not None and s.event_cycles is not None]
+    events: set[int] = set()
+    windows: list[tuple[int, int]] = []
+    for before, after in itertools.pairwise(ordered):
+        events.update(after.event_seqs)
+        grown = (after.event_cycles or 0) - (before.event_cycles or 0)
+        if grown == len(after.event_seqs) and (after.override_seq or 0) > (before.override_seq or 0):
+            windows.append((before.override_seq or 0, after.override_seq or 0))
+    known_set = {seq for first, last in windows for seq in range(first + 1, last + 1)}
+    stamp_of = {s.seq: s.stamp_ns for s in stamps}
+    ticks = sorted(seq for seq in stamp_of if seq in known_set and seq not in events)
+    out: list[int] = []
+    skipped = 0
+    for t1, t2 in itertools.pairwise(ticks):
+        between = range(t1 + 1, t2)
+        if all(seq in events and seq in known_set for seq in between):
+            out.append(stamp_of[t2] - stamp_of[t1])
+        else:
+            skipped += 1
+    return np.array(out, dtype=np.int64), skipped
+
+
 def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
     robot = next(iter(base.robots))
     gw_port, http_port = free_port(), free_port()
     gw_ep = f"tcp/127.0.0.1:{gw_port}"
     tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps"
-    config_path = write_cell_config(with_gateway_rate(base, settings.rate_hz, http_port), work_dir / f"cell-{tag}.toml")
+    config = with_gateway_rate(base, settings.rate_hz, http_port, settings.event_driven)
+    config_path = write_cell_config(config, work_dir / f"cell-{tag}.toml")
     logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", "controller", "tracker")}
     cfg = ["--config", str(config_path)]
     specs = [
@@ -212,7 +260,7 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
             logs["tracker"],
         ),
     ]
-    recorder = Recorder()
+    recorder = Recorder(robot)
     base_url = f"http://127.0.0.1:{http_port}"
     http_result: dict[str, Any] | None = None
     with programs(specs) as procs, zenoh.open(session_config(connect=[gw_ep])) as session:
@@ -259,9 +307,10 @@ def _growth(values: list[int | None]) -> int | None:
 
 
 def analyse(settings: RunSettings, recorder: Recorder, http: dict[str, Any] | None) -> dict[str, Any]:
-    period_ns, skipped = periods(recorder.overrides)
-    nominal_ms = 1e3 / settings.rate_hz
     statuses = recorder.statuses
+    period_ns, ticks_skipped = tick_periods(recorder.overrides, statuses)
+    interval_ns, skipped = periods(recorder.overrides)
+    nominal_ms = 1e3 / settings.rate_hz
     period = summary(period_ns, 1e-6, 3)
     return {
         "rate_hz": settings.rate_hz,
@@ -271,8 +320,12 @@ def analyse(settings: RunSettings, recorder: Recorder, http: dict[str, Any] | No
         "period_ms": period,
         "p99_over_nominal": round(period["p99"] / nominal_ms, 3) if period_ns.size else None,
         "periods_over_1_5_nominal": int((period_ns > LATE_PERIODS * nominal_ms * 1e6).sum()),
+        "tick_pairs_skipped_unknown": ticks_skipped,
+        "decision_interval_ms": summary(interval_ns, 1e-6, 3),
         "pairs_skipped_missing_seq": skipped,
         "cycles_in_window": _growth([s.cycles for s in statuses]),
+        "tick_cycles_in_window": _growth([s.tick_cycles for s in statuses]),
+        "event_cycles_in_window": _growth([s.event_cycles for s in statuses]),
         "missed_cycles_in_window": _growth([s.missed_cycles for s in statuses]),
         "lateness_ms": summary([s.last_lateness_s for s in statuses if s.last_lateness_s is not None], 1e3, 3),
         "compute_max_per_status_ms": summary(
@@ -294,12 +347,14 @@ def run(
     seed: int,
     config_path: Path | None,
     work_dir: Path,
+    event_driven: bool = True,
 ) -> Report:
     base = load_cell_config(config_path)
     report = Report(
         NAME,
         {
             "rates_hz": rates,
+            "event_driven": event_driven,
             "http_rates_per_s": http_rates,
             "duration_s": duration_s,
             "warmup_s": warmup_s,
@@ -313,7 +368,7 @@ def run(
     for rate in rates:
         for http_rate in http_rates:
             print(f"... {rate:g} Hz, {http_rate:g} HTTP requests/s, {duration_s:g} s")
-            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed)
+            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven)
             runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz, {http_rate:g} req/s"))
     report.results["runs"] = runs
     loaded = max(http_rates)
@@ -328,9 +383,12 @@ def run(
                 )
             )
     report.notes = [
-        "period = difference of consecutive override stamp_ns, i.e. of the gateway's cycle starts "
-        "(time.time_ns in the gateway; the loop itself sleeps on the monotonic clock).",
-        "missed_cycles_in_window is the gateway's own count (RateLoop: boundaries skipped after an overrun).",
+        "period = difference of the override stamp_ns of consecutive ticks, i.e. of the gateway's tick "
+        "starts (time.time_ns in the gateway; the loop itself sleeps on the monotonic clock); event cycles "
+        "(a decision when a tracker frame arrives) are told apart by the seqs the status lists "
+        "(loop.event_seqs). decision_interval = the same over all decisions, ticks and event cycles.",
+        "missed_cycles_in_window is the gateway's own count (RateLoop: boundaries skipped after an overrun; "
+        "event cycles are never missed or late ticks); event_cycles_in_window counts the event cycles.",
         "The HTTP server is a child process of the gateway; the load generator runs in this process; all "
         "share the same 2 cores with the controller and tracker emulators.",
         "Figures on a shared 2-core machine are indicative: see load_average.",
@@ -355,6 +413,8 @@ def print_report(doc: dict[str, Any]) -> None:
                 r["p99_over_nominal"],
                 r["missed_cycles_in_window"],
                 r["periods_over_1_5_nominal"],
+                r["event_cycles_in_window"],
+                r["decision_interval_ms"].get("p50"),
                 r["compute_max_per_status_ms"].get("max"),
             ]
         )
@@ -372,6 +432,8 @@ def print_report(doc: dict[str, Any]) -> None:
                 "p99/T",
                 "missed",
                 ">1.5T",
+                "events",
+                "decision p50 [ms]",
                 "compute max [ms]",
             ],
             rows,
@@ -397,13 +459,26 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
     parser.add_argument("--scenario", default="two_people", help="tracker scenario (looping)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--fixed-rate", action="store_true", help="gateway.event_driven = false: decide at the ticks only"
+    )
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
     rates = [float(x) for x in args.rates.split(",") if x.strip()]
     http_rates = [float(x) for x in args.http_rates.split(",") if x.strip()]
     print_header("sustained loop: period and missed cycles of the real gateway, with and without HTTP load")
-    report = run(rates, http_rates, args.duration, args.warmup, args.scenario, args.seed, args.config, args.json.parent)
+    report = run(
+        rates,
+        http_rates,
+        args.duration,
+        args.warmup,
+        args.scenario,
+        args.seed,
+        args.config,
+        args.json.parent,
+        event_driven=not args.fixed_rate,
+    )
     doc = report.finish(args.json)
     print_report(doc)
     print(f"\nwrote {args.json}")

@@ -17,15 +17,19 @@ states and the gateway status, and measures, per sample:
 The floor is the raw Zenoh one-way latency between two processes in the same run: next to every
 sample, this process sends a stamped ping to a peer process (``bench._oneway_peer``).
 
-The gateway decides at a fixed rate: a sample waits up to one period for the next cycle, so at
-250 Hz the p99 cannot be below ~4 ms whatever the compute time. The report says what part is wait.
+The gateway decides at every tick of its fixed rate and, with ``gateway.event_driven`` (the default),
+also at once when a tracker frame arrives (an *event cycle*). The status documents list the override
+seqs of the event cycles, so the report says how many samples an event cycle reflected and how many a
+tick did. With ``--fixed-rate`` the gateway runs ticks only: a sample then waits up to one period for
+the next tick (at 250 Hz the p99 cannot be below ~4 ms whatever the compute time).
 
-    python -m bench.reaction [--samples 5000] [--rates 250,1000] [--json out/bench/reaction.json]
+    python -m bench.reaction [--samples 5000] [--rates 250,1000] [--fixed-rate] [--json out/bench/reaction.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import random
 import time
@@ -96,6 +100,9 @@ class StatusSeen(NamedTuple):
     faults: tuple[str, ...]
     missed_cycles: int | None
     compute_max_s: float | None
+    event_cycles: int | None = None
+    event_seqs: tuple[int, ...] = ()
+    tick_cycles: int | None = None
 
 
 @dataclass
@@ -128,6 +135,9 @@ class Recorder:
                 tuple(str(f.get("code")) for f in robot.get("faults", [])),
                 loop.get("missed_cycles"),
                 loop.get("compute_max_s"),
+                loop.get("event_cycles"),
+                tuple(int(seq) for seq in loop.get("event_seqs", ())),
+                loop.get("tick_cycles"),
             )
         )
 
@@ -234,12 +244,47 @@ def check_against_status(
     return {"checked": checked, "agree": agree, "disagree": checked - agree}
 
 
+def event_seqs_known(statuses: list[StatusSeen]) -> tuple[set[int], list[tuple[int, int]]]:
+    """The override seqs of event cycles, and the seq ranges ``(first, last]`` where that list is complete.
+
+    Each status lists the event cycles since the previous one (``loop.event_seqs``); the window between
+    two statuses received here is complete when the list is as long as the growth of ``loop.event_cycles``
+    (a status lost on the way, or a capped list, makes it shorter unless that window had none).
+    """
+    events: set[int] = set()
+    complete: list[tuple[int, int]] = []
+    ordered = sorted((s for s in statuses if s.event_cycles is not None), key=lambda s: s.override_seq)
+    for s in ordered:
+        events.update(s.event_seqs)
+    for before, after in itertools.pairwise(ordered):
+        grown = (after.event_cycles or 0) - (before.event_cycles or 0)
+        if grown == len(after.event_seqs) and after.override_seq > before.override_seq:
+            complete.append((before.override_seq, after.override_seq))
+    return events, complete
+
+
+def reflected_by(reactions: list[Reaction], statuses: list[StatusSeen]) -> dict[str, int]:
+    """How many samples an event cycle reflected, how many a tick did, and how many cannot be told."""
+    events, complete = event_seqs_known(statuses)
+    starts = np.array([first for first, _ in complete], dtype=np.int64)
+    ends = np.array([last for _, last in complete], dtype=np.int64)
+    counts = {"event_cycle": 0, "tick": 0, "unknown": 0}
+    for r in reactions:
+        if r.override_seq in events:
+            counts["event_cycle"] += 1
+        elif bool(np.any((starts < r.override_seq) & (r.override_seq <= ends))):
+            counts["tick"] += 1
+        else:
+            counts["unknown"] += 1
+    return counts
+
+
 # -- one run ------------------------------------------------------------------------------------------
 
 
-def bench_config(base: CellConfig, rate_hz: float, http_port: int) -> CellConfig:
-    """The cell with one tracker named ``bench`` and the given gateway rate."""
-    config = with_gateway_rate(base, rate_hz, http_port)
+def bench_config(base: CellConfig, rate_hz: float, http_port: int, event_driven: bool = True) -> CellConfig:
+    """The cell with one tracker named ``bench``, the given gateway rate, event cycles on or off."""
+    config = with_gateway_rate(base, rate_hz, http_port, event_driven)
     return config.model_copy(update={"trackers": {TRACKER: TrackerConfig()}})
 
 
@@ -265,6 +310,7 @@ class RunSettings:
     warmup_timeout_s: float
     settle_s: float
     seed: int
+    event_driven: bool = True
 
 
 class Sender:
@@ -302,7 +348,8 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
     gw_port, bench_port, http_port = free_port(), free_port(), free_port()
     gw_ep, bench_ep = f"tcp/127.0.0.1:{gw_port}", f"tcp/127.0.0.1:{bench_port}"
     tag = f"{settings.rate_hz:g}hz"
-    config_path = write_cell_config(bench_config(base, settings.rate_hz, http_port), work_dir / f"cell-{tag}.toml")
+    config = bench_config(base, settings.rate_hz, http_port, settings.event_driven)
+    config_path = write_cell_config(config, work_dir / f"cell-{tag}.toml")
     logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", "controller", "peer")}
     peer_out = work_dir / f"{NAME}-{tag}-oneway.json"
     peer_out.unlink(missing_ok=True)
@@ -389,6 +436,8 @@ def analyse(
     floor = [lat for seq, lat in zip(oneway["seq"], oneway["latency_ns"], strict=True) if first <= seq < end]
     faults = Counter(code for s in statuses for code in s.faults)
     missed = [s.missed_cycles for s in statuses if s.missed_cycles is not None]
+    events = [s.event_cycles for s in statuses if s.event_cycles is not None]
+    ticks = [s.tick_cycles for s in statuses if s.tick_cycles is not None]
     compute_max = [s.compute_max_s for s in statuses if s.compute_max_s is not None]
     state_seqs = sorted({s.seq for s in recorder.states})
     states_lost = (state_seqs[-1] - state_seqs[0] + 1 - len(state_seqs)) if state_seqs else 0
@@ -404,6 +453,7 @@ def analyse(
     decision = summary([r.decision_ns for r in matched], 1e-6, 3)
     return {
         "rate_hz": settings.rate_hz,
+        "event_driven": settings.event_driven,
         "period_ms": period_ms,
         "samples_sent": end - first,
         "samples_matched": len(matched),
@@ -414,14 +464,18 @@ def analyse(
         "published_received_ms": summary([r.received_ns for r in matched], 1e-6, 3),
         "applied_ms": summary(applied, 1e-6, 3),
         "zenoh_oneway_floor_ms": summary(floor, 1e-6, 3),
+        "reflected_by": reflected_by(matched, recorder.statuses),
         "wait_for_cycle_model_ms": {
-            "explanation": "a sample waits U(0, period) for the next cycle start: p50 = period/2, p99 = 0.99 period",
+            "explanation": "fixed rate only (no event cycles): a sample waits U(0, period) for the next "
+            "cycle start: p50 = period/2, p99 = 0.99 period",
             "p50": round(0.5 * period_ms, 3),
             "p99": round(0.99 * period_ms, 3),
         },
         "status_cross_check": check,
         "faults_in_status": dict(faults),
         "gateway_missed_cycles_during_run": (max(missed) - min(missed)) if missed else None,
+        "gateway_tick_cycles_during_run": (max(ticks) - min(ticks)) if ticks else None,
+        "gateway_event_cycles_during_run": (max(events) - min(events)) if events else None,
         "gateway_compute_max_ms": summary(compute_max, 1e3, 3),
         "joint_states_lost_to_this_subscriber": states_lost,
     }
@@ -440,12 +494,14 @@ def run(
     seed: int,
     config_path: Path | None,
     work_dir: Path,
+    event_driven: bool = True,
 ) -> Report:
     base = load_cell_config(config_path)
     report = Report(
         NAME,
         {
             "rates_hz": rates,
+            "event_driven": event_driven,
             "samples_per_rate": samples,
             "tracker_interval": f"max(2.5 gateway periods, {min_interval_s * 1e3:g} ms) ± {100 * jitter:g} %",
             "settle_s": settle_s,
@@ -465,6 +521,7 @@ def run(
             warmup_timeout_s=warmup_timeout_s,
             settle_s=settle_s,
             seed=seed + k,
+            event_driven=event_driven,
         )
         print(f"... {rate:g} Hz: {samples} samples every {settings.interval_s * 1e3:.1f} ms ± {100 * jitter:g} %")
         runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz"))
@@ -480,7 +537,7 @@ def run(
         )
     floor = [r["zenoh_oneway_floor_ms"] for r in runs if r["zenoh_oneway_floor_ms"].get("n")]
     compute = [r["gateway_compute_max_ms"] for r in runs if r["gateway_compute_max_ms"].get("n")]
-    if floor and compute:
+    if floor and compute and not event_driven:
         estimate = round(min(f["p99"] for f in floor) + min(c["p50"] for c in compute), 3)
         report.results["event_driven_estimate_ms"] = {
             "p99_published": estimate,
@@ -491,9 +548,12 @@ def run(
     report.notes = [
         "decision = override stamp_ns − sample stamp_ns: the cycle start, before snapshot and compute "
         "(lower bound of 'published'); published_received adds one Zenoh hop to this process (upper bound).",
-        "The gateway runs at a fixed rate: the wait for the next cycle, U(0, period), dominates; "
-        "see wait_for_cycle_model_ms. A p99 ≤ 1 ms needs a decision on tracker arrival (event-driven), "
-        "not a faster compute.",
+        "With event_driven (the default) the gateway decides when a tracker frame arrives (an event cycle) "
+        "as well as at its fixed-rate ticks; reflected_by counts the samples whose first override was an "
+        "event cycle or a tick (from the event seqs listed in the status documents). A sample served by a "
+        "tick arrived while the previous event cycle was less than gateway.min_event_interval_s ago, or "
+        "within gateway.event_guard_s of the tick. With --fixed-rate the wait for the next tick, "
+        "U(0, period), dominates: see wait_for_cycle_model_ms and event_driven_estimate_ms.",
         "applied = stamp of the controller emulator's first joint state echoing that override or a newer "
         "one; its cycle is 4 ms, so it adds U(0, 4 ms).",
         "Samples that cannot be matched unambiguously are excluded and counted by reason (excluded); those "
@@ -520,10 +580,16 @@ def print_report(doc: dict[str, Any]) -> None:
     print("\n" + table(["latency [ms]", "n", "p50", "p99", "max"], rows))
     for r in doc["results"]["runs"]:
         print(
-            f"{r['rate_hz']:g} Hz: wait for the next cycle alone: p50 {r['wait_for_cycle_model_ms']['p50']} ms, "
+            f"{r['rate_hz']:g} Hz: wait for the next tick alone (fixed rate): "
+            f"p50 {r['wait_for_cycle_model_ms']['p50']} ms, "
             f"p99 {r['wait_for_cycle_model_ms']['p99']} ms; matched {r['samples_matched']}/{r['samples_sent']}; "
             f"status cross-check {r['status_cross_check']}; faults {r['faults_in_status'] or 'none'}; "
             f"missed cycles {r['gateway_missed_cycles_during_run']}; excluded {r['excluded'] or 'none'}"
+        )
+        print(
+            f"{r['rate_hz']:g} Hz: event-driven {r['event_driven']}: "
+            f"{r['gateway_tick_cycles_during_run']} ticks and {r['gateway_event_cycles_during_run']} event cycles "
+            f"during the run; samples reflected by {r['reflected_by']}"
         )
     estimate = doc["results"].get("event_driven_estimate_ms")
     if estimate:
@@ -542,6 +608,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup-timeout", type=float, default=30.0, help="[s]")
     parser.add_argument("--settle", type=float, default=1.0, help="samples sent after warm-up, not measured [s]")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--fixed-rate", action="store_true", help="gateway.event_driven = false: decide at the ticks only"
+    )
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
@@ -557,6 +626,7 @@ def main(argv: list[str] | None = None) -> int:
         args.seed,
         args.config,
         args.json.parent,
+        event_driven=not args.fixed_rate,
     )
     doc = report.finish(args.json)
     print_report(doc)

@@ -7,15 +7,17 @@ path that is not confirmed) force δ = 0 for the robots they concern and put the
 
 from __future__ import annotations
 
+import operator
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from gateway.delay import NS_PER_S, DelayBudget, WindowMax
 from gateway.inputs import InputSnapshot, JointSample
-from gateway.kinematics import link_kinematics
+from gateway.kernels import RobotKernels, capsule_columns
 from gateway.methods import MethodInput, ReplanMonitor, build_method
-from gateway.metric import NO_HUMANS, HumanCapsules, build_rows, clearance_m
+from gateway.metric import NO_HUMANS, HumanCapsules, decision_clearance_m
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_common.config import CellConfig
 from hrc_common.robot_model import RobotModel
@@ -65,7 +67,10 @@ class RobotDecision(NamedTuple):
 
 
 def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
-    return None if stamp_ns is None else max(0.0, (now_ns - stamp_ns) / NS_PER_S)
+    if stamp_ns is None:
+        return None
+    age_s = (now_ns - stamp_ns) / NS_PER_S
+    return age_s if age_s > 0.0 else 0.0
 
 
 def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
@@ -75,21 +80,43 @@ def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
         return NO_HUMANS
     if len(frames) == 1:
         return frames[0]
+    human_ids: tuple[str, ...] = ()
+    capsule_names: tuple[str, ...] = ()
+    for f in frames:  # a few trackers: adding tuples is the cheapest way to join them
+        human_ids += f.human_ids
+        capsule_names += f.capsule_names
     return HumanCapsules(
         np.concatenate([f.h_a_world for f in frames]),
         np.concatenate([f.h_b_world for f in frames]),
         np.concatenate([f.radius_m for f in frames]),
-        tuple(i for f in frames for i in f.human_ids),
-        tuple(n for f in frames for n in f.capsule_names),
+        human_ids,
+        capsule_names,
     )
 
 
+class _Merged(NamedTuple):
+    """The capsules of all trackers, merged from ``frames``, and their columns for the compiled rows."""
+
+    frames: tuple[HumanCapsules, ...]
+    humans: HumanCapsules
+    capsules: npt.NDArray[np.float64]
+
+
 class SafetyCore:
-    """Holds the per-robot state between cycles (zone, Pinocchio data) and steps all robots."""
+    """Holds the per-robot state between cycles (zone, Pinocchio data) and steps all robots.
+
+    Building it checks each robot's compiled kinematics against Pinocchio and compiles the per-cycle kernels
+    (or loads them from numba's cache): :class:`gateway.kernels.RobotKernels`.
+
+    Raises:
+        ConfigError: a robot has a joint the compiled kinematics does not support, or they differ from
+            Pinocchio's.
+    """
 
     def __init__(self, config: CellConfig, robots: dict[str, RobotModel]) -> None:
         self.config = config
         self.robots = robots
+        self._kernels = {name: RobotKernels(robot, config.safety) for name, robot in robots.items()}
         self._data = {name: robot.model.createData() for name, robot in robots.items()}
         self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
         hold_ns = int(config.zones.adaptive_speed_hold_s * NS_PER_S)
@@ -100,29 +127,49 @@ class SafetyCore:
         self._replan = {
             name: ReplanMonitor(config.safety.replan_delta_below, config.safety.replan_after_s) for name in robots
         }
+        # The trackers' newest frames and their merge: a frame changes at the tracker's rate (~30 Hz), not the
+        # gateway's, so the merge is redone only when one of them is a new object (held here, so no id reuse).
+        self._merged = _Merged((), NO_HUMANS, capsule_columns(NO_HUMANS))
+        # Input topic names ("robot/<r>", "tracker/<t>"), built once rather than formatted every cycle.
+        self._robot_topics = {name: f"robot/{name}" for name in robots}
+        self._tracker_topics = {tracker: f"tracker/{tracker}" for tracker in config.trackers}
 
-    def _held_speed_mps(self, name: str, now_ns: int, speed_mps: float) -> float:
-        return self._speeds[name].push(now_ns, speed_mps)
+    def _humans(self, frames: tuple[HumanCapsules, ...]) -> _Merged:
+        """``merge_humans(frames)`` and its capsule columns, cached while the frames are the same objects."""
+        previous = self._merged.frames
+        if len(frames) != len(previous) or not all(map(operator.is_, frames, previous)):
+            humans = merge_humans(list(frames))
+            self._merged = _Merged(frames, humans, capsule_columns(humans))
+        return self._merged
 
     def step(self, inputs: InputSnapshot, now_ns: int, gateway_period_s: float) -> dict[str, RobotDecision]:
         safety = self.config.safety
         max_age_s = safety.max_data_age_s
         tracker_faults: list[Fault] = []
         tracker_ages: dict[str, float | None] = {}
+        human_age_s = -1.0
+        frames: list[HumanCapsules] = []
         for tracker, frame in inputs.humans.items():
+            if frame is not None:
+                frames.append(frame.capsules)
             age = _age_s(frame.stamp_ns if frame else None, now_ns)
-            tracker_ages[f"tracker/{tracker}"] = age
+            topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
+            tracker_ages[topic] = age
+            age_or_limit_s = max_age_s if age is None else age  # no data yet counts as data at the age limit
+            if age_or_limit_s > human_age_s:
+                human_age_s = age_or_limit_s
             if frame is None:
                 tracker_faults.append(Fault("tracker_missing", f"no valid data from tracker {tracker!r} yet"))
             elif age is not None and age > max_age_s:
                 tracker_faults.append(
                     Fault("tracker_stale", f"tracker {tracker!r} data is {age:.3f} s old (limit {max_age_s} s)")
                 )
-            reason = inputs.invalid.get(f"tracker/{tracker}")
+            reason = inputs.invalid.get(topic)
             if reason:
                 tracker_faults.append(Fault("tracker_invalid", f"last message of tracker {tracker!r}: {reason}"))
-        humans = merge_humans([f.capsules for f in inputs.humans.values() if f is not None])
-        human_age_s = max((a if a is not None else max_age_s for a in tracker_ages.values()), default=max_age_s)
+        merged = self._humans(tuple(frames))
+        if human_age_s < 0.0:  # no tracker configured
+            human_age_s = max_age_s
 
         decisions = {}
         for name, robot in self.robots.items():
@@ -131,7 +178,7 @@ class SafetyCore:
                 robot,
                 inputs,
                 now_ns,
-                humans,
+                merged,
                 human_age_s,
                 tracker_faults,
                 tracker_ages,
@@ -145,7 +192,7 @@ class SafetyCore:
         robot: RobotModel,
         inputs: InputSnapshot,
         now_ns: int,
-        humans: HumanCapsules,
+        merged: _Merged,
         human_age_s: float,
         tracker_faults: list[Fault],
         tracker_ages: dict[str, float | None],
@@ -160,7 +207,7 @@ class SafetyCore:
             faults.append(Fault("joint_state_missing", f"no valid joint state from robot {name!r} yet"))
         elif joint_age is not None and joint_age > max_age_s:
             faults.append(Fault("joint_state_stale", f"joint state is {joint_age:.3f} s old (limit {max_age_s} s)"))
-        reason = inputs.invalid.get(f"robot/{name}")
+        reason = inputs.invalid.get(self._robot_topics[name])
         if reason:
             faults.append(Fault("joint_state_invalid", f"last joint state message: {reason}"))
 
@@ -177,35 +224,30 @@ class SafetyCore:
             )
 
         if self._delay_aware:
-            delay = DelayBudget(
-                t_reaction_s=safety.t_reaction_s,
-                human_age_s=human_age_s,
-                joint_state_age_s=joint_age if joint_age is not None else max_age_s,
-                override_path_s=path.latency_s if path.latency_s is not None else max_age_s,
-                controller_cycle_s=path.controller_cycle_s if path.controller_cycle_s is not None else max_age_s,
-                gateway_period_s=gateway_period_s,
+            delay = DelayBudget(  # positional (a keyword call costs twice as much): the fields' order
+                safety.t_reaction_s,
+                human_age_s,
+                joint_age if joint_age is not None else max_age_s,
+                path.latency_s if path.latency_s is not None else max_age_s,
+                path.controller_cycle_s if path.controller_cycle_s is not None else max_age_s,
+                gateway_period_s,
             )
         else:  # test-only: shows that the delay terms matter
             delay = DelayBudget(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         t_delay = delay.total_s
-        t_brake_max = float(robot.braking_time_s.max())
-        # Δ at the walking speed; where that falls below close_speed_below_m, Δ at the close speed (ISO 13855).
-        clearance_far = clearance_m(safety, np.array(np.inf), t_brake_max, t_delay)
-        clearance = float(clearance_m(safety, clearance_far, t_brake_max, t_delay))
+        kernels = self._kernels[name]
+        t_brake_max = kernels.t_brake_max_s
+        clearance = decision_clearance_m(safety, t_brake_max, t_delay)
 
         delta_bound = 0.0
         min_distance: float | None = None
         closest: ClosestPair | None = None
         speed_mps = 0.0
+        humans = merged.humans
         if joint is not None:
-            links = link_kinematics(robot, self._data[name], joint.q_rad, joint.qd_nominal_radps)
-            speed_mps = float(
-                max(
-                    np.linalg.norm(links.v_a_world, axis=1).max(),
-                    np.linalg.norm(links.v_b_world, axis=1).max(),
-                )
+            links, speed_mps, rows, (i, j, distance_m) = kernels.cycle(
+                joint.q_rad, joint.qd_nominal_radps, merged.capsules, t_delay
             )
-            rows = build_rows(links, robot.link_radius_m, robot.t_brake_link_s, t_brake_max, humans, safety, t_delay)
             delta_bound = self._method.bound(
                 MethodInput(
                     robot,
@@ -221,13 +263,15 @@ class SafetyCore:
                     gateway_period_s,
                 )
             )
-            if humans.n_capsules:
-                i, j = np.unravel_index(int(np.argmin(rows.surface_distance_m)), rows.surface_distance_m.shape)
-                min_distance = float(rows.surface_distance_m[i, j])
+            if i >= 0:  # a capsule is seen
+                min_distance = distance_m
                 closest = ClosestPair(humans.human_ids[j], humans.capsule_names[j], robot.link_names[i])
 
         thresholds = zone_thresholds(
-            self.config.zones, clearance, t_brake_max + t_delay, self._held_speed_mps(name, now_ns, speed_mps)
+            self.config.zones,
+            clearance,
+            t_brake_max + t_delay,
+            self._speeds[name].push(now_ns, speed_mps),  # the adaptive thresholds' held speed
         )
         if faults:
             zone = Zone.SAFETY_EXCEPTION
@@ -239,18 +283,18 @@ class SafetyCore:
         self._previous_delta[name] = delta
         replan = self._replan[name].update(now_ns, delta, faulted=bool(faults))
         ages = {"joint_state": joint_age, **tracker_ages}
-        return RobotDecision(
-            robot=name,
-            zone=zone,
-            delta=delta,
-            delta_bound=delta_bound,
-            min_distance_m=min_distance,
-            closest=closest,
-            delay=delay,
-            clearance_m=clearance,
-            thresholds=thresholds,
-            faults=tuple(faults),
-            data_age_s=ages,
-            controller_mode=joint.mode if joint else None,
-            replan_request=replan,
+        return RobotDecision(  # positional (a keyword call costs twice as much), in the order of the fields
+            name,
+            zone,
+            delta,
+            delta_bound,
+            min_distance,
+            closest,
+            delay,
+            clearance,
+            thresholds,
+            tuple(faults),
+            ages,
+            joint.mode if joint else None,
+            replan,
         )

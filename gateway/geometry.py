@@ -2,6 +2,9 @@
 
 The closest points of two segments follow Ericson, *Real-Time Collision Detection* (2005), §5.1.9,
 written for broadcasting: links along axis 0, capsules along axis 1. Checked against coal in tests.
+
+The ISO/TS 15066 method and the auditor use it; the gateway's eq. (15) loop runs the compiled twin in
+:mod:`gateway.kernels`, which the tests hold to these results (1e-12 m).
 """
 
 from __future__ import annotations

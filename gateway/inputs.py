@@ -1,7 +1,8 @@
 """The gateway's inputs: newest valid sample per topic, rejections counted by reason.
 
 Zenoh callbacks call :meth:`InputStore.on_joint_state` and :meth:`InputStore.on_humans`; they only
-validate and store. The safety loop takes a consistent :class:`InputSnapshot` once per cycle.
+validate and store (and ``on_humans`` may wake the loop to decide at once). The safety loop takes a
+consistent :class:`InputSnapshot` once per cycle.
 A topic whose newest message was invalid is *latched invalid* until a valid one arrives: the robots it
 concerns get δ = 0 meanwhile (contract, "Bad input").
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -66,23 +68,43 @@ class InputSnapshot(NamedTuple):
 
 
 def humans_to_capsules(tracker: str, message: Humans) -> HumanCapsules:
-    """Flatten a Humans message into arrays; human ids are prefixed with the tracker name."""
-    caps = [(f"{tracker}/{h.id}", c) for h in message.humans for c in h.capsules]
-    if not caps:
-        return HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
-    return HumanCapsules(
-        h_a_world=np.array([c.a for _, c in caps], dtype=float),
-        h_b_world=np.array([c.b for _, c in caps], dtype=float),
-        radius_m=np.array([c.radius for _, c in caps], dtype=float),
-        human_ids=tuple(hid for hid, _ in caps),
-        capsule_names=tuple(c.name for _, c in caps),
-    )
+    """Flatten a Humans message into arrays; human ids are prefixed with the tracker name.
+
+    One flat list of floats and one ``np.array`` call (~8 µs for 15 capsules; a list of tuples per array
+    cost twice that): the arrays are views of one (H, 7) array, rows ``a``, ``b``, ``radius``.
+    """
+    human_ids: list[str] = []
+    names: list[str] = []
+    values: list[float] = []
+    for human in message.humans:
+        human_id = f"{tracker}/{human.id}"
+        for capsule in human.capsules:
+            human_ids.append(human_id)
+            names.append(capsule.name)
+            values.extend(capsule.a)
+            values.extend(capsule.b)
+            values.append(capsule.radius)
+    rows = np.array(values, dtype=np.float64).reshape(-1, 7)
+    return HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], tuple(human_ids), tuple(names))
 
 
 class InputStore:
     """Thread-safe store of the newest valid input per topic, with rejection counters."""
 
-    def __init__(self, robot_joint_counts: dict[str, int], trackers: list[str]) -> None:
+    def __init__(
+        self,
+        robot_joint_counts: dict[str, int],
+        trackers: list[str],
+        on_tracker_change: Callable[[], None] | None = None,
+    ) -> None:
+        """
+        Args:
+            robot_joint_counts: joints per configured robot.
+            trackers: the configured trackers.
+            on_tracker_change: called (on the callback's thread, after storing) when what the loop sees
+                of a tracker changed, e.g. ``threading.Event.set`` to wake the loop; must not block.
+        """
+        self._on_tracker_change = on_tracker_change or _nothing
         self._lock = threading.Lock()
         self._joint_counts = dict(robot_joint_counts)
         self._joint: dict[str, JointSample | None] = dict.fromkeys(robot_joint_counts)
@@ -133,6 +155,9 @@ class InputStore:
             self._paths[robot].on_state(msg.override_seq, msg.stamp_ns)
 
     def on_humans(self, key: str, payload: bytes, now_ns: int) -> None:
+        """Validate and store a tracker frame; call ``on_tracker_change`` when what the loop sees of a
+        configured tracker changed (a new frame, or its newest message latched invalid), not for an
+        unknown tracker or an old or repeated frame."""
         tracker = keys.name_from_key(key, "tracker") or "?"
         topic_name = f"tracker/{tracker}"
         if tracker not in self._frames:
@@ -142,12 +167,15 @@ class InputStore:
             msg = parse_message(payload, Humans)
         except MessageError as exc:
             self._reject(topic_name, exc.reason)
+            self._on_tracker_change()
             return
         if msg.tracker != tracker:
             self._reject(topic_name, "name_mismatch")
+            self._on_tracker_change()
             return
         if msg.stamp_ns > now_ns + FUTURE_STAMP_TOLERANCE_NS:
             self._reject(topic_name, "stamp_in_future")
+            self._on_tracker_change()
             return
         frame = HumanFrame(msg.stamp_ns, msg.seq, humans_to_capsules(tracker, msg), len(msg.humans))
         with self._lock:
@@ -157,6 +185,7 @@ class InputStore:
             self._frames[tracker] = frame
             self._invalid.pop(topic_name, None)
             self._received[topic_name] += 1
+        self._on_tracker_change()
 
     def count_rejection(self, topic_name: str, reason: str) -> None:
         """Count a rejection found outside the store (e.g. an exception in a callback)."""
@@ -200,3 +229,7 @@ def _is_old(previous: JointSample | HumanFrame | None, seq: int, stamp_ns: int) 
     if previous is None:
         return False
     return stamp_ns < previous.stamp_ns or (seq <= previous.seq and stamp_ns <= previous.stamp_ns)
+
+
+def _nothing() -> None:
+    """The default ``on_tracker_change``."""

@@ -20,13 +20,14 @@ import zenoh
 from gateway.core import RobotDecision, SafetyCore
 from gateway.http_server import HttpServerProcess
 from gateway.inputs import InputSnapshot, InputStore
-from gateway.status import effective_config, robot_status, status_document
+from gateway.status import effective_config, loop_status, robot_status, status_document
 from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, load_cell_config
 from hrc_common.messages import Override, to_payload
 from hrc_common.robot_model import load_robot_model
 from hrc_common.service import (
     RateLoop,
+    StopEvent,
     add_config_argument,
     add_zenoh_arguments,
     configure_logging,
@@ -38,8 +39,12 @@ log = logging.getLogger("hrc-gateway")
 
 PROGRESS_EVERY_S = 5.0
 
+MAX_EVENT_SEQS_PER_STATUS = 256
+"""At most this many event-cycle seqs are listed in one status document (``loop.event_seqs``)."""
 
-def _callback(store: InputStore, kind: str) -> Callable[[zenoh.Sample], None]:
+
+def _callback(store: InputStore, kind: str, wake: threading.Event | None = None) -> Callable[[zenoh.Sample], None]:
+    """A Zenoh callback: validate and store (``store`` may set ``wake``, see ``on_tracker_change``)."""
     handler = store.on_joint_state if kind == "robot" else store.on_humans
 
     def on_sample(sample: zenoh.Sample) -> None:
@@ -49,6 +54,8 @@ def _callback(store: InputStore, kind: str) -> Callable[[zenoh.Sample], None]:
         except Exception:  # a callback must never die: count it and fail closed via the latch
             log.exception("error while handling a message on %s", key)
             store.count_rejection(f"{kind}/{keys.name_from_key(key, kind) or '?'}", "internal_error")
+            if wake is not None:
+                wake.set()  # decide on the latched fault at once
 
     return on_sample
 
@@ -90,21 +97,31 @@ def run_gateway(
     connect: list[str],
     http_host: str,
     http_port: int,
-    stop: threading.Event,
+    stop: StopEvent,
 ) -> int:
-    """Run the gateway until ``stop`` is set. Returns the process exit code."""
+    """Run the gateway until ``stop`` is set. Returns the process exit code.
+
+    The loop decides at every tick of ``gateway.rate_hz`` and, with ``gateway.event_driven``, also at
+    once when a tracker frame arrives (an event cycle, see :class:`RateLoop`).
+    """
     cell = config.cell
     robots = core.robots
-    store = InputStore({name: r.n_joints for name, r in robots.items()}, sorted(config.trackers))
+    gateway = config.gateway
+    wake = stop.wake_event() if gateway.event_driven else None
+    store = InputStore(
+        {name: r.n_joints for name, r in robots.items()},
+        sorted(config.trackers),
+        on_tracker_change=None if wake is None else wake.set,
+    )
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
-    period_s = 1.0 / config.gateway.rate_hz
-    status_every = max(1, round(config.gateway.rate_hz / config.gateway.status_rate_hz))
+    period_s = 1.0 / gateway.rate_hz
+    status_every = max(1, round(gateway.rate_hz / gateway.status_rate_hz))
     with zenoh.open(session_config(listen, connect)) as session:
         states_key, humans_key = keys.gateway_subscriptions(cell)
         subscribers = [
             session.declare_subscriber(states_key, _callback(store, "robot")),
-            session.declare_subscriber(humans_key, _callback(store, "tracker")),
+            session.declare_subscriber(humans_key, _callback(store, "tracker", wake)),
         ]
         override_pubs = {
             name: session.declare_publisher(
@@ -119,28 +136,34 @@ def run_gateway(
         token = session.liveliness().declare_token(keys.alive(cell, "gateway"))
         http = HttpServerProcess(http_host, http_port, effective_config(config))
         log.info(
-            "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz; status: http://%s:%d/api/v1/status",
+            "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
             cell,
             len(robots),
             len(config.trackers),
-            config.gateway.rate_hz,
+            gateway.rate_hz,
+            " + a decision on each tracker frame" if gateway.event_driven else "",
             http_host,
             http_port,
         )
         seq = 0
         cycles = 0
         compute_max_s = 0.0
+        event_seqs: list[int] = []  # override seqs of the event cycles since the last status
         previous: dict[str, RobotDecision] = {}
         next_progress_s = time.monotonic() + PROGRESS_EVERY_S
-        rate = RateLoop(period_s)
+        rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
         exit_code = 0
         try:
-            while rate.sleep(stop):
+            while rate.sleep(stop, wake):
                 started_s = time.monotonic()
                 now_ns = time.time_ns()
                 inputs = store.snapshot()
+                # Until the next decision: at most the rest of this period plus the lateness of the next
+                # tick, estimated by the last one; an event cycle only comes earlier.
                 decisions = core.step(inputs, now_ns, period_s + rate.last_lateness_s)
                 seq += 1
+                if rate.last_was_event and len(event_seqs) < MAX_EVENT_SEQS_PER_STATUS:
+                    event_seqs.append(seq)
                 for name, decision in decisions.items():
                     message = Override(robot=name, seq=seq, stamp_ns=now_ns, delta=decision.delta)
                     override_pubs[name].put(to_payload(message))
@@ -149,7 +172,7 @@ def run_gateway(
                 compute_max_s = max(compute_max_s, time.monotonic() - started_s)
                 _log_changes(previous, decisions)
                 previous = decisions
-                if cycles % status_every == 0:
+                if not rate.last_was_event and rate.tick_cycles % status_every == 0:
                     rejected, received = store.counters()
                     doc = status_document(
                         cell,
@@ -158,18 +181,13 @@ def run_gateway(
                         _humans_summary(inputs),
                         rejected,
                         received,
-                        {
-                            "rate_hz": config.gateway.rate_hz,
-                            "cycles": cycles,
-                            "missed_cycles": rate.missed_cycles,
-                            "last_lateness_s": round(rate.last_lateness_s, 6),
-                            "compute_max_s": round(compute_max_s, 6),
-                        },
+                        loop_status(rate, cycles, compute_max_s, gateway.event_driven, event_seqs),
                     )
                     line = json.dumps(doc).encode()
                     status_pub.put(line)
                     http.offer(line + b"\n")
                     compute_max_s = 0.0
+                    event_seqs = []
                     if http.exit_code() is not None:
                         log.error(
                             "the HTTP server exited (code %s); is port %d in use?",
@@ -198,7 +216,13 @@ def run_gateway(
                 pub.put(to_payload(Override(robot=name, seq=seq, stamp_ns=time.time_ns(), delta=0.0)))
             http.close()
             del token, subscribers  # undeclared when the session closes
-    log.info("gateway stopped after %d cycles (%d missed)", cycles, rate.missed_cycles)
+    log.info(
+        "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles)",
+        cycles,
+        rate.tick_cycles,
+        rate.missed_cycles,
+        rate.event_cycles,
+    )
     return exit_code
 
 

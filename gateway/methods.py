@@ -9,8 +9,10 @@ to one δ bound in [0, 1]. Faults, zones and the safety-exception latch are appl
   Pupa et al. 2021 in closed form (:mod:`gateway.iso15066`).
 - ``three_zones`` — Marvel 2013: δ = 0 / 0.5 / 1 from the distance of the tool point to the nearest
   human surface (``three_zones_stop_below_m``, ``three_zones_slow_below_m``), the tool point only.
-- ``stop_only`` — δ = 0 while any human surface is within the protective distance (the clearance Δ of
-  the decision, safety-math.md §3) of any link, else 1.
+- ``stop_only`` — δ = 0 while any human surface is within the protective separation distance of any
+  link, else 1. The zone is sized as a laser-scanner field would be: ISO/TS 15066 S_p (safety-math.md §7)
+  for a robot point moving straight at the human at ``stop_only_robot_speed_mps``, with T_r the measured
+  delay and a stop in t_b: S_p = K (T_r + t_b) + v (T_r + t_b / 2) + c (1.6 m in the default cell).
 
 Default three-zone thresholds (``configs/cell.toml``): the ISO/TS 15066 protective distance S_p of a tool
 moving straight at the human, with v_h = 1.6 m/s, T_r = 0.15 s (the default cell's measured chain,
@@ -173,14 +175,33 @@ class ThreeZones:
         )
 
 
+def stop_only_distance_m(safety: SafetyConfig, t_delay_s: float, t_brake_s: float) -> float:
+    """ISO/TS 15066 S_p of a robot point moving straight at the human at ``stop_only_robot_speed_mps`` [m].
+
+    S_p = K (T_r + T_s) + v T_r + v² / (2 a_s) + C with T_r = t_delay, a_s = v / t_b (so T_s = t_b and the
+    braking distance is v t_b / 2) and C = ``clearance_static_m`` (safety-math.md §7).
+    """
+    v = safety.stop_only_robot_speed_mps
+    robot_m = v * (t_delay_s + 0.5 * t_brake_s) + safety.clearance_static_m
+    far = safety.human_speed_mps * (t_delay_s + t_brake_s) + robot_m
+    close = far < safety.close_speed_below_m  # ISO 13855: the larger K below its close range
+    return (safety.human_speed_close_mps if close else safety.human_speed_mps) * (t_delay_s + t_brake_s) + robot_m
+
+
 class StopOnly:
-    """δ = 0 while any human is within the protective distance Δ of any link, else 1 (safety-math.md §8)."""
+    """δ = 0 while any human is within the protective separation distance of any link, else 1 (§8)."""
 
     name = "stop_only"
 
+    def __init__(self, safety: SafetyConfig) -> None:
+        self.safety = safety
+
     def bound(self, x: MethodInput) -> float:
         d = x.rows.surface_distance_m
-        return 0.0 if d.size and float(d.min()) <= x.clearance_m else 1.0
+        if not d.size:
+            return 1.0
+        limit_m = stop_only_distance_m(self.safety, x.t_delay_s, float(x.robot.braking_time_s.max()))
+        return 0.0 if float(d.min()) <= limit_m else 1.0
 
 
 def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> OverrideMethod:
@@ -194,7 +215,7 @@ def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> Overrid
     if safety.method == "three_zones":
         return ThreeZones(safety, robots)
     if safety.method == "stop_only":
-        return StopOnly()
+        return StopOnly(safety)
     return Zanchettin2016()
 
 

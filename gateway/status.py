@@ -6,6 +6,7 @@ from typing import Any
 
 from gateway.core import RobotDecision
 from hrc_common.config import CellConfig
+from hrc_common.service import RateLoop
 
 
 def _round(x: float | None, digits: int = 4) -> float | None:
@@ -49,6 +50,36 @@ def status_document(
         "humans": humans,
         "inputs": {"received": received, "rejected": rejected},
         "loop": loop,
+    }
+
+
+def loop_status(
+    rate: RateLoop, cycles: int, compute_max_s: float, event_driven: bool, event_seqs: list[int]
+) -> dict[str, Any]:
+    """The ``loop`` block: how the gateway's own loop keeps its period.
+
+    Args:
+        rate: the loop's timing: ``tick_cycles`` (fixed-rate ticks), ``event_cycles`` (decisions taken
+            when a tracker frame arrived, between ticks), ``wakes_served_by_tick`` (frames left to a
+            tick due within ``event_guard_s``), ``missed_cycles`` (ticks skipped after an
+            overrun; event cycles are never missed or late), ``last_lateness_s`` (of the last tick).
+        cycles: all decisions (ticks + event cycles).
+        compute_max_s: the longest cycle since the previous status [s].
+        event_driven: whether event cycles are enabled (``gateway.event_driven``).
+        event_seqs: the override seqs of the event cycles since the previous status (possibly capped:
+            complete when as many as the growth of ``event_cycles``).
+    """
+    return {
+        "rate_hz": round(1.0 / rate.period_s, 6),
+        "cycles": cycles,
+        "tick_cycles": rate.tick_cycles,
+        "event_cycles": rate.event_cycles,
+        "wakes_served_by_tick": rate.wakes_served_by_tick,
+        "event_driven": event_driven,
+        "missed_cycles": rate.missed_cycles,
+        "last_lateness_s": round(rate.last_lateness_s, 6),
+        "compute_max_s": round(compute_max_s, 6),
+        "event_seqs": list(event_seqs),
     }
 
 

@@ -92,6 +92,12 @@ class SafetyConfig(_Frozen):
     three_zones_slow_below_m: PositiveFloat = Field(
         1.8, description="δ = 0.5 at or below this distance (and above the stop distance), else δ = 1 [m]."
     )
+    # -- method "stop_only" (safety-math.md §8) ----------------------------------------------------------
+    stop_only_robot_speed_mps: PositiveFloat = Field(
+        1.5,
+        description="Robot speed the stop-only protective zone is sized for: the largest programmed speed of "
+        "any link point, assumed toward the human (S_r and S_s of ISO/TS 15066) [m/s].",
+    )
     # -- replan request, eq. (16) of Pupa et al. 2021 (every method) --------------------------------------
     replan_delta_below: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
         0.2, description="Request a replan when the commanded δ stays below this for replan_after_s; 0 = never."
@@ -152,16 +158,35 @@ class ZonesConfig(_Frozen):
     resume_distance_m: NonNegativeFloat = Field(
         0.4, description="Safety exception is left only beyond max(this, clearance + hysteresis) [m]."
     )
+
     reduced_speed_below: Annotated[float, Field(gt=0.0, le=1.0)] = Field(
         0.98, description="Enter reduced_speed when δ drops below this; back to guarded at δ = 1."
     )
 
 
 class GatewayConfig(_Frozen):
+    """The gateway's loop: fixed-rate ticks, plus a decision at once when a tracker frame arrives."""
+
     rate_hz: Annotated[float, Field(ge=10.0, le=2000.0)] = 250.0
     status_rate_hz: Annotated[float, Field(gt=0.0, le=100.0)] = 25.0
     http_host: str = "127.0.0.1"
     http_port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    event_driven: bool = Field(
+        True,
+        description="Decide at once when a tracker frame arrives (an event cycle between the fixed-rate "
+        "ticks), instead of at the next tick only.",
+    )
+    min_event_interval_s: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.001,
+        description="Event cycles start at least this long apart, so that a flood of tracker messages "
+        "cannot starve the loop [s].",
+    )
+    event_guard_s: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.0002,
+        description="No event cycle starts when the next tick is due within this time: the tick serves the "
+        "frame instead (a reaction later by at most this), and an event cycle shorter than this cannot "
+        "make the tick late. At or above the period (1 / rate_hz) there are no event cycles [s].",
+    )
 
 
 class ControllerConfig(_Frozen):

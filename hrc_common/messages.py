@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 from typing import Annotated, Literal, TypeVar
 
+from pydantic import VERSION as PYDANTIC_VERSION
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 NAME_PATTERN = r"^[a-z0-9_-]+$"
@@ -125,12 +126,44 @@ def _finite_float(token: str) -> float:
     return value
 
 
+_FAST_PATH = tuple(int(part) for part in PYDANTIC_VERSION.split(".")[:2]) >= (2, 11)
+"""``model_validate_json(..., by_name=False)`` needs pydantic 2.11; with an older one, every payload takes
+the reference path (same results, the old cost)."""
+
+
 def parse_message(payload: bytes, model: type[M]) -> M:
     """Parse a UTF-8 JSON payload into ``model``.
+
+    A valid payload takes the fast path: pydantic's own JSON parser (no Python objects in between),
+    about 5× cheaper than ``json.loads`` + ``model_validate``. Whatever the fast path refuses goes through
+    :func:`parse_message_reference`, which decides *whether* and *why* a payload is rejected, so the
+    acceptance rules and the reasons are the reference's by construction. The fast path accepts nothing
+    the reference refuses: every value is checked by the same strict model (``extra="forbid"``, finite
+    floats), NaN, infinities and overflowing numbers fail its finite-number checks, and the schema must
+    be on the wire under its alias (``by_name=False``, ``schema_`` set explicitly); the two agree on
+    seeded random payloads and mutations (``tests/test_messages.py``).
 
     Raises:
         MessageError: with reason ``too_large``, ``not_json``, ``non_finite``, ``wrong_schema`` or
             ``invalid`` (any other validation failure: lengths, ranges, unknown fields).
+    """
+    if _FAST_PATH and len(payload) <= MAX_PAYLOAD_BYTES:
+        try:
+            message = model.model_validate_json(payload, by_alias=True, by_name=False)
+        except ValidationError:
+            pass  # the reference says why
+        else:
+            if "schema_" not in model.model_fields or "schema_" in message.model_fields_set:
+                return message
+    return parse_message_reference(payload, model)
+
+
+def parse_message_reference(payload: bytes, model: type[M]) -> M:
+    """:func:`parse_message` through ``json.loads`` and ``model_validate``: slower, and the reference for
+    which payloads are accepted and for the reason of each rejection.
+
+    Raises:
+        MessageError: as :func:`parse_message`.
     """
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise MessageError("too_large", f"{len(payload)} bytes, at most {MAX_PAYLOAD_BYTES} allowed")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import threading
 import time
@@ -43,13 +44,50 @@ def configure_logging(level: str) -> None:
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
 
 
+class StopEvent(threading.Event):
+    """A ``threading.Event`` that also sets the wake-up events made from it by :meth:`wake_event`.
+
+    A loop that waits for new data (``RateLoop.sleep(stop, wake)``) waits on its wake-up event, not on
+    the stop event; setting the stop event sets every wake-up event too, so the wait ends at once.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._wakes: list[threading.Event] = []
+        self._wakes_lock = threading.Lock()
+
+    def wake_event(self) -> threading.Event:
+        """A new event, set whenever this one is set (and already set if this one is)."""
+        wake = threading.Event()
+        with self._wakes_lock:
+            self._wakes.append(wake)
+        if self.is_set():
+            wake.set()
+        return wake
+
+    def set(self) -> None:
+        super().set()
+        with self._wakes_lock:
+            wakes = list(self._wakes)
+        for wake in wakes:
+            wake.set()
+
+
 @contextmanager
-def stop_on_signals() -> Iterator[threading.Event]:
-    """An event set by SIGINT or SIGTERM, with the previous handlers restored afterwards."""
-    stop = threading.Event()
+def stop_on_signals() -> Iterator[StopEvent]:
+    """An event set by SIGINT or SIGTERM, with the previous handlers restored afterwards.
+
+    The handler sets the event from a short-lived thread: a handler runs in the main thread between two
+    bytecodes, possibly while that thread holds the lock inside the very event (or a wake-up event) it
+    is waiting on, and ``Event.set`` there would deadlock.
+    """
+    stop = StopEvent()
 
     def handler(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        try:
+            threading.Thread(target=stop.set, name="stop-on-signal", daemon=True).start()
+        except RuntimeError:  # no new thread (interpreter shutting down): set it here
+            stop.set()
 
     previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
@@ -60,30 +98,93 @@ def stop_on_signals() -> Iterator[threading.Event]:
 
 
 class RateLoop:
-    """Fixed-rate loop on the monotonic clock that measures its own lateness.
+    """Fixed-rate loop on the monotonic clock that measures its own lateness, with optional event cycles.
 
-    ``sleep()`` waits until the next period boundary. A cycle that overran skips the missed
+    ``sleep()`` waits until the next period boundary, a *tick*. A tick that overran skips the missed
     boundaries (counted in ``missed_cycles``) instead of bursting to catch up.
+
+    Given a ``wake`` event, ``sleep()`` also returns as soon as it is set, for an *event cycle* (new data
+    to act on at once), and the next ``sleep()`` waits for the same boundary as before: event cycles do
+    not move the ticks, and are neither late nor missed ticks (``event_cycles`` counts them apart from
+    ``tick_cycles``). Two limits keep a flood of wake-ups from starving the loop or delaying its ticks:
+
+    - event cycles start at least ``min_event_interval_s`` apart (a wake-up meanwhile waits until then);
+    - no event cycle starts when the next tick is due within ``event_guard_s``: that tick serves the
+      wake-up instead (a reaction later by at most ``event_guard_s``), and an event cycle shorter than
+      ``event_guard_s`` cannot make it late.
+
+    ``wake`` is cleared when ``sleep()`` returns (a tick or an event cycle takes everything that arrived
+    before), so a wake-up set during the cycle leads to one more event cycle.
     """
 
-    def __init__(self, period_s: float) -> None:
+    def __init__(self, period_s: float, min_event_interval_s: float = 0.0, event_guard_s: float = 0.0) -> None:
+        if not period_s > 0.0:
+            raise ValueError(f"period_s = {period_s}; allowed: > 0")
+        if not (min_event_interval_s >= 0.0 and event_guard_s >= 0.0):
+            raise ValueError(
+                f"min_event_interval_s = {min_event_interval_s}, event_guard_s = {event_guard_s}; allowed: >= 0"
+            )
         self.period_s = period_s
+        self.min_event_interval_s = min_event_interval_s
+        self.event_guard_s = event_guard_s
         self._next_s = time.monotonic() + period_s
+        self._last_event_s = -math.inf
         self.missed_cycles = 0
         self.last_lateness_s = 0.0
+        """Lateness of the last tick [s] (event cycles leave it as it is)."""
+        self.tick_cycles = 0
+        self.event_cycles = 0
+        self.wakes_served_by_tick = 0
+        """Wake-ups left to the next tick because it was due within ``event_guard_s``."""
+        self.last_was_event = False
+        """Whether the cycle ``sleep()`` last returned for is an event cycle (else a tick)."""
 
-    def sleep(self, stop: threading.Event) -> bool:
-        """Wait for the next cycle. Returns False when ``stop`` is set."""
-        now = time.monotonic()
-        delay = self._next_s - now
-        if delay > 0:
-            if stop.wait(delay):
-                return False
-            self.last_lateness_s = max(0.0, time.monotonic() - self._next_s)
-            self._next_s += self.period_s
-        else:
-            self.last_lateness_s = -delay
-            missed = int(-delay // self.period_s)
-            self.missed_cycles += missed
-            self._next_s += (missed + 1) * self.period_s
-        return not stop.is_set()
+    @property
+    def next_tick_s(self) -> float:
+        """When the next tick is due [monotonic s]."""
+        return self._next_s
+
+    def sleep(self, stop: threading.Event, wake: threading.Event | None = None) -> bool:
+        """Wait for the next tick or, given ``wake``, until it is set (within the limits above).
+
+        ``stop`` must wake the wait too: with ``wake``, pass a :class:`StopEvent` and its
+        :meth:`StopEvent.wake_event` (or set ``wake`` whenever ``stop`` is set).
+
+        Returns:
+            False when ``stop`` is set, else True (see ``last_was_event`` for which cycle it is).
+        """
+        while not stop.is_set():
+            now_s = time.monotonic()
+            to_tick_s = self._next_s - now_s
+            if to_tick_s <= 0.0:
+                self._tick(-to_tick_s, wake)
+                return not stop.is_set()
+            if wake is None:
+                stop.wait(to_tick_s)
+                continue
+            if not wake.is_set():
+                wake.wait(to_tick_s)  # set by new data, by stop, or times out at the tick
+                continue
+            to_event_s = max(0.0, self._last_event_s + self.min_event_interval_s - now_s)
+            if to_tick_s - to_event_s <= self.event_guard_s:
+                self.wakes_served_by_tick += 1
+                stop.wait(to_tick_s)  # the tick comes first or soon after: it serves the wake-up
+            elif to_event_s > 0.0:
+                stop.wait(to_event_s)  # rate-limited
+            else:
+                wake.clear()
+                self._last_event_s = now_s
+                self.event_cycles += 1
+                self.last_was_event = True
+                return not stop.is_set()
+        return False
+
+    def _tick(self, late_s: float, wake: threading.Event | None) -> None:
+        if wake is not None:
+            wake.clear()
+        self.last_lateness_s = late_s
+        missed = int(late_s // self.period_s)
+        self.missed_cycles += missed
+        self._next_s += (missed + 1) * self.period_s
+        self.tick_cycles += 1
+        self.last_was_event = False

@@ -58,6 +58,8 @@ class RunResult:
         per_robot: the auditor's summary per robot.
         t_delay_mean_s, t_delay_min_s, t_delay_max_s: t_delay of the gateway's fault-free decisions
             (None if there was none) [s].
+        program_progress_cycles: program cycles run, with the fraction of the unfinished one (all robots):
+            the productivity figure, without the rounding of whole cycles in short runs.
         decisions: gateway decisions (robots × gateway cycles).
         fault_decisions: decisions with at least one fault (δ forced to 0).
         faults: decisions per fault code.
@@ -72,6 +74,7 @@ class RunResult:
     t_delay_mean_s: float | None
     t_delay_min_s: float | None
     t_delay_max_s: float | None
+    program_progress_cycles: float
     decisions: int
     fault_decisions: int
     faults: Mapping[str, int]
@@ -93,6 +96,7 @@ class RunResult:
             "t_delay_mean_s": self.t_delay_mean_s,
             "t_delay_min_s": self.t_delay_min_s,
             "t_delay_max_s": self.t_delay_max_s,
+            "program_progress_cycles": self.program_progress_cycles,
             "decisions": self.decisions,
             "fault_decisions": self.fault_decisions,
             "faults": dict(sorted(self.faults.items())),
@@ -114,6 +118,7 @@ class _Controller:
     trajectory: Trajectory
     cycle_ns: int
     state: ControllerState
+    tau0_s: float
     data: Any
     state_link: SimLink[Payload]
     override_link: SimLink[Payload]
@@ -176,6 +181,7 @@ def simulate(
             trajectory=trajectory,
             cycle_ns=round(robot_config.controller.cycle_s * NS_PER_S),
             state=ControllerState(tau_s=tau0_s),
+            tau0_s=tau0_s,
             data=robot.model.createData(),
             state_link=SimLink(links.controller_to_gateway, _rng(seed, "link-state", name)),
             override_link=SimLink(links.gateway_to_controller, _rng(seed, "link-override", name)),
@@ -262,6 +268,10 @@ def simulate(
         t_delay_mean_s=float(np.mean(t_delays)) if t_delays else None,
         t_delay_min_s=min(t_delays) if t_delays else None,
         t_delay_max_s=max(t_delays) if t_delays else None,
+        program_progress_cycles=sum(
+            c.state.cycles_completed + (c.state.tau_s - c.tau0_s) / c.trajectory.duration_s
+            for c in controllers.values()
+        ),
         decisions=decisions,
         fault_decisions=fault_decisions,
         faults=MappingProxyType(dict(faults)),

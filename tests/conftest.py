@@ -18,3 +18,15 @@ def cell_config() -> CellConfig:
 def ur5(cell_config: CellConfig) -> RobotModel:
     """The UR5 of the default cell, loaded with Pinocchio from example-robot-data."""
     return load_robot_model("ur5", cell_config.robots["ur5"])
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Compile the gateway's kernels once (or load them from numba's cache) before any test starts a gateway.
+
+    On a fresh clone every gateway process would otherwise compile them at the same time (~7 s each on
+    this 2-core machine), against the end-to-end tests' readiness timeouts.
+    """
+    from gateway.core import SafetyCore
+
+    config = load_cell_config(None)
+    SafetyCore(config, {name: load_robot_model(name, robot) for name, robot in config.robots.items()})

@@ -52,3 +52,11 @@ def test_ratio_target_counts_only_without_violations() -> None:
     three, stop = productivity.ratios(figures)
     assert (three.measured, three.verdict) == (1.5, "PASS")
     assert (stop.measured, stop.counts, stop.verdict) == (3.0, False, "MISS")
+
+
+def test_case_kind_takes_the_first_kind_present() -> None:
+    kind = productivity.case_kind
+    assert kind([{"kind": "cross"}, {"kind": "standing"}, {"kind": "approach"}]) == "standing"
+    assert kind([{"kind": "cross"}, {"kind": "approach"}]) == "approach"
+    assert kind([{"kind": "cross"}]) == "cross"
+    assert kind([]) == "nobody"

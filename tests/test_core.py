@@ -164,6 +164,29 @@ def test_closest_pair_and_distance_known_answer(cell: Cell, ur5: RobotModel) -> 
     assert d.delta == 0.0
 
 
+def test_each_new_tracker_frame_is_seen_at_once(cell: Cell) -> None:
+    """The merge of the trackers' frames is kept between cycles (frames come at 30 Hz): a new frame from one
+    tracker replaces its capsules in the very next decision, and the other tracker's stay."""
+    cell.feed(NOW, [FAR_TORSO])
+    far = cell.step(NOW)
+    cell.joint(NOW + 4 * MS)  # no new frame
+    again = cell.step(NOW + 4 * MS)
+    assert (again.min_distance_m, again.closest) == (far.min_distance_m, far.closest)
+    cell.joint(NOW + 8 * MS)
+    cell.humans(NOW + 8 * MS, [NEAR_HAND], trackers=("front",))
+    near = cell.step(NOW + 8 * MS)
+    assert near.closest is not None
+    assert (near.closest.human, near.closest.capsule) == ("front/h1", "hand_r")
+    assert near.min_distance_m is not None
+    assert far.min_distance_m is not None
+    assert near.min_distance_m < far.min_distance_m
+    cell.joint(NOW + 12 * MS)
+    cell.humans(NOW + 12 * MS, [], trackers=("front",))  # the hand is gone: the side tracker's torso is left
+    gone = cell.step(NOW + 12 * MS)
+    assert gone.closest == ("side/h1", "torso", far.closest.link if far.closest else None)
+    assert gone.min_distance_m == pytest.approx(far.min_distance_m, abs=1e-12)
+
+
 def test_near_human_reduces_speed(cell: Cell) -> None:
     cell.feed(NOW, [NEAR_HAND])
     d = cell.step(NOW)

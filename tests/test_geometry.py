@@ -1,4 +1,8 @@
-"""segment_distances: hand-computed known answers, then a seeded comparison against coal capsules of radius 0."""
+"""segment_distances: hand-computed known answers, then a seeded comparison against coal capsules of radius 0.
+
+Every test runs on both implementations: the numpy one (gateway.geometry: the reference, and what the ISO/TS 15066
+method and the auditor use) and the compiled one of the gateway's loop (gateway.kernels).
+"""
 
 from __future__ import annotations
 
@@ -7,10 +11,17 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from gateway.geometry import segment_distances
+from gateway import geometry, kernels
+
+IMPLEMENTATIONS = {"numpy": geometry.segment_distances, "compiled": kernels.segment_distances}
 
 
-def _one(a, b, c, d):
+@pytest.fixture(params=sorted(IMPLEMENTATIONS))
+def segment_distances(request: pytest.FixtureRequest):
+    return IMPLEMENTATIONS[request.param]
+
+
+def _one(segment_distances, a, b, c, d):
     """Distance, s and t of a single link segment [a, b] against a single capsule segment [c, d]."""
     arrays = [np.asarray(x, dtype=float)[None, :] for x in (a, b, c, d)]
     res = segment_distances(*arrays)
@@ -71,8 +82,8 @@ def _coal_distance(a, b, c, d):
         ((1, 2, 3), (1, 2, 3), (1, 2, 3), (1, 2, 3), 0.0, 0.0, 0.0),
     ],
 )
-def test_known_answers(a, b, c, d, distance, s, t) -> None:
-    got_distance, got_s, got_t = _one(a, b, c, d)
+def test_known_answers(segment_distances, a, b, c, d, distance, s, t) -> None:
+    got_distance, got_s, got_t = _one(segment_distances, a, b, c, d)
     assert got_distance == pytest.approx(distance, abs=1e-12)
     assert got_s == pytest.approx(s, abs=1e-12)
     assert got_t == pytest.approx(t, abs=1e-12)
@@ -89,10 +100,10 @@ def test_known_answers(a, b, c, d, distance, s, t) -> None:
         ((2, 0, 0), (3, 0, 0), 1.0),  # collinear, disjoint
     ],
 )
-def test_parallel_segments(c, d, distance) -> None:
+def test_parallel_segments(segment_distances, c, d, distance) -> None:
     """Parallel pairs have no unique closest points: only the distance and the closest points' gap are fixed."""
     a, b = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0])
-    got_distance, s, t = _one(a, b, c, d)
+    got_distance, s, t = _one(segment_distances, a, b, c, d)
     assert got_distance == pytest.approx(distance, abs=1e-12)
     assert 0.0 <= s <= 1.0
     assert 0.0 <= t <= 1.0
@@ -100,7 +111,7 @@ def test_parallel_segments(c, d, distance) -> None:
     assert np.linalg.norm(gap) == pytest.approx(distance, abs=1e-12)
 
 
-def test_shapes_are_links_by_capsules() -> None:
+def test_shapes_are_links_by_capsules(segment_distances) -> None:
     """Links along axis 0, capsules along axis 1: every entry equals the single-pair answer."""
     p_a = np.array([[0.0, 0, 0], [0, 0, 1], [5, 5, 5]])
     p_b = np.array([[1.0, 0, 0], [0, 0, 1], [5, 6, 5]])
@@ -112,12 +123,14 @@ def test_shapes_are_links_by_capsules() -> None:
     assert res.t_capsule.shape == (3, 2)
     for i in range(3):
         for j in range(2):
-            assert res.distance_m[i, j] == pytest.approx(_one(p_a[i], p_b[i], h_a[j], h_b[j])[0], abs=1e-12)
+            assert res.distance_m[i, j] == pytest.approx(
+                _one(segment_distances, p_a[i], p_b[i], h_a[j], h_b[j])[0], abs=1e-12
+            )
     assert res.distance_m[0, 0] == pytest.approx(2.0)
     assert res.distance_m[1, 1] == pytest.approx(np.sqrt(9 + 16 + 1))
 
 
-def test_no_capsules_gives_empty_result() -> None:
+def test_no_capsules_gives_empty_result(segment_distances) -> None:
     res = segment_distances(np.zeros((2, 3)), np.ones((2, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
     assert res.distance_m.shape == (2, 0)
 
@@ -125,27 +138,27 @@ def test_no_capsules_gives_empty_result() -> None:
 # -- seeded random comparison against coal ------------------------------------------------------
 
 
-def test_random_segments_match_coal() -> None:
+def test_random_segments_match_coal(segment_distances) -> None:
     rng = np.random.default_rng(20240601)
     for _ in range(400):
         a, b, c, d = rng.uniform(-1.0, 1.0, size=(4, 3))
         expected, near_link, near_capsule = _coal_distance(a, b, c, d)
-        got, s, t = _one(a, b, c, d)
+        got, s, t = _one(segment_distances, a, b, c, d)
         assert got == pytest.approx(expected, abs=1e-9)
         # generic random segments have unique closest points: s and t must point at coal's
         np.testing.assert_allclose(a + s * (b - a), near_link, atol=1e-7)
         np.testing.assert_allclose(c + t * (d - c), near_capsule, atol=1e-7)
 
 
-def test_nearly_parallel_pair_known_answer() -> None:
+def test_nearly_parallel_pair_known_answer(segment_distances) -> None:
     """Regression: an absolute parallel threshold (a·e − b² ≤ 1e-12) once returned 0.1 here (s = 0)."""
     # The capsule descends 5e-7 m per metre toward the link: closest at the link's end b, 0.1 − 2.5e-7 m.
-    distance, s, _ = _one((0, 0, 0), (1, 0, 0), (0.5, 0.1, 0), (1.5, 0.1 - 5e-7, 0))
+    distance, s, _ = _one(segment_distances, (0, 0, 0), (1, 0, 0), (0.5, 0.1, 0), (1.5, 0.1 - 5e-7, 0))
     assert distance == pytest.approx(0.1 - 2.5e-7, abs=1e-9)
     assert s == pytest.approx(1.0, abs=1e-6)
 
 
-def test_random_nearly_parallel_and_degenerate_segments_match_coal() -> None:
+def test_random_nearly_parallel_and_degenerate_segments_match_coal(segment_distances) -> None:
     """Nearly parallel (tilt 1e-6–1e-2 rad), exactly parallel and degenerate pairs match coal to 1e-9."""
     rng = np.random.default_rng(7)
     for k in range(400):
@@ -163,7 +176,7 @@ def test_random_nearly_parallel_and_degenerate_segments_match_coal() -> None:
             b = a.copy()
             c, d = rng.uniform(-1.0, 1.0, size=(2, 3))
         expected, _, _ = _coal_distance(a, b, c, d)
-        got, s, t = _one(a, b, c, d)
+        got, s, t = _one(segment_distances, a, b, c, d)
         assert got == pytest.approx(expected, abs=1e-9), (kind, a, b, c, d)
         assert 0.0 <= s <= 1.0
         assert 0.0 <= t <= 1.0
@@ -187,7 +200,7 @@ def _brute_force_distance(a, b, c, d) -> float:
     return min(point_to_capsule(a + lo * (b - a)), point_to_capsule(a), point_to_capsule(b))
 
 
-def test_almost_parallel_pairs_within_the_documented_bound() -> None:
+def test_almost_parallel_pairs_within_the_documented_bound(segment_distances) -> None:
     """Below a tilt of about 1e-7 rad the pair is treated as parallel; geometry.py documents the remaining error
     as at most 1e-7 × the segment length. coal is no reference here: it deviates by up to ~5e-7 × length itself."""
     rng = np.random.default_rng(17)
@@ -196,21 +209,21 @@ def test_almost_parallel_pairs_within_the_documented_bound() -> None:
         shift = rng.uniform(-0.5, 0.5, 3)
         c, d = a + shift, b + shift + rng.normal(0.0, 10 ** rng.uniform(-12, -5), 3)
         length = max(np.linalg.norm(b - a), np.linalg.norm(d - c))
-        got, _, _ = _one(a, b, c, d)
+        got, _, _ = _one(segment_distances, a, b, c, d)
         assert abs(got - _brute_force_distance(a, b, c, d)) <= 1e-7 * length + 1e-12
 
 
-def test_random_invariants_symmetry_and_rigid_motion() -> None:
+def test_random_invariants_symmetry_and_rigid_motion(segment_distances) -> None:
     """dist(A, B) = dist(B, A), and a rigid motion of both segments leaves the distance unchanged."""
     rng = np.random.default_rng(11)
     for _ in range(200):
         a, b, c, d = rng.uniform(-1.0, 1.0, size=(4, 3))
-        distance, s, t = _one(a, b, c, d)
-        swapped, _, _ = _one(c, d, a, b)
+        distance, s, t = _one(segment_distances, a, b, c, d)
+        swapped, _, _ = _one(segment_distances, c, d, a, b)
         assert swapped == pytest.approx(distance, abs=1e-12)
         rotation = pin.exp3(rng.normal(size=3))
         shift = rng.uniform(-3.0, 3.0, 3)
-        moved, _, _ = _one(*(rotation @ x + shift for x in (a, b, c, d)))
+        moved, _, _ = _one(segment_distances, *(rotation @ x + shift for x in (a, b, c, d)))
         assert moved == pytest.approx(distance, abs=1e-9)
         # the reported closest points really are that far apart
         gap = (a + s * (b - a)) - (c + t * (d - c))

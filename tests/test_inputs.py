@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from gateway.inputs import FUTURE_STAMP_TOLERANCE_NS, InputStore
+from gateway.inputs import FUTURE_STAMP_TOLERANCE_NS, InputStore, humans_to_capsules
 from hrc_common import keys
+from hrc_common.messages import Humans
 
 CELL = "demo"
 NOW = 1_790_000_000_000_000_000
@@ -332,3 +333,54 @@ def test_random_garbage_and_mutations_never_raise() -> None:
     total = sum(sum(r.values()) for r in rejected_all.values()) + sum(received.values())
     assert total == calls  # every message is either accepted or counted as rejected
     assert sum(rejected_all["robot/ur5"].values()) > 500
+
+
+# -- waking the loop ------------------------------------------------------------------------------
+
+
+def test_tracker_changes_wake_the_loop_and_nothing_else_does() -> None:
+    calls: list[int] = []
+    store = InputStore({"ur5": 6}, ["front", "side"], on_tracker_change=lambda: calls.append(1))
+    store.on_humans(FRONT_KEY, enc(hm(seq=1)), NOW)
+    assert len(calls) == 1  # a new frame
+    store.on_humans(FRONT_KEY, enc(hm(seq=1)), NOW)
+    assert len(calls) == 1  # a repeat changes nothing
+    store.on_humans(keys.tracker_humans(CELL, "rogue"), enc(hm(seq=2, tracker="rogue")), NOW)
+    assert len(calls) == 1  # an unknown tracker is not latched: nothing changed
+    store.on_joint_state(JOINT_KEY, enc(js()), NOW)
+    assert len(calls) == 1  # joint states do not wake it
+    store.on_humans(FRONT_KEY, b"{not json", NOW)
+    assert len(calls) == 2  # latched invalid: the robots must stop at once
+    assert store.snapshot().invalid == {"tracker/front": "not_json"}
+    store.on_humans(FRONT_KEY, enc(hm(seq=2, stamp_ns=NOW + 900 * MS)), NOW)
+    assert len(calls) == 3  # stamp in the future: latched too
+
+
+def test_flattened_capsules_match_the_message_on_random_frames() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        humans = [
+            {
+                "id": f"h{i}",
+                "capsules": [
+                    {
+                        "name": f"c{k}",
+                        "a": rng.uniform(-3, 3, 3).tolist(),
+                        "b": rng.uniform(-3, 3, 3).tolist(),
+                        "radius": float(rng.uniform(0, 0.3)),
+                    }
+                    for k in range(int(rng.integers(0, 16)))
+                ],
+            }
+            for i in range(int(rng.integers(0, 4)))
+        ]
+        message = Humans.model_validate(hm(humans=humans))
+        caps = humans_to_capsules("side", message)
+        flat = [(f"side/{h['id']}", c) for h in humans for c in h["capsules"]]
+        assert caps.human_ids == tuple(hid for hid, _ in flat)
+        assert caps.capsule_names == tuple(c["name"] for _, c in flat)
+        assert caps.h_a_world.shape == caps.h_b_world.shape == (len(flat), 3)
+        assert caps.radius_m.shape == (len(flat),)
+        np.testing.assert_array_equal(caps.h_a_world.reshape(-1, 3), np.array([c["a"] for _, c in flat]).reshape(-1, 3))
+        np.testing.assert_array_equal(caps.h_b_world.reshape(-1, 3), np.array([c["b"] for _, c in flat]).reshape(-1, 3))
+        np.testing.assert_array_equal(caps.radius_m, [c["radius"] for _, c in flat])

@@ -18,6 +18,7 @@ from hrc_common.messages import (
     MessageError,
     Override,
     parse_message,
+    parse_message_reference,
     to_payload,
 )
 
@@ -313,3 +314,107 @@ def test_message_error_carries_reason_and_detail() -> None:
     assert info.value.reason == "invalid"
     assert str(info.value).startswith("invalid: ")
     assert isinstance(info.value, ValueError)
+
+
+# -- the fast path agrees with the reference ------------------------------------------------------
+
+
+def _outcome(parse, payload: bytes, model: type[BaseModel]) -> tuple[str, str]:
+    """``("ok", the message as JSON)`` or ``("error", reason)``: JSON tells -0.0 from 0.0 and every float bit."""
+    try:
+        return "ok", parse(payload, model).model_dump_json(by_alias=True)
+    except MessageError as exc:
+        return "error", exc.reason
+
+
+@pytest.mark.parametrize(
+    ("payload", "model", "reason"),
+    [
+        (_payload({k: v for k, v in override_raw().items() if k != "schema"}), Override, "wrong_schema"),
+        # the field name instead of the wire name: the reference finds no schema
+        (_payload({"schema_" if k == "schema" else k: v for k, v in override_raw().items()}), Override, "wrong_schema"),
+        (_payload(human_raw(id="a\nb")).replace(b"\\n", b"\n"), Human, "not_json"),  # raw control character
+        (_payload(override_raw()) + b" x", Override, "not_json"),  # trailing data
+        (_payload(joint_state_raw(schema="hrc.joint_state/2", q=[0.0])), JointState, "wrong_schema"),
+        (_payload(override_raw(delta="NaN")), Override, "invalid"),  # a string is not a number token
+    ],
+)
+def test_fast_path_refusals_keep_the_reference_reason(payload: bytes, model, reason: str) -> None:
+    assert _reason(payload, model) == reason
+    assert _outcome(parse_message_reference, payload, model) == ("error", reason)
+
+
+@pytest.mark.parametrize(
+    ("payload", "model"),
+    [
+        ("\ufeff".encode() + _payload(override_raw()), Override),  # UTF-8 with a BOM: json.loads takes it
+        (json.dumps(override_raw()).encode("utf-16"), Override),  # as it takes UTF-16
+        (_payload(human_raw(id="\ud800x")), Human),  # a lone surrogate escape
+        (_payload(override_raw()).replace(b'"seq": 517', b'"seq": 517, "seq": 518'), Override),  # last wins
+        (_payload(capsule_raw(a=["1e1", True, 2])), Capsule),  # lax conversions
+    ],
+)
+def test_what_the_reference_accepts_the_fast_path_accepts_the_same(payload: bytes, model) -> None:
+    expected = _outcome(parse_message_reference, payload, model)
+    assert _outcome(parse_message, payload, model) == expected
+
+
+def _mutations(rng: np.random.Generator, payload: bytes) -> bytes:
+    """One random mutation of a valid payload: a value swapped, a key dropped or added, a byte changed or
+    inserted, a number token replaced."""
+    try:
+        raw = json.loads(payload)
+    except ValueError:  # already mutated beyond JSON: bytes only
+        raw = None
+    kind = int(rng.integers(6)) if isinstance(raw, dict) and raw else int(rng.integers(3, 6))
+    values = [None, True, 0, -1, 0.5, -0.0, 1e308, 2**70, "1", "0.5", "1e400", "NaN", "", [], {}, [0.1] * 6]
+    if kind == 0:
+        raw[str(rng.choice(sorted(raw)))] = values[int(rng.integers(len(values)))]
+        return _payload(raw)
+    if kind == 1:
+        del raw[str(rng.choice(sorted(raw)))]
+        return _payload(raw)
+    if kind == 2:
+        raw[str(rng.choice(["extra", "schema_", "seq"]))] = values[int(rng.integers(len(values)))]
+        return _payload(raw)
+    data = bytearray(payload)
+    i = int(rng.integers(len(data)))
+    if kind == 3:
+        data[i] = int(rng.integers(256))
+    elif kind == 4:
+        data[i:i] = bytes([int(rng.choice([0, 9, 10, 0x1F, 0x7F, 0xFF, 0xC3, ord('"'), ord("\\"), ord("]")]))])
+    else:
+        token = str(rng.choice(["NaN", "Infinity", "-Infinity", "1e400", "-1e400", "1e-400", "1E2", "-0", "9" * 30]))
+        return payload.replace(b"0.", token.encode() + b"+0.", 1).replace(b"+0.", b"", 1)
+    return bytes(data)
+
+
+def _random_float_token(rng: np.random.Generator) -> str:
+    digits = "".join(str(d) for d in rng.integers(0, 10, int(rng.integers(1, 25))))
+    token = digits[0] + ("." + digits[1:] if len(digits) > 1 else "")
+    if rng.random() < 0.7:
+        token += f"e{int(rng.integers(-330, 310))}"
+    return ("-" if rng.random() < 0.3 else "") + token
+
+
+def test_fast_path_agrees_with_the_reference_on_seeded_mutations() -> None:
+    """Same acceptance, same reason, same values (to the bit) as ``json.loads`` + ``model_validate``."""
+    rng = np.random.default_rng(7)
+    outcomes: set[str] = set()
+    for k in range(3000):
+        model, make = MODELS[k % len(MODELS)]
+        payload = _payload(make())
+        if k % 3 == 0:
+            payload = _mutations(rng, payload)
+        elif k % 3 == 1:
+            payload = _mutations(rng, _mutations(rng, payload))
+        else:  # every float re-spelt: long mantissas, exponents near the limits
+            text = payload.decode()
+            for number in {w.strip(",]}") for w in text.split() if w[:1].isdigit() and "." in w}:
+                text = text.replace(number, _random_float_token(rng), 1)
+            payload = text.encode()
+        reference = _outcome(parse_message_reference, payload, model)
+        assert _outcome(parse_message, payload, model) == reference, payload
+        outcomes.add(reference[0] if reference[0] == "ok" else reference[1])
+    # The mutations reach every reason, and valid payloads too.
+    assert outcomes == {"ok", "not_json", "non_finite", "wrong_schema", "invalid"}

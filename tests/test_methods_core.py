@@ -259,19 +259,20 @@ def test_three_zones_on_the_tool_point(cell_config: CellConfig, ur5: RobotModel)
             assert d.delta == 0.0
 
 
-def test_stop_only_at_the_protective_distance(cell_config: CellConfig, ur5: RobotModel) -> None:
+def test_stop_only_at_the_protective_separation_distance(cell_config: CellConfig, ur5: RobotModel) -> None:
     cell = method_cell(cell_config, ur5, "stop_only")
     now = NOW
     cell.feed(now, [])
     assert cell.step(now).delta_bound == 1.0  # nobody
-    clearance = 0.05 + 1.6 * (0.53 + T_DELAY_S)
+    # S_p = K (T_r + t_b) + v (T_r + t_b / 2) + c with v = stop_only_robot_speed_mps = 1.5 m/s, t_b = 0.53 s
+    s_p = 1.6 * (T_DELAY_S + 0.53) + 1.5 * (T_DELAY_S + 0.265) + 0.05
+    assert s_p == pytest.approx(1.5869)
     tool_radius_m = 0.07
     for offset_m, expected in ((0.3, 1.0), (0.01, 1.0), (-0.01, 0.0), (-0.5, 0.0)):
         now += 4 * MS
-        cell.feed(now, [hand_beyond_tool(ur5, clearance + tool_radius_m + offset_m)])
+        cell.feed(now, [hand_beyond_tool(ur5, s_p + tool_radius_m + offset_m)])
         d = cell.step(now)
-        assert d.clearance_m == pytest.approx(clearance)
-        assert d.min_distance_m == pytest.approx(clearance + offset_m)  # the tool capsule is the nearest
+        assert d.min_distance_m == pytest.approx(s_p + offset_m)  # the tool capsule is the nearest
         assert d.delta_bound == expected
         if expected == 0.0:
             assert d.delta == 0.0

@@ -9,8 +9,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from gateway import kernels, metric
 from gateway.kinematics import LinkKinematics, link_kinematics
-from gateway.metric import NO_HUMANS, HumanCapsules, build_rows, clearance_m, override_from_rows
+from gateway.metric import (
+    NO_HUMANS,
+    HumanCapsules,
+    clearance_at_m,
+    clearance_m,
+    decision_clearance_m,
+    override_from_rows,
+)
 from hrc_common.config import SafetyConfig
 from hrc_common.robot_model import RobotModel
 
@@ -21,6 +29,15 @@ T_DELAY = 0.1  # [s]
 # Δ = c + K (t_b,max + t_delay) = 0.05 + 1.6 · 0.6 = 1.01 m;  T = t_b,→i + t_delay = 0.4 s
 DELTA_CLEARANCE = 1.01
 HORIZON = 0.4
+
+
+# Every test of the rows runs on both implementations: the numpy reference and the compiled rows of the loop.
+IMPLEMENTATIONS = {"numpy": metric.build_rows, "compiled": kernels.build_rows}
+
+
+@pytest.fixture(params=sorted(IMPLEMENTATIONS))
+def build_rows(request: pytest.FixtureRequest):
+    return IMPLEMENTATIONS[request.param]
 
 
 def _links(p_a, p_b, v_a, v_b) -> LinkKinematics:
@@ -46,7 +63,9 @@ LINK_RADIUS = np.array([0.05])
 LINK_T_BRAKE = np.array([T_BRAKE_LINK])
 
 
-def _rows(links=LINK_UP, humans=None, safety=SAFETY, t_delay=T_DELAY, radius=LINK_RADIUS, t_brake=LINK_T_BRAKE):
+def _rows(
+    build_rows, links=LINK_UP, humans=None, safety=SAFETY, t_delay=T_DELAY, radius=LINK_RADIUS, t_brake=LINK_T_BRAKE
+):
     return build_rows(links, radius, t_brake, T_BRAKE_MAX, humans, safety, t_delay)
 
 
@@ -59,12 +78,12 @@ def test_clearance_known_answer() -> None:
     np.testing.assert_allclose(got, [DELTA_CLEARANCE, DELTA_CLEARANCE])
 
 
-def test_single_link_moving_straight_at_a_point_hand() -> None:
+def test_single_link_moving_straight_at_a_point_hand(build_rows) -> None:
     # hand at (0.2, 2, 0), radius 0.05: centre-line distance 2.0, surface d = 2.0 − 0.05 − 0.05 = 1.9
     # f = (1.9 − 1.01)² = 0.89² = 0.7921
     # e = (h − r)ᵀ v = 2.0 · 2 = 4.0 for both link ends (h − r_a = (0.2, 2, 0), h − r_b = (−0.2, 2, 0))
     # δ = f / (T e) = 0.7921 / (0.4 · 4.0) = 0.4950625
-    rows = _rows(humans=_point_hands([(0.2, 2.0, 0.0)]))
+    rows = _rows(build_rows, humans=_point_hands([(0.2, 2.0, 0.0)]))
     assert rows.surface_distance_m[0, 0] == pytest.approx(1.9)
     assert rows.clearance_m[0, 0] == pytest.approx(1.01)
     assert rows.f_m2[0, 0] == pytest.approx(0.7921)
@@ -74,14 +93,14 @@ def test_single_link_moving_straight_at_a_point_hand() -> None:
     assert override_from_rows(rows) == pytest.approx(0.4950625)
 
 
-def test_rotating_link_and_capsule_hand_corners() -> None:
+def test_rotating_link_and_capsule_hand_corners(build_rows) -> None:
     """Rows are indexed [link, capsule, link end, capsule end]; the farther capsule end decides."""
     # link rotating about its end a (v_a = 0, v_b = (0, 2, 0)); forearm capsule from (0.4, 1.5, 0) to (0.4, 1.8, 0),
     # radius 0.1: centre-line distance 1.5 (r_b to h_a), d = 1.5 − 0.05 − 0.1 = 1.35, f = (1.35 − 1.01)² = 0.1156
     # e: end a → 0 (not moving); end b → (0, 1.5, 0)·(0, 2, 0) = 3.0 and (0, 1.8, 0)·(0, 2, 0) = 3.6
     # δ = 0.1156 / (0.4 · 3.6) = 0.080277…
     links = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 0), (0, 2, 0))
-    rows = _rows(links=links, humans=_humans([(0.4, 1.5, 0)], [(0.4, 1.8, 0)], 0.1))
+    rows = _rows(build_rows, links=links, humans=_humans([(0.4, 1.5, 0)], [(0.4, 1.8, 0)], 0.1))
     assert rows.surface_distance_m[0, 0] == pytest.approx(1.35)
     assert rows.f_m2[0, 0] == pytest.approx(0.1156)
     np.testing.assert_allclose(rows.e_m2ps[0, 0], [[0.0, 0.0], [3.0, 3.6]], atol=1e-12)
@@ -90,11 +109,12 @@ def test_rotating_link_and_capsule_hand_corners() -> None:
     assert override_from_rows(rows) == pytest.approx(0.1156 / 1.44)
 
 
-def test_horizon_uses_each_links_braking_time() -> None:
+def test_horizon_uses_each_links_braking_time(build_rows) -> None:
     # Two copies of the link, t_b,→i = 0.3 and 0.6 s: bounds 0.7921 / (0.4 · 4) and 0.7921 / (0.7 · 4).
     # Δ uses t_b,max = 0.5 for both, so f is the same.
     links = _links(*(np.repeat(np.atleast_2d(x), 2, axis=0) for x in LINK_UP))
     rows = _rows(
+        build_rows,
         links=links,
         humans=_point_hands([(0.2, 2.0, 0.0)]),
         radius=np.array([0.05, 0.05]),
@@ -105,11 +125,11 @@ def test_horizon_uses_each_links_braking_time() -> None:
     assert override_from_rows(rows) == pytest.approx(0.7921 / 2.8)
 
 
-def test_nearer_human_decides() -> None:
+def test_nearer_human_decides(build_rows) -> None:
     """δ is the MINIMUM of the bounds; paper 1's "max" would let the farther human decide."""
     # farther: (0.2, 2.3, 0): d = 2.2, f = 1.19² = 1.4161, e = 2.3 · 2 = 4.6, bound = 1.4161 / 1.84 = 0.76962…
     # nearer: (0.2, 2.0, 0): bound 0.4950625 (see above)
-    rows = _rows(humans=_point_hands([(0.2, 2.3, 0.0), (0.2, 2.0, 0.0)]))
+    rows = _rows(build_rows, humans=_point_hands([(0.2, 2.3, 0.0), (0.2, 2.0, 0.0)]))
     np.testing.assert_allclose(rows.bound[0, 0], np.full((2, 2), 1.4161 / 1.84))
     np.testing.assert_allclose(rows.bound[0, 1], np.full((2, 2), 0.4950625))
     delta = override_from_rows(rows)
@@ -117,70 +137,80 @@ def test_nearer_human_decides() -> None:
     assert delta != pytest.approx(1.4161 / 1.84)  # what a max-of-bounds implementation would return
 
 
-def test_clamp_then_square() -> None:
+def test_clamp_then_square(build_rows) -> None:
     # hand at (0.2, 0.8, 0): d = 0.7 < Δ = 1.01 while approaching (e = 1.6 > 0).
     # Right: f = max(0, 0.7 − 1.01)² = 0 → δ = 0.
     # Squaring first would give f = 0.31² = 0.0961 and δ = 0.0961 / (0.4 · 1.6) = 0.15.
-    rows = _rows(humans=_point_hands([(0.2, 0.8, 0.0)]))
+    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.8, 0.0)]))
     assert rows.surface_distance_m[0, 0] == pytest.approx(0.7)
     assert rows.f_m2[0, 0] == 0.0
     np.testing.assert_allclose(rows.e_m2ps[0, 0], np.full((2, 2), 1.6))
     assert override_from_rows(rows) == 0.0
 
 
-def test_touching_while_approaching_gives_zero() -> None:
+def test_touching_while_approaching_gives_zero(build_rows) -> None:
     # centre-line distance 0.05 < sum of radii 0.1: d = 0 (clamped), f = 0, e = 0.05 · 2 = 0.1 > 0 → δ = 0
-    rows = _rows(humans=_point_hands([(0.2, 0.05, 0.0)]))
+    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.05, 0.0)]))
     assert rows.surface_distance_m[0, 0] == 0.0
     assert rows.f_m2[0, 0] == 0.0
     assert override_from_rows(rows) == 0.0
 
 
-def test_retreating_link_is_not_slowed_even_when_close() -> None:
+def test_retreating_link_is_not_slowed_even_when_close(build_rows) -> None:
     # same hand at 0.7 m (inside Δ), link moving at −y: e = 0.8 · (−2) = −1.6 ≤ 0 for every row → no bound
     retreating = _links((0, 0, 0), (0.4, 0, 0), (0, -2, 0), (0, -2, 0))
-    rows = _rows(links=retreating, humans=_point_hands([(0.2, 0.8, 0.0)]))
+    rows = _rows(build_rows, links=retreating, humans=_point_hands([(0.2, 0.8, 0.0)]))
     assert rows.f_m2[0, 0] == 0.0
     assert (rows.e_m2ps < 0).all()
     assert np.isinf(rows.bound).all()
     assert override_from_rows(rows) == 1.0
 
 
-def test_sideways_link_is_not_bounded() -> None:
+def test_sideways_link_is_not_bounded(build_rows) -> None:
     # link moving along z, hand in the x–y plane: e = (h − r)ᵀ v = 0 for every row
     sideways = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 2), (0, 0, 2))
-    rows = _rows(links=sideways, humans=_point_hands([(0.2, 0.8, 0.0)]))
+    rows = _rows(build_rows, links=sideways, humans=_point_hands([(0.2, 0.8, 0.0)]))
     np.testing.assert_allclose(rows.e_m2ps, 0.0, atol=1e-15)
     assert override_from_rows(rows) == 1.0
 
 
-def test_axial_translation_is_bounded_by_the_leading_end() -> None:
+def test_axial_translation_is_bounded_by_the_leading_end(build_rows) -> None:
     # link sliding along +x at 1 m/s, hand above its middle at 2 m: e_a = 0.2 · 1 = 0.2 > 0, e_b = −0.2 ≤ 0
     # δ = 0.7921 / (0.4 · 0.2) = 9.9 → clipped to 1; with 10 m/s: 0.7921 / (0.4 · 2) = 0.990125
     sliding = _links((0, 0, 0), (0.4, 0, 0), (10, 0, 0), (10, 0, 0))
-    rows = _rows(links=sliding, humans=_point_hands([(0.2, 2.0, 0.0)]))
+    rows = _rows(build_rows, links=sliding, humans=_point_hands([(0.2, 2.0, 0.0)]))
     np.testing.assert_allclose(rows.e_m2ps[0, 0], [[2.0, 2.0], [-2.0, -2.0]])
     assert override_from_rows(rows) == pytest.approx(0.990125)
 
 
-def test_no_humans_gives_full_speed() -> None:
-    rows = _rows(humans=NO_HUMANS)
+def test_no_humans_gives_full_speed(build_rows) -> None:
+    rows = _rows(build_rows, humans=NO_HUMANS)
     assert rows.bound.shape == (1, 0, 2, 2)
     assert override_from_rows(rows) == 1.0
 
 
-def test_iso13855_close_speed_switch_raises_the_clearance_below_the_threshold() -> None:
+def test_iso13855_close_speed_switch_raises_the_clearance_below_the_threshold(build_rows) -> None:
     iso = SafetyConfig(close_speed_below_m=0.5, human_speed_close_mps=2.0)
     # below 0.5 m: Δ = 0.05 + 2.0 · 0.6 = 1.25; at or above: 1.01 as without the switch
     np.testing.assert_allclose(clearance_m(iso, np.array([0.3, 0.499, 0.5, 1.9]), 0.5, 0.1), [1.25, 1.25, 1.01, 1.01])
     np.testing.assert_allclose(clearance_m(SAFETY, np.array([0.3, 1.9]), 0.5, 0.1), [1.01, 1.01])
-    rows = _rows(humans=_point_hands([(0.2, 0.4, 0.0), (0.2, 2.0, 0.0)]), safety=iso)
+    # the scalar form the core uses for the decision's Δ gives the same numbers
+    for safety in (iso, SAFETY):
+        for separation in (0.3, 0.499, 0.5, 1.9, np.inf):
+            expected = float(clearance_m(safety, np.array([separation]), 0.5, 0.1)[0])
+            assert clearance_at_m(safety, separation, 0.5, 0.1) == expected
+        # the decision's Δ: at K, or at the close speed where that falls below the threshold
+        far = clearance_at_m(safety, np.inf, 0.5, 0.1)
+        assert decision_clearance_m(safety, 0.5, 0.1) == clearance_at_m(safety, far, 0.5, 0.1)
+    fast = SafetyConfig(close_speed_below_m=0.5)  # Δ at K = 0.05 + 1.6 · 0.15 = 0.29 m < 0.5 m: K close applies
+    assert decision_clearance_m(fast, 0.05, 0.1) == pytest.approx(0.05 + 2.0 * 0.15)
+    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.4, 0.0), (0.2, 2.0, 0.0)]), safety=iso)
     # the first hand is at d = 0.3 m, the second at 1.9 m
     np.testing.assert_allclose(rows.clearance_m[0], [1.25, 1.01])
     assert override_from_rows(rows) == 0.0
 
 
-def test_iso13855_switch_changes_delta_below_the_threshold() -> None:
+def test_iso13855_switch_changes_delta_below_the_threshold(build_rows) -> None:
     # A fast-braking setup where the switch matters for δ: Δ = 0.05 + K · 0.1 with t_b,max = 0.05, t_delay = 0.05.
     # hand at d = 0.4: K = 1.6 → Δ = 0.21, f = 0.19² = 0.0361; K = 2.0 → Δ = 0.25, f = 0.15² = 0.0225.
     # e = 0.5 · 2 = 1.0 (centre-line 0.5), T = 0.3 + 0.05 = 0.35: δ = 0.0361 / 0.35 and 0.0225 / 0.35.
@@ -192,7 +222,7 @@ def test_iso13855_switch_changes_delta_below_the_threshold() -> None:
     assert override_from_rows(on) == pytest.approx(0.0225 / 0.35)
 
 
-def test_closer_can_legitimately_raise_delta_for_a_spinning_sliding_link() -> None:
+def test_closer_can_legitimately_raise_delta_for_a_spinning_sliding_link(build_rows) -> None:
     """Why the 'human comes closer' invariant below needs care (safety-math.md §4 taken literally).
 
     A 4 m link from (0,0,0) to (4,0,0) slides along −x while it spins about its middle (rigid:
@@ -253,7 +283,7 @@ def test_velocities_equal_finite_differences(ur5: RobotModel) -> None:
         np.testing.assert_allclose(rigid, 0.0, atol=1e-9)
 
 
-def test_rows_e_equal_finite_difference_projection(ur5: RobotModel) -> None:
+def test_rows_e_equal_finite_difference_projection(build_rows, ur5: RobotModel) -> None:
     """e[i, j, k, m] = (h_m − r_k)ᵀ v_k with v_k from finite differences of the end-point positions."""
     rng = np.random.default_rng(4)
     data = ur5.model.createData()
@@ -304,7 +334,9 @@ def _subset(humans: HumanCapsules, index) -> HumanCapsules:
     )
 
 
-def _delta(ur5: RobotModel, links: LinkKinematics, humans: HumanCapsules, safety: SafetyConfig, t_delay: float):
+def _delta(
+    build_rows, ur5: RobotModel, links: LinkKinematics, humans: HumanCapsules, safety: SafetyConfig, t_delay: float
+):
     rows = build_rows(
         links, ur5.link_radius_m, ur5.t_brake_link_s, float(ur5.braking_time_s.max()), humans, safety, t_delay
     )
@@ -326,8 +358,11 @@ def _cases(ur5: RobotModel, seed: int):
         yield rng, links, _random_humans(rng, int(rng.integers(1, 4))), SAFETY_VARIANTS[k % 3], rng.uniform(0, 0.3)
 
 
-def test_delta_in_unit_interval_and_not_trivial(ur5: RobotModel) -> None:
-    deltas = [_delta(ur5, links, humans, safety, t_delay) for _, links, humans, safety, t_delay in _cases(ur5, 100)]
+def test_delta_in_unit_interval_and_not_trivial(build_rows, ur5: RobotModel) -> None:
+    deltas = [
+        _delta(build_rows, ur5, links, humans, safety, t_delay)
+        for _, links, humans, safety, t_delay in _cases(ur5, 100)
+    ]
     deltas = np.array(deltas)
     assert ((deltas >= 0.0) & (deltas <= 1.0)).all()
     # the random cases cover all three regimes, so the invariants below have teeth
@@ -336,17 +371,17 @@ def test_delta_in_unit_interval_and_not_trivial(ur5: RobotModel) -> None:
     assert ((deltas > 0.0) & (deltas < 1.0)).sum() >= 40
 
 
-def test_delta_does_not_rise_when_the_delay_grows(ur5: RobotModel) -> None:
+def test_delta_does_not_rise_when_the_delay_grows(build_rows, ur5: RobotModel) -> None:
     strictly_lower = 0
     for rng, links, humans, safety, t_delay in _cases(ur5, 101):
-        before = _delta(ur5, links, humans, safety, t_delay)
-        after = _delta(ur5, links, humans, safety, t_delay + rng.uniform(0.001, 0.2))
+        before = _delta(build_rows, ur5, links, humans, safety, t_delay)
+        after = _delta(build_rows, ur5, links, humans, safety, t_delay + rng.uniform(0.001, 0.2))
         assert after <= before + 1e-12
         strictly_lower += after < before
     assert strictly_lower >= 40
 
 
-def test_adding_capsules_or_humans_never_raises_delta(ur5: RobotModel) -> None:
+def test_adding_capsules_or_humans_never_raises_delta(build_rows, ur5: RobotModel) -> None:
     """More capsules = more rows; every row is an upper bound, so δ can only go down."""
     strictly_lower = 0
     for rng, links, humans, safety, t_delay in _cases(ur5, 102):
@@ -359,18 +394,18 @@ def test_adding_capsules_or_humans_never_raises_delta(ur5: RobotModel) -> None:
             everyone.human_ids + tuple(f"x{i}" for i in range(extra.n_capsules)),
             everyone.capsule_names + extra.capsule_names,
         )
-        alone = _delta(ur5, links, humans, safety, t_delay)
-        together = _delta(ur5, links, everyone, safety, t_delay)
+        alone = _delta(build_rows, ur5, links, humans, safety, t_delay)
+        together = _delta(build_rows, ur5, links, everyone, safety, t_delay)
         assert together <= alone + 1e-12
-        assert together == pytest.approx(min(alone, _delta(ur5, links, extra, safety, t_delay)), abs=1e-12)
+        assert together == pytest.approx(min(alone, _delta(build_rows, ur5, links, extra, safety, t_delay)), abs=1e-12)
         strictly_lower += together < alone
         # and the order of the capsules does not matter
         shuffled = _subset(everyone, rng.permutation(everyone.n_capsules))
-        assert _delta(ur5, links, shuffled, safety, t_delay) == pytest.approx(together, abs=1e-12)
+        assert _delta(build_rows, ur5, links, shuffled, safety, t_delay) == pytest.approx(together, abs=1e-12)
     assert strictly_lower >= 20
 
 
-def test_delta_does_not_rise_when_a_human_comes_closer_to_a_point_like_link(ur5: RobotModel) -> None:
+def test_delta_does_not_rise_when_a_human_comes_closer_to_a_point_like_link(build_rows, ur5: RobotModel) -> None:
     """Moving closer, in the form for which safety-math.md §4 guarantees it.
 
     A naive "move the capsule toward the robot" can legitimately raise δ (see

@@ -1,0 +1,623 @@
+"""The gateway's per-cycle math, compiled with numba: link kinematics, segment distances, the eq. (15) rows.
+
+Two compiled calls per robot and cycle instead of ~100 numpy calls and ~20 Pinocchio accesses: at 7 links ×
+30 capsules the cost of numpy was the calls (1–3 µs each), not the arithmetic.
+
+- :func:`link_kinematics`: forward kinematics of the link-end frames and their world velocities from a
+  :class:`gateway.kinematics.KinematicChain` (oMi = oMi[parent] · placement · motion(q); the velocity of a
+  point p is Σ_j ω_j × (p − o_j) q̇_j over the revolute joints that move it and a_j q̇_j over the prismatic
+  ones, safety-math.md §2).
+- :func:`build_rows`: what :func:`gateway.metric.build_rows` (the numpy reference) returns — segment distances
+  (Ericson 2005, §5.1.9, the steps of :mod:`gateway.geometry`), surface distance, clearance Δ (eq. (10)–(12),
+  ISO 13855 close-speed switch), f = max(0, d − Δ)², e = (h − r)ᵀ v of the 4 corners and the bounds of
+  eq. (15) (safety-math.md §2–§4) — with their minimum and the closest pair.
+- :class:`RobotKernels`: both for one robot, as :class:`gateway.core.SafetyCore` calls them. Building it checks
+  the compiled kinematics against Pinocchio (:func:`check_chain`) and compiles the kernels, or loads them from
+  numba's on-disk cache (``cache=True``), so the first cycle is not slow.
+
+The compiled code specialises on the argument types: the wrappers pass C-contiguous float64 arrays, the types
+the kernels are compiled for at start-up.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple, TypeVar, cast
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from gateway.geometry import SegmentDistances
+from gateway.kinematics import PRISMATIC, REVOLUTE, KinematicChain, LinkKinematics, kinematic_chain
+from gateway.kinematics import link_kinematics as pinocchio_link_kinematics
+from gateway.metric import ConstraintRows, HumanCapsules
+from hrc_common.config import ConfigError, SafetyConfig
+from hrc_common.robot_model import RobotModel
+
+FloatArray = npt.NDArray[np.float64]
+
+_EPS = 1e-12
+_PARALLEL_SIN2 = 1e-14
+"""As in :mod:`gateway.geometry`: degenerate below a squared length of 1e-12 m², parallel below sin² 1e-14."""
+
+CHECK_TOLERANCE = 1e-9
+"""Largest difference to Pinocchio of a link-end position [m] or velocity [m/s] for the kinematics to be used."""
+CHECK_CONFIGURATIONS = 8
+CHECK_SEED = 20160415
+
+
+def _use_writable_cache_dir() -> None:
+    """numba caches next to this file (``__pycache__``); where that is read-only (an installed package) and no
+    NUMBA_CACHE_DIR is given, cache in the temporary directory rather than fail at import."""
+    config: Any = numba.config  # numba has no type hints
+    if config.CACHE_DIR:
+        return
+    here = Path(__file__).parent
+    cache = here / "__pycache__"
+    if os.access(cache if cache.exists() else here, os.W_OK):
+        return
+    config.CACHE_DIR = str(Path(tempfile.gettempdir()) / f"hrc-gateway-numba-{os.getuid()}")
+
+
+_use_writable_cache_dir()
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _compiled(function: _F) -> _F:
+    """``numba.njit(cache=True)``, typed for mypy (numba has no type hints).
+
+    ``error_model="numpy"``: a division by zero gives inf or nan as in numpy instead of raising, which also
+    spares a test per division; no ``fastmath``: IEEE arithmetic, as the numpy reference.
+    """
+    return cast(_F, numba.njit(cache=True, error_model="numpy")(function))
+
+
+def _inlined(function: _F) -> _F:
+    """:func:`_compiled`, inlined into its callers (a called function costs twice the arithmetic of a pair)."""
+    return cast(_F, numba.njit(cache=True, error_model="numpy", inline="always")(function))
+
+
+# -- forward kinematics ------------------------------------------------------------------------------
+
+
+@_compiled
+def _link_ends(
+    parent: Any,
+    kind: Any,
+    index_v: Any,
+    R_parent_joint: Any,
+    p_parent_joint: Any,
+    axis_joint: Any,
+    frame_joint: Any,
+    p_joint_frame: Any,
+    link_end_frame: Any,
+    q_rad: Any,
+    qd_radps: Any,
+    ends: Any,
+) -> Any:
+    """Link end points and velocities into ``ends`` (4, L, 3): p_a, p_b, v_a, v_b (world) [m, m/s]; returns the
+    largest speed of a link end [m/s].
+
+    oMi = oMi[parent] · placement · motion(q) (Pinocchio's forward kinematics; joint 0 carries the base pose).
+    The outputs are allocated by the caller: an array handed back to Python costs more than the kinematics.
+    """
+    n_joints = parent.shape[0]
+    R = np.empty((n_joints, 3, 3))  # joint frame → world
+    o = np.empty((n_joints, 3))  # joint origin, world [m]
+    w = np.zeros((n_joints, 3))  # joint axis, world
+    R[0] = R_parent_joint[0]
+    o[0] = p_parent_joint[0]
+    M = np.empty((3, 3))  # placement · motion, in the parent joint's frame
+    m = np.empty(3)
+    for j in range(1, n_joints):
+        i = parent[j]
+        x, y, z = axis_joint[j, 0], axis_joint[j, 1], axis_joint[j, 2]
+        angle_or_shift = q_rad[index_v[j]]
+        for r in range(3):
+            m[r] = p_parent_joint[j, r]
+        if kind[j] == REVOLUTE:
+            # Rodrigues: cos θ I + sin θ [a]× + (1 − cos θ) a aᵀ
+            c, s = np.cos(angle_or_shift), np.sin(angle_or_shift)
+            k = 1.0 - c
+            rot = (
+                (c + k * x * x, k * x * y - s * z, k * x * z + s * y),
+                (k * y * x + s * z, c + k * y * y, k * y * z - s * x),
+                (k * z * x - s * y, k * z * y + s * x, c + k * z * z),
+            )
+            for r in range(3):
+                for col in range(3):
+                    M[r, col] = (
+                        R_parent_joint[j, r, 0] * rot[0][col]
+                        + R_parent_joint[j, r, 1] * rot[1][col]
+                        + R_parent_joint[j, r, 2] * rot[2][col]
+                    )
+        else:
+            for r in range(3):
+                for col in range(3):
+                    M[r, col] = R_parent_joint[j, r, col]
+            if kind[j] == PRISMATIC:
+                for r in range(3):
+                    m[r] += angle_or_shift * (
+                        R_parent_joint[j, r, 0] * x + R_parent_joint[j, r, 1] * y + R_parent_joint[j, r, 2] * z
+                    )
+        for r in range(3):
+            o[j, r] = R[i, r, 0] * m[0] + R[i, r, 1] * m[1] + R[i, r, 2] * m[2] + o[i, r]
+            for col in range(3):
+                R[j, r, col] = R[i, r, 0] * M[0, col] + R[i, r, 1] * M[1, col] + R[i, r, 2] * M[2, col]
+        for r in range(3):
+            w[j, r] = R[j, r, 0] * x + R[j, r, 1] * y + R[j, r, 2] * z
+
+    n_frames = frame_joint.shape[0]
+    p_frame = np.empty((n_frames, 3))
+    v_frame = np.zeros((n_frames, 3))
+    for f in range(n_frames):
+        j = frame_joint[f]
+        for r in range(3):
+            p_frame[f, r] = (
+                R[j, r, 0] * p_joint_frame[f, 0] + R[j, r, 1] * p_joint_frame[f, 1] + R[j, r, 2] * p_joint_frame[f, 2]
+            ) + o[j, r]
+        while j > 0:  # every joint that moves the frame: its ancestors
+            rate = qd_radps[index_v[j]]
+            if kind[j] == REVOLUTE:
+                dx = p_frame[f, 0] - o[j, 0]
+                dy = p_frame[f, 1] - o[j, 1]
+                dz = p_frame[f, 2] - o[j, 2]
+                v_frame[f, 0] += (w[j, 1] * dz - w[j, 2] * dy) * rate
+                v_frame[f, 1] += (w[j, 2] * dx - w[j, 0] * dz) * rate
+                v_frame[f, 2] += (w[j, 0] * dy - w[j, 1] * dx) * rate
+            elif kind[j] == PRISMATIC:
+                for r in range(3):
+                    v_frame[f, r] += w[j, r] * rate
+            j = parent[j]
+
+    n_links = link_end_frame.shape[0]
+    speed2 = 0.0
+    for link in range(n_links):
+        for end in range(2):
+            f = link_end_frame[link, end]
+            norm2 = 0.0
+            for r in range(3):
+                ends[end, link, r] = p_frame[f, r]
+                ends[2 + end, link, r] = v_frame[f, r]
+                norm2 += v_frame[f, r] * v_frame[f, r]
+            speed2 = max(speed2, norm2)
+    return np.sqrt(speed2)
+
+
+def link_kinematics(chain: KinematicChain, q_rad: FloatArray, qd_radps: FloatArray) -> tuple[LinkKinematics, float]:
+    """Link end points and their velocities J q̇ for ``q_rad``, ``qd_radps``, world frame (safety-math.md §2).
+
+    Returns:
+        The link kinematics [m, m/s] and the largest speed of a link end point [m/s].
+    """
+    ends = np.empty((4, len(chain.link_end_frame), 3))
+    speed_mps = _link_ends(*chain, np.ascontiguousarray(q_rad, float), np.ascontiguousarray(qd_radps, float), ends)
+    return LinkKinematics(ends[0], ends[1], ends[2], ends[3]), float(speed_mps)
+
+
+# -- segment distances and the rows of eq. (15) --------------------------------------------------------
+
+
+@_inlined
+def _clip01(x: float) -> float:
+    return min(max(x, 0.0), 1.0)
+
+
+@_inlined
+def _segment_pair(
+    d1x: float,
+    d1y: float,
+    d1z: float,
+    a: float,
+    d2x: float,
+    d2y: float,
+    d2z: float,
+    e: float,
+    rx: float,
+    ry: float,
+    rz: float,
+) -> Any:
+    """Distance [m] and closest-point abscissas (s, t) of a link segment and a capsule segment.
+
+    Args: the link's direction d1 = p_b − p_a and a = ‖d1‖², the capsule's d2 = h_b − h_a and e = ‖d2‖²,
+    and r = p_a − h_a. The same steps as :func:`gateway.geometry.segment_distances`, for one pair: the
+    unclamped s (0 for parallel segments), then t clamped, then s from that t clamped; a point segment
+    projects the other's point. Without branches (selects only), so that the loop over capsules vectorises.
+    """
+    b = d1x * d2x + d1y * d2y + d1z * d2z
+    c = d1x * rx + d1y * ry + d1z * rz
+    f = d2x * rx + d2y * ry + d2z * rz
+    link_ok = a > _EPS
+    capsule_ok = e > _EPS
+    a = a if link_ok else 1.0
+    e = e if capsule_ok else 1.0
+    ae = a * e
+    denom = ae - b * b
+    s = (b * f - c * e) / (denom if denom > _PARALLEL_SIN2 * ae else np.inf)  # parallel: s = 0
+    t = _clip01((b * _clip01(s) + f) / e)
+    t = t if capsule_ok else 0.0
+    s = _clip01((b * t - c) / a)
+    point_link_t = _clip01(f / e)
+    t = t if link_ok else (point_link_t if capsule_ok else 0.0)
+    s = s if link_ok else 0.0
+    gx = s * d1x + rx - t * d2x
+    gy = s * d1y + ry - t * d2y
+    gz = s * d1z + rz - t * d2z
+    return np.sqrt(gx * gx + gy * gy + gz * gz), s, t
+
+
+@_compiled
+def _columns(p_a: Any, p_b: Any) -> Any:
+    """Segments as columns, shape (11, N): a (x, y, z), b (x, y, z), d = b − a (x, y, z), ‖d‖², and a row for
+    the radii (left unset)."""
+    n = p_a.shape[0]
+    columns = np.empty((11, n))
+    for k in range(n):
+        for r in range(3):
+            columns[r, k] = p_a[k, r]
+            columns[3 + r, k] = p_b[k, r]
+            columns[6 + r, k] = p_b[k, r] - p_a[k, r]
+        columns[9, k] = columns[6, k] * columns[6, k] + columns[7, k] * columns[7, k] + columns[8, k] * columns[8, k]
+    return columns
+
+
+@_compiled
+def _segment_distances(p_a: Any, p_b: Any, h_a: Any, h_b: Any) -> Any:
+    n_links, n_capsules = p_a.shape[0], h_a.shape[0]
+    distance = np.empty((n_links, n_capsules))
+    s_link = np.empty((n_links, n_capsules))
+    t_capsule = np.empty((n_links, n_capsules))
+    link = _columns(p_a, p_b)
+    capsule = _columns(h_a, h_b)
+    for i in range(n_links):
+        for j in range(n_capsules):
+            distance[i, j], s_link[i, j], t_capsule[i, j] = _segment_pair(
+                link[6, i], link[7, i], link[8, i], link[9, i],
+                capsule[6, j], capsule[7, j], capsule[8, j], capsule[9, j],
+                link[0, i] - capsule[0, j], link[1, i] - capsule[1, j], link[2, i] - capsule[2, j],
+            )  # fmt: skip
+    return distance, s_link, t_capsule
+
+
+def segment_distances(p_a: FloatArray, p_b: FloatArray, h_a: FloatArray, h_b: FloatArray) -> SegmentDistances:
+    """Compiled :func:`gateway.geometry.segment_distances`: L links ``[p_a, p_b]`` (L, 3) × H capsules (H, 3)."""
+    distance, s, t = _segment_distances(*(np.ascontiguousarray(x, float) for x in (p_a, p_b, h_a, h_b)))
+    return SegmentDistances(distance, s, t)
+
+
+def _kernel_array(x: FloatArray) -> FloatArray:
+    """``x`` as a C-contiguous, writable float64 array: the argument type the kernels are compiled for (another
+    type would compile them anew, in the loop). ``np.require`` does the same at five times the cost."""
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    return x if x.flags.writeable else x.copy()
+
+
+def capsule_columns(humans: HumanCapsules) -> FloatArray:
+    """The capsules as the compiled rows take them, shape (11, H): h_a, h_b, h_b − h_a (x, y, z each),
+    ‖h_b − h_a‖² and the radius [m]. Computed once per tracker frame, not once per robot and cycle."""
+    columns: FloatArray = _columns(_kernel_array(humans.h_a_world), _kernel_array(humans.h_b_world))
+    columns[10] = humans.radius_m
+    return columns
+
+
+@_inlined
+def _bound(f: float, lhs: float) -> float:
+    """The largest δ a row allows: f / lhs, inf where the row bounds nothing (lhs ≤ 0)."""
+    return f / lhs if lhs > 0.0 else np.inf
+
+
+@_compiled
+def _rows(
+    p_a: Any,
+    p_b: Any,
+    v_a: Any,
+    v_b: Any,
+    h: Any,
+    link_radius_m: Any,
+    t_brake_link_s: Any,
+    t_brake_max_s: float,
+    t_delay_s: float,
+    clearance_static_m: float,
+    human_speed_mps: float,
+    human_speed_close_mps: float,
+    close_speed_below_m: float,
+    pair: Any,
+    corner: Any,
+    horizon: Any,
+) -> Any:
+    """The arrays of :class:`gateway.metric.ConstraintRows` into the caller's ``pair``, ``corner`` and ``horizon``;
+    returns the smallest bound (inf if none), the first (i, j) of smallest d and that d ((-1, -1, inf) if none).
+
+    The capsules ``h`` are the columns of :func:`capsule_columns`: contiguous over capsules, so the loops over
+    them vectorise. The outputs: pair (3, L, H): surface distance d [m], clearance Δ [m], f [m²]; corner
+    (2, L, H, 2, 2): e [m²/s] and the bound; horizon (L,) [s]. Packed and allocated by the caller because an
+    array handed back to Python costs more than the arithmetic of 30 pairs.
+    """
+    n_links, n_capsules = p_a.shape[0], h.shape[1]
+    travel_s = t_brake_max_s + t_delay_s
+    clearance_far = clearance_static_m + human_speed_mps * travel_s
+    clearance_close = clearance_static_m + human_speed_close_mps * travel_s
+    link = _columns(p_a, p_b)
+    # corner[0] and corner[1] as (L, 4 H): [link end, capsule end] of capsule j at 4 j + 2 link end + capsule end
+    e_flat = corner[0].reshape(n_links, 4 * n_capsules)
+    bound_flat = corner[1].reshape(n_links, 4 * n_capsules)
+    for i in range(n_links):
+        horizon_s = t_brake_link_s[i] + t_delay_s
+        horizon[i] = horizon_s
+        pax, pay, paz, pbx, pby, pbz = link[0, i], link[1, i], link[2, i], link[3, i], link[4, i], link[5, i]
+        vax, vay, vaz, vbx, vby, vbz = v_a[i, 0], v_a[i, 1], v_a[i, 2], v_b[i, 0], v_b[i, 1], v_b[i, 2]
+        d1x, d1y, d1z, a, radius_m = link[6, i], link[7, i], link[8, i], link[9, i], link_radius_m[i]
+        surface, clearance, f_m2 = pair[0, i], pair[1, i], pair[2, i]
+        e, bound = e_flat[i], bound_flat[i]
+        for j in range(n_capsules):
+            distance, _, _ = _segment_pair(
+                d1x, d1y, d1z, a, h[6, j], h[7, j], h[8, j], h[9, j], pax - h[0, j], pay - h[1, j], paz - h[2, j]
+            )
+            d = max(0.0, distance - radius_m - h[10, j])
+            margin = clearance_close if d < close_speed_below_m else clearance_far
+            gap = max(0.0, d - margin)
+            surface[j] = d
+            clearance[j] = margin
+            f_m2[j] = gap * gap
+        # e = (h − r)ᵀ v for r ∈ {p_a, p_b} (with its v) and h ∈ {h_a, h_b}
+        for j in range(n_capsules):
+            f = f_m2[j]
+            e_aa = (h[0, j] - pax) * vax + (h[1, j] - pay) * vay + (h[2, j] - paz) * vaz
+            e_ab = (h[3, j] - pax) * vax + (h[4, j] - pay) * vay + (h[5, j] - paz) * vaz
+            e_ba = (h[0, j] - pbx) * vbx + (h[1, j] - pby) * vby + (h[2, j] - pbz) * vbz
+            e_bb = (h[3, j] - pbx) * vbx + (h[4, j] - pby) * vby + (h[5, j] - pbz) * vbz
+            e[4 * j] = e_aa
+            e[4 * j + 1] = e_ab
+            e[4 * j + 2] = e_ba
+            e[4 * j + 3] = e_bb
+            bound[4 * j] = _bound(f, horizon_s * e_aa)
+            bound[4 * j + 1] = _bound(f, horizon_s * e_ab)
+            bound[4 * j + 2] = _bound(f, horizon_s * e_ba)
+            bound[4 * j + 3] = _bound(f, horizon_s * e_bb)
+    # the first smallest surface distance, or the first nan (as numpy's argmin)
+    closest_i, closest_j, closest_m = -1, -1, np.inf
+    for k in range(n_links * n_capsules):
+        d = pair[0, k // n_capsules, k % n_capsules]
+        if d < closest_m or d != d:
+            closest_i, closest_j, closest_m = k // n_capsules, k % n_capsules, d
+            if d != d:
+                break
+    lowest = np.inf
+    for i in range(n_links):
+        for bound in bound_flat[i]:
+            if bound < lowest or bound != bound:  # a nan propagates, as in numpy's min
+                lowest = bound
+    return lowest, closest_i, closest_j, closest_m
+
+
+@_compiled
+def _cycle(
+    parent: Any,
+    kind: Any,
+    index_v: Any,
+    R_parent_joint: Any,
+    p_parent_joint: Any,
+    axis_joint: Any,
+    frame_joint: Any,
+    p_joint_frame: Any,
+    link_end_frame: Any,
+    link_radius_m: Any,
+    t_brake_link_s: Any,
+    t_brake_max_s: float,
+    clearance_static_m: float,
+    human_speed_mps: float,
+    human_speed_close_mps: float,
+    close_speed_below_m: float,
+    q_rad: Any,
+    qd_radps: Any,
+    h: Any,
+    t_delay_s: float,
+    ends: Any,
+    pair: Any,
+    corner: Any,
+    horizon: Any,
+) -> Any:
+    """:func:`_link_ends` then :func:`_rows` of its link ends: one call from Python per robot and cycle.
+
+    Returns the largest link-end speed [m/s], the smallest bound and the closest pair (i, j, d).
+    """
+    speed_mps = _link_ends(
+        parent,
+        kind,
+        index_v,
+        R_parent_joint,
+        p_parent_joint,
+        axis_joint,
+        frame_joint,
+        p_joint_frame,
+        link_end_frame,
+        q_rad,
+        qd_radps,
+        ends,
+    )
+    lowest, closest_i, closest_j, closest_m = _rows(
+        ends[0],
+        ends[1],
+        ends[2],
+        ends[3],
+        h,
+        link_radius_m,
+        t_brake_link_s,
+        t_brake_max_s,
+        t_delay_s,
+        clearance_static_m,
+        human_speed_mps,
+        human_speed_close_mps,
+        close_speed_below_m,
+        pair,
+        corner,
+        horizon,
+    )
+    return speed_mps, lowest, closest_i, closest_j, closest_m
+
+
+class Closest(NamedTuple):
+    """The first (link, capsule) pair of smallest surface distance; (-1, -1, inf) with no capsule."""
+
+    link: int
+    capsule: int
+    distance_m: float
+
+
+def _row_outputs(n_links: int, n_capsules: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Fresh output arrays of :func:`_rows` (fresh every cycle: a method may keep the rows it was given)."""
+    return np.empty((3, n_links, n_capsules)), np.empty((2, n_links, n_capsules, 2, 2)), np.empty(n_links)
+
+
+def _rows_from_packed(pair: FloatArray, corner: FloatArray, horizon: FloatArray, lowest: float) -> ConstraintRows:
+    return ConstraintRows(pair[0], pair[1], pair[2], corner[0], horizon, corner[1], float(lowest))
+
+
+def build_rows(
+    links: LinkKinematics,
+    link_radius_m: FloatArray,
+    t_brake_link_s: FloatArray,
+    t_brake_max_s: float,
+    humans: HumanCapsules,
+    safety: SafetyConfig,
+    t_delay_s: float,
+) -> ConstraintRows:
+    """Compiled :func:`gateway.metric.build_rows` (same arguments, same rows; safety-math.md §2–§4)."""
+    p_a, p_b, v_a, v_b = (np.ascontiguousarray(x, float) for x in links)
+    capsules = capsule_columns(humans)
+    pair, corner, horizon = _row_outputs(len(p_a), capsules.shape[1])
+    lowest, _, _, _ = _rows(
+        p_a,
+        p_b,
+        v_a,
+        v_b,
+        capsules,
+        np.ascontiguousarray(link_radius_m, float),
+        np.ascontiguousarray(t_brake_link_s, float),
+        float(t_brake_max_s),
+        float(t_delay_s),
+        *_clearance_parameters(safety),
+        pair,
+        corner,
+        horizon,
+    )
+    return _rows_from_packed(pair, corner, horizon, lowest)
+
+
+def _clearance_parameters(safety: SafetyConfig) -> tuple[float, float, float, float]:
+    """c, K, K close and the separation below which K close applies (eq. (11)–(12), ISO 13855)."""
+    return (
+        float(safety.clearance_static_m),
+        float(safety.human_speed_mps),
+        float(safety.human_speed_close_mps),
+        float(safety.close_speed_below_m),
+    )
+
+
+# -- one robot: checked against Pinocchio and compiled at start-up, one call per cycle -----------------
+
+
+def check_chain(robot: RobotModel, chain: KinematicChain, seed: int = CHECK_SEED) -> None:
+    """Compare the compiled kinematics of ``chain`` with Pinocchio's on seeded random states of ``robot``.
+
+    Raises:
+        ConfigError: a link-end position or velocity differs by more than ``CHECK_TOLERANCE``.
+    """
+    rng = np.random.default_rng(seed)
+    data = robot.model.createData()
+    lower = np.where(np.isfinite(robot.model.lowerPositionLimit), robot.model.lowerPositionLimit, -np.pi)
+    upper = np.where(np.isfinite(robot.model.upperPositionLimit), robot.model.upperPositionLimit, np.pi)
+    lower, upper = np.maximum(lower, -2 * np.pi), np.minimum(upper, 2 * np.pi)
+    for _ in range(CHECK_CONFIGURATIONS):
+        q = rng.uniform(lower, upper)
+        qd = rng.uniform(-2.0, 2.0, robot.model.nv)
+        reference = pinocchio_link_kinematics(robot, data, q, qd)
+        compiled, _ = link_kinematics(chain, q, qd)
+        for name, got, expected in zip(LinkKinematics._fields, compiled, reference, strict=True):
+            error = float(np.max(np.abs(got - expected), initial=0.0))
+            if not error <= CHECK_TOLERANCE:
+                raise ConfigError(
+                    f"robot {robot.name!r}: the compiled kinematics differ from Pinocchio's by {error:.3g} in "
+                    f"{name} at q = {np.round(q, 4).tolist()}; allowed: at most {CHECK_TOLERANCE}"
+                )
+
+
+class RobotKernels:
+    """The compiled per-cycle math of one robot with what it needs prepared once (chain, radii, parameters).
+
+    Building it extracts the chain, checks the compiled kinematics against Pinocchio and compiles the kernels
+    (or loads them from numba's cache) with the argument types of the loop, so the first cycle is not slow.
+
+    Raises:
+        ConfigError: an unsupported joint, or compiled kinematics that differ from Pinocchio's.
+    """
+
+    def __init__(self, robot: RobotModel, safety: SafetyConfig) -> None:
+        self.chain = kinematic_chain(robot)
+        check_chain(robot, self.chain)
+        self.link_radius_m = np.ascontiguousarray(robot.link_radius_m, dtype=np.float64)
+        self.t_brake_link_s = np.ascontiguousarray(robot.t_brake_link_s, dtype=np.float64)
+        self.t_brake_max_s = float(robot.braking_time_s.max())
+        self._n_links = len(self.chain.link_end_frame)
+        # the arguments of the compiled call that do not change: one tuple, unpacked in one go every cycle
+        self._robot_arguments = (
+            *self.chain,
+            self.link_radius_m,
+            self.t_brake_link_s,
+            self.t_brake_max_s,
+            *_clearance_parameters(safety),
+        )
+        capsule = np.zeros((1, 3))
+        self.cycle(
+            np.zeros(robot.model.nq),
+            np.zeros(robot.model.nv),
+            capsule_columns(HumanCapsules(capsule, capsule, np.zeros(1), ("-",), ("-",))),
+            0.0,
+        )
+
+    def cycle(
+        self, q_rad: FloatArray, qd_radps: FloatArray, capsules: FloatArray, t_delay_s: float
+    ) -> tuple[LinkKinematics, float, ConstraintRows, Closest]:
+        """:func:`link_kinematics` and :func:`build_rows` of this robot in one compiled call.
+
+        Args:
+            q_rad: joint positions [rad].
+            qd_radps: joint velocities, the programmed ones at 100 % override [rad/s].
+            capsules: the human capsules as :func:`capsule_columns` gives them.
+            t_delay_s: the measured delay of the whole chain [s].
+
+        ``q_rad`` and ``qd_radps`` are taken as they are, C-contiguous, writable float64 arrays as the input store
+        makes them (converting costs ~1 µs a cycle): other array types work, but compile the kernel anew on their
+        first call, in the loop (``tests/test_kernels.py`` checks that the loop never compiles).
+
+        Returns:
+            The link kinematics [m, m/s], the largest link-end speed [m/s], the rows of eq. (15), and the pair of
+            smallest surface distance with that distance [m].
+        """
+        n_links, n_capsules = self._n_links, capsules.shape[1]
+        ends = np.empty((4, n_links, 3))
+        pair = np.empty((3, n_links, n_capsules))
+        corner = np.empty((2, n_links, n_capsules, 2, 2))
+        horizon = np.empty(n_links)
+        speed_mps, lowest, i, j, distance_m = _cycle(
+            *self._robot_arguments,
+            q_rad,
+            qd_radps,
+            capsules,
+            float(t_delay_s),
+            ends,
+            pair,
+            corner,
+            horizon,
+        )
+        return (
+            LinkKinematics(ends[0], ends[1], ends[2], ends[3]),
+            speed_mps,
+            ConstraintRows(pair[0], pair[1], pair[2], corner[0], horizon, corner[1], lowest),
+            Closest(i, j, distance_m),
+        )

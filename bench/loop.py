@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import threading
 import time
 from collections import Counter
@@ -123,11 +124,16 @@ class HttpLoad:
     """``rate`` GET requests/s spread over ``workers`` threads, each with its own keep-alive connection.
 
     Each worker keeps its own schedule; a worker that falls behind does not burst to catch up. At most
-    ``rate × duration_s`` requests are sent, none after ``duration_s``.
+    ``rate × duration_s`` requests are sent, none after ``duration_s``. Each worker thread lowers its own CPU
+    priority by ``nice`` (Linux: the niceness of a thread id), so the load generator, which in a cell runs on
+    other machines, does not take the CPU from the programs under test on this one.
     """
 
-    def __init__(self, base_url: str, robot: str, rate: float, duration_s: float, workers: int = 4) -> None:
+    def __init__(
+        self, base_url: str, robot: str, rate: float, duration_s: float, workers: int = 4, nice: int = 0
+    ) -> None:
         self.base_url = base_url
+        self.nice = nice
         self.paths = [p.format(robot=robot) for p in HTTP_PATHS]
         self.rate = rate
         self.duration_s = duration_s
@@ -150,6 +156,9 @@ class HttpLoad:
             self._threads.append(thread)
 
     def _work(self, worker: int, count: int) -> None:
+        if self.nice:
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + self.nice)
         interval_s = self.workers / self.rate
         next_s = self._started_s + worker * interval_s / self.workers
         deadline = self._started_s + self.duration_s
@@ -199,6 +208,7 @@ class RunSettings:
     scenario: str
     seed: int
     event_driven: bool = True
+    load_nice: int = 0
 
 
 def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
@@ -275,7 +285,11 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
             exited = exited_programs(procs, [log for _, _, log in specs])
             raise StartupError(f"{exc}\n{exited or log_tail(logs['gateway'])}") from None
         time.sleep(settings.warmup_s)
-        load = HttpLoad(base_url, robot, settings.http_rate, settings.duration_s) if settings.http_rate > 0 else None
+        load = (
+            HttpLoad(base_url, robot, settings.http_rate, settings.duration_s, nice=settings.load_nice)
+            if settings.http_rate > 0
+            else None
+        )
         recorder.on.set()
         started_s = time.monotonic()
         if load is not None:
@@ -348,6 +362,7 @@ def run(
     config_path: Path | None,
     work_dir: Path,
     event_driven: bool = True,
+    load_nice: int = 0,
 ) -> Report:
     base = load_cell_config(config_path)
     report = Report(
@@ -356,6 +371,7 @@ def run(
             "rates_hz": rates,
             "event_driven": event_driven,
             "http_rates_per_s": http_rates,
+            "load_nice": load_nice,
             "duration_s": duration_s,
             "warmup_s": warmup_s,
             "scenario": scenario,
@@ -368,7 +384,7 @@ def run(
     for rate in rates:
         for http_rate in http_rates:
             print(f"... {rate:g} Hz, {http_rate:g} HTTP requests/s, {duration_s:g} s")
-            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven)
+            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven, load_nice)
             runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz, {http_rate:g} req/s"))
     report.results["runs"] = runs
     loaded = max(http_rates)
@@ -389,8 +405,9 @@ def run(
         "(loop.event_seqs). decision_interval = the same over all decisions, ticks and event cycles.",
         "missed_cycles_in_window is the gateway's own count (RateLoop: boundaries skipped after an overrun; "
         "event cycles are never missed or late ticks); event_cycles_in_window counts the event cycles.",
-        "The HTTP server is a child process of the gateway; the load generator runs in this process; all "
-        "share the same 2 cores with the controller and tracker emulators.",
+        "The HTTP server is a child process of the gateway at niceness +10 (gateway.http_server); the load "
+        "generator runs in this process, its threads at niceness +load_nice (in a cell the HTTP clients are "
+        "other machines); all share the same 2 cores with the controller and tracker emulators.",
         "Figures on a shared 2-core machine are indicative: see load_average.",
     ]
     return report
@@ -463,8 +480,16 @@ def main(argv: list[str] | None = None) -> int:
         "--fixed-rate", action="store_true", help="gateway.event_driven = false: decide at the ticks only"
     )
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
+    parser.add_argument(
+        "--load-nice",
+        type=int,
+        default=10,
+        help="the HTTP load generator's threads lower their CPU priority by this much (default 10; 0 = not)",
+    )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
+    if args.load_nice < 0:
+        parser.error("--load-nice must be >= 0")
     rates = [float(x) for x in args.rates.split(",") if x.strip()]
     http_rates = [float(x) for x in args.http_rates.split(",") if x.strip()]
     print_header("sustained loop: period and missed cycles of the real gateway, with and without HTTP load")
@@ -478,6 +503,7 @@ def main(argv: list[str] | None = None) -> int:
         args.config,
         args.json.parent,
         event_driven=not args.fixed_rate,
+        load_nice=args.load_nice,
     )
     doc = report.finish(args.json)
     print_report(doc)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -90,6 +91,20 @@ def _log_changes(previous: dict[str, RobotDecision], decisions: dict[str, RobotD
             log.info("robot %s: all faults cleared", name)
 
 
+def _use_realtime_scheduling(priority: int) -> None:
+    """Run the calling thread (the safety loop) under SCHED_FIFO at ``priority``; warn if the OS refuses.
+
+    Only this thread: on Linux the scheduling policy of pid 0 is the calling thread's, so Zenoh's threads and
+    the HTTP child keep normal scheduling and cannot starve the machine.
+    """
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:  # not Linux, or no CAP_SYS_NICE
+        log.warning("could not run the safety loop under SCHED_FIFO priority %d: %s", priority, exc)
+    else:
+        log.info("safety loop thread under SCHED_FIFO priority %d", priority)
+
+
 def run_gateway(
     config: CellConfig,
     core: SafetyCore,
@@ -151,6 +166,8 @@ def run_gateway(
         event_seqs: list[int] = []  # override seqs of the event cycles since the last status
         previous: dict[str, RobotDecision] = {}
         next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+        if gateway.loop_realtime_priority:
+            _use_realtime_scheduling(gateway.loop_realtime_priority)
         rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
         exit_code = 0
         try:

@@ -187,6 +187,11 @@ class GatewayConfig(_Frozen):
         "frame instead (a reaction later by at most this), and an event cycle shorter than this cannot "
         "make the tick late. At or above the period (1 / rate_hz) there are no event cycles [s].",
     )
+    loop_realtime_priority: Annotated[int, Field(ge=0, le=99)] = Field(
+        0,
+        description="Linux SCHED_FIFO priority of the safety loop's thread (1-99; needs root or CAP_SYS_NICE; "
+        "the gateway starts anyway and logs a warning if it is refused); 0 = normal scheduling.",
+    )
 
 
 class ControllerConfig(_Frozen):

@@ -44,10 +44,15 @@ def _cell_config_with_tracker_latency(tmp_path: Path, extra_latency_s: float) ->
 
 
 def _back_to_autonomous_for(hold_s: float) -> Callable[[list[dict[str, Any]]], bool]:
-    """Stop recording once the robot has been autonomous for ``hold_s`` after a safety exception."""
+    """Stop recording once the robot has been autonomous for ``hold_s`` after the person made a safety exception
+    (not one from a transient fault of a loaded machine: that would end the recording before the approach)."""
 
     def done(trace: list[dict[str, Any]]) -> bool:
-        exceptions = [s["t_s"] for s in trace if s["zone"] == "safety_exception"]
+        exceptions = [
+            s["t_s"]
+            for s in trace
+            if s["zone"] == "safety_exception" and not s["faults"] and s["min_distance_m"] is not None
+        ]
         if not exceptions or trace[-1]["zone"] != "autonomous":
             return False
         since = [s for s in trace if s["t_s"] > exceptions[-1] and s["zone"] != "autonomous"]

@@ -599,11 +599,8 @@ class RobotKernels:
             The link kinematics [m, m/s], the largest link-end speed [m/s], the rows of eq. (15), and the pair of
             smallest surface distance with that distance [m].
         """
-        n_links, n_capsules = self._n_links, capsules.shape[1]
-        ends = np.empty((4, n_links, 3))
-        pair = np.empty((3, n_links, n_capsules))
-        corner = np.empty((2, n_links, n_capsules, 2, 2))
-        horizon = np.empty(n_links)
+        ends = np.empty((4, self._n_links, 3))
+        pair, corner, horizon = _row_outputs(self._n_links, capsules.shape[1])
         speed_mps, lowest, i, j, distance_m = _cycle(
             *self._robot_arguments,
             q_rad,
@@ -618,6 +615,6 @@ class RobotKernels:
         return (
             LinkKinematics(ends[0], ends[1], ends[2], ends[3]),
             speed_mps,
-            ConstraintRows(pair[0], pair[1], pair[2], corner[0], horizon, corner[1], lowest),
+            _rows_from_packed(pair, corner, horizon, lowest),
             Closest(i, j, distance_m),
         )

@@ -161,7 +161,6 @@ def run_gateway(
             http_port,
         )
         seq = 0
-        cycles = 0
         compute_max_s = 0.0
         event_seqs: list[int] = []  # override seqs of the event cycles since the last status
         previous: dict[str, RobotDecision] = {}
@@ -185,7 +184,6 @@ def run_gateway(
                     message = Override(robot=name, seq=seq, stamp_ns=now_ns, delta=decision.delta)
                     override_pubs[name].put(to_payload(message))
                     store.on_override_sent(name, seq, time.time_ns())
-                cycles += 1
                 compute_max_s = max(compute_max_s, time.monotonic() - started_s)
                 _log_changes(previous, decisions)
                 previous = decisions
@@ -198,7 +196,7 @@ def run_gateway(
                         _humans_summary(inputs),
                         rejected,
                         received,
-                        loop_status(rate, cycles, compute_max_s, gateway.event_driven, event_seqs),
+                        loop_status(rate, compute_max_s, gateway.event_driven, event_seqs),
                     )
                     line = json.dumps(doc).encode()
                     status_pub.put(line)
@@ -235,7 +233,7 @@ def run_gateway(
             del token, subscribers  # undeclared when the session closes
     log.info(
         "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles)",
-        cycles,
+        rate.tick_cycles + rate.event_cycles,
         rate.tick_cycles,
         rate.missed_cycles,
         rate.event_cycles,

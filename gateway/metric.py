@@ -82,15 +82,10 @@ def clearance_m(safety: SafetyConfig, separation_m: FloatArray, t_brake_max_s: f
     return safety.clearance_static_m + speed_mps * (t_brake_max_s + t_delay_s)
 
 
-def clearance_at_m(safety: SafetyConfig, separation_m: float, t_brake_max_s: float, t_delay_s: float) -> float:
-    """:func:`clearance_m` of one separation, in plain floats (a numpy call on a 0-d array costs ~4 µs)."""
-    speed_mps = safety.human_speed_close_mps if separation_m < safety.close_speed_below_m else safety.human_speed_mps
-    return safety.clearance_static_m + speed_mps * (t_brake_max_s + t_delay_s)
-
-
 def decision_clearance_m(safety: SafetyConfig, t_brake_max_s: float, t_delay_s: float) -> float:
     """The decision's Δ (eq. (11)–(12)): at the walking speed K, or at the close speed where that Δ falls below
-    ``close_speed_below_m`` (ISO 13855); ``clearance_at_m(clearance_at_m(inf))`` in one call."""
+    ``close_speed_below_m`` (ISO 13855): :func:`clearance_m` at the separation :func:`clearance_m` gives at
+    infinity, in plain floats (a numpy call on a 0-d array costs ~4 µs)."""
     travel_s = t_brake_max_s + t_delay_s
     far_m = safety.clearance_static_m + safety.human_speed_mps * travel_s
     if far_m < safety.close_speed_below_m:
@@ -143,5 +138,9 @@ def build_rows(
 
 
 def override_from_rows(rows: ConstraintRows) -> float:
-    """δ = clip(min over rows of the bound, 0, 1); 1 when no row bounds anything."""
-    return min(max(rows.min_bound, 0.0), 1.0)
+    """δ = clip(min over rows of the bound, 0, 1); 1 when no row bounds anything; 0 when a bound is not a number
+    (fail closed: ``min``/``max`` would pass a nan through to the override)."""
+    lowest = rows.min_bound
+    if lowest != lowest:
+        return 0.0
+    return min(max(lowest, 0.0), 1.0)

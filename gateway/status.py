@@ -53,17 +53,15 @@ def status_document(
     }
 
 
-def loop_status(
-    rate: RateLoop, cycles: int, compute_max_s: float, event_driven: bool, event_seqs: list[int]
-) -> dict[str, Any]:
+def loop_status(rate: RateLoop, compute_max_s: float, event_driven: bool, event_seqs: list[int]) -> dict[str, Any]:
     """The ``loop`` block: how the gateway's own loop keeps its period.
 
     Args:
         rate: the loop's timing: ``tick_cycles`` (fixed-rate ticks), ``event_cycles`` (decisions taken
             when a tracker frame arrived, between ticks), ``wakes_served_by_tick`` (frames left to a
             tick due within ``event_guard_s``), ``missed_cycles`` (ticks skipped after an
-            overrun; event cycles are never missed or late), ``last_lateness_s`` (of the last tick).
-        cycles: all decisions (ticks + event cycles).
+            overrun; event cycles are never missed or late), ``last_lateness_s`` (of the last tick);
+            ``cycles`` in the block counts all decisions, ticks and event cycles.
         compute_max_s: the longest cycle since the previous status [s].
         event_driven: whether event cycles are enabled (``gateway.event_driven``).
         event_seqs: the override seqs of the event cycles since the previous status (possibly capped:
@@ -71,7 +69,7 @@ def loop_status(
     """
     return {
         "rate_hz": round(1.0 / rate.period_s, 6),
-        "cycles": cycles,
+        "cycles": rate.tick_cycles + rate.event_cycles,
         "tick_cycles": rate.tick_cycles,
         "event_cycles": rate.event_cycles,
         "wakes_served_by_tick": rate.wakes_served_by_tick,

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 from typing import Annotated, Literal, TypeVar
 
-from pydantic import VERSION as PYDANTIC_VERSION
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 NAME_PATTERN = r"^[a-z0-9_-]+$"
@@ -126,11 +125,6 @@ def _finite_float(token: str) -> float:
     return value
 
 
-_FAST_PATH = tuple(int(part) for part in PYDANTIC_VERSION.split(".")[:2]) >= (2, 11)
-"""``model_validate_json(..., by_name=False)`` needs pydantic 2.11; with an older one, every payload takes
-the reference path (same results, the old cost)."""
-
-
 def parse_message(payload: bytes, model: type[M]) -> M:
     """Parse a UTF-8 JSON payload into ``model``.
 
@@ -147,7 +141,7 @@ def parse_message(payload: bytes, model: type[M]) -> M:
         MessageError: with reason ``too_large``, ``not_json``, ``non_finite``, ``wrong_schema`` or
             ``invalid`` (any other validation failure: lengths, ranges, unknown fields).
     """
-    if _FAST_PATH and len(payload) <= MAX_PAYLOAD_BYTES:
+    if len(payload) <= MAX_PAYLOAD_BYTES:
         try:
             message = model.model_validate_json(payload, by_alias=True, by_name=False)
         except ValidationError:

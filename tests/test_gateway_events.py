@@ -58,7 +58,7 @@ def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_drive
 def test_loop_block_counts_ticks_and_event_cycles_apart() -> None:
     rate = RateLoop(0.004)
     rate.tick_cycles, rate.event_cycles, rate.missed_cycles = 10, 3, 1
-    block = loop_status(rate, 13, 0.0005, True, [4, 7, 9])
+    block = loop_status(rate, 0.0005, True, [4, 7, 9])
     assert block["rate_hz"] == 250.0
     assert (block["cycles"], block["tick_cycles"], block["event_cycles"], block["missed_cycles"]) == (13, 10, 3, 1)
     assert block["event_seqs"] == [4, 7, 9]

@@ -6,6 +6,8 @@ velocities against finite differences on the real UR5, then invariants over seed
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -13,8 +15,8 @@ from gateway import kernels, metric
 from gateway.kinematics import LinkKinematics, link_kinematics
 from gateway.metric import (
     NO_HUMANS,
+    ConstraintRows,
     HumanCapsules,
-    clearance_at_m,
     clearance_m,
     decision_clearance_m,
     override_from_rows,
@@ -194,14 +196,10 @@ def test_iso13855_close_speed_switch_raises_the_clearance_below_the_threshold(bu
     # below 0.5 m: Δ = 0.05 + 2.0 · 0.6 = 1.25; at or above: 1.01 as without the switch
     np.testing.assert_allclose(clearance_m(iso, np.array([0.3, 0.499, 0.5, 1.9]), 0.5, 0.1), [1.25, 1.25, 1.01, 1.01])
     np.testing.assert_allclose(clearance_m(SAFETY, np.array([0.3, 1.9]), 0.5, 0.1), [1.01, 1.01])
-    # the scalar form the core uses for the decision's Δ gives the same numbers
+    # the decision's Δ (plain floats in the core): at K, or at the close speed where that falls below the threshold
     for safety in (iso, SAFETY):
-        for separation in (0.3, 0.499, 0.5, 1.9, np.inf):
-            expected = float(clearance_m(safety, np.array([separation]), 0.5, 0.1)[0])
-            assert clearance_at_m(safety, separation, 0.5, 0.1) == expected
-        # the decision's Δ: at K, or at the close speed where that falls below the threshold
-        far = clearance_at_m(safety, np.inf, 0.5, 0.1)
-        assert decision_clearance_m(safety, 0.5, 0.1) == clearance_at_m(safety, far, 0.5, 0.1)
+        far = clearance_m(safety, np.array([np.inf]), 0.5, 0.1)
+        assert decision_clearance_m(safety, 0.5, 0.1) == float(clearance_m(safety, far, 0.5, 0.1)[0])
     fast = SafetyConfig(close_speed_below_m=0.5)  # Δ at K = 0.05 + 1.6 · 0.15 = 0.29 m < 0.5 m: K close applies
     assert decision_clearance_m(fast, 0.05, 0.1) == pytest.approx(0.05 + 2.0 * 0.15)
     rows = _rows(build_rows, humans=_point_hands([(0.2, 0.4, 0.0), (0.2, 2.0, 0.0)]), safety=iso)
@@ -434,3 +432,10 @@ def test_delta_does_not_rise_when_a_human_comes_closer_to_a_point_like_link(buil
         assert after <= before + 1e-12
         strictly_lower += after < before
     assert strictly_lower >= 20
+
+
+def test_a_bound_that_is_not_a_number_stops_the_robot() -> None:
+    rows = ConstraintRows(*(np.zeros(0),) * 6, min_bound=math.nan)
+    assert override_from_rows(rows) == 0.0
+    assert override_from_rows(rows._replace(min_bound=-3.0)) == 0.0
+    assert override_from_rows(rows._replace(min_bound=math.inf)) == 1.0

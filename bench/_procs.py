@@ -16,11 +16,12 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from hrc_common.config import REPO_ROOT, CellConfig, ConfigError, load_cell_config
+from hrc_common.errors import HrcError
 
 T = TypeVar("T")
 
 
-class BenchError(RuntimeError):
+class BenchError(HrcError, RuntimeError):
     """A benchmark could not run (a program did not start, a configuration did not round-trip)."""
 
 

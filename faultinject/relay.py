@@ -39,6 +39,7 @@ import zenoh
 
 from faultinject.delay_line import DelayLine
 from faultinject.rules import DIRECTIONS, Direction, FaultRule, RuleError, draw_fate, first_match, parse_rule
+from hrc_common.errors import HrcError
 from hrc_common.service import configure_logging, stop_on_signals
 from hrc_common.zenoh_session import session_config
 
@@ -52,7 +53,7 @@ _CACHE_LIMIT = 10_000
 log = logging.getLogger(PROG)
 
 
-class RelayError(Exception):
+class RelayError(HrcError):
     """The relay cannot start (bad endpoint, bad option). The message is one line."""
 
 

@@ -31,6 +31,8 @@ from typing import Literal, get_args
 
 import zenoh
 
+from hrc_common.errors import HrcError
+
 Direction = Literal["a2b", "b2a"]
 DIRECTIONS: tuple[Direction, ...] = get_args(Direction)
 
@@ -42,7 +44,7 @@ _TIMES = ("delay", "jitter", "reorder_delay")
 ALLOWED_PARAMS = (*_TIMES, *_PROBABILITIES, "dir")
 
 
-class RuleError(ValueError):
+class RuleError(HrcError, ValueError):
     """A rule that cannot be parsed; the message is one line and says what is allowed."""
 
 

@@ -16,6 +16,7 @@ from typing import Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from hrc_common.errors import HrcError
 from hrc_common.messages import NAME_PATTERN
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -30,7 +31,7 @@ NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
-class ConfigError(Exception):
+class ConfigError(HrcError):
     """The configuration cannot be loaded or is unsafe. The message is one line."""
 
 

@@ -1,7 +1,8 @@
-"""Wire messages of the contract (`shared/docs/contract.md`), as strict frozen pydantic models.
+"""Wire messages of the contract (`docs/contract.md`), as strict frozen pydantic models.
 
-This module is a leaf: it imports nothing else of the project, so that any side of the contract
-(emulators, gateway, tests, a real device driver) can use it alone.
+This module is a leaf: it imports nothing else of the project but the exception root
+(``hrc_common.errors``, itself a leaf), so that any side of the contract (emulators, gateway, tests, a
+real device driver) can use it alone.
 
 Every model rejects unknown fields, NaN and infinities, wrong array lengths and negative radii.
 Parsing raw bytes goes through :func:`parse_message`, which turns every failure into a
@@ -14,6 +15,8 @@ import json
 from typing import Annotated, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from hrc_common.errors import HrcError
 
 NAME_PATTERN = r"^[a-z0-9_-]+$"
 """Cell, robot and tracker names: the characters allowed in a key expression segment."""
@@ -105,7 +108,7 @@ class Override(_Message):
 M = TypeVar("M", bound=BaseModel)
 
 
-class MessageError(ValueError):
+class MessageError(HrcError, ValueError):
     """A payload that is not a valid message. ``reason`` is a short key for counting."""
 
     def __init__(self, reason: str, detail: str) -> None:

@@ -33,7 +33,7 @@ import pinocchio as pin
 
 from gateway.geometry import segment_distances
 from gateway.kinematics import LinkKinematics, link_kinematics
-from gateway.metric import HumanCapsules
+from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]

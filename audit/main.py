@@ -40,10 +40,9 @@ import pinocchio as pin
 import zenoh
 
 from audit.checks import AuditAccumulator, AuditSummary, audit_cycle
-from gateway.inputs import humans_to_capsules
-from gateway.metric import HumanCapsules
 from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, load_cell_config
+from hrc_common.humans import HumanCapsules, capsules_from_message
 from hrc_common.messages import Humans, JointState, MessageError, parse_message
 from hrc_common.robot_model import RobotModel, load_robot_model
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
@@ -163,7 +162,7 @@ class TruthAuditor:
         except MessageError as exc:
             self._count(f"truth_humans/{exc.reason}")
             return
-        capsules = humans_to_capsules(message.tracker, message)
+        capsules = capsules_from_message(message.tracker, message)
         with self._lock:
             previous = self._humans[-1] if self._humans else None
             if previous is not None and message.stamp_ns <= previous.stamp_ns:

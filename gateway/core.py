@@ -17,9 +17,10 @@ from gateway.delay import NS_PER_S, DelayBudget, WindowMax
 from gateway.inputs import InputSnapshot, JointSample
 from gateway.kernels import RobotKernels, capsule_columns
 from gateway.methods import MethodInput, ReplanMonitor, build_method
-from gateway.metric import NO_HUMANS, HumanCapsules, decision_clearance_m
+from gateway.metric import decision_clearance_m
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_common.config import CellConfig
+from hrc_common.humans import NO_HUMANS, HumanCapsules, merge_humans
 from hrc_common.robot_model import RobotModel
 
 
@@ -71,27 +72,6 @@ def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
         return None
     age_s = (now_ns - stamp_ns) / NS_PER_S
     return age_s if age_s > 0.0 else 0.0
-
-
-def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
-    """All capsules of several trackers in one set (duplicates are harmless: more rows)."""
-    frames = [f for f in frames if f.n_capsules]
-    if not frames:
-        return NO_HUMANS
-    if len(frames) == 1:
-        return frames[0]
-    human_ids: tuple[str, ...] = ()
-    capsule_names: tuple[str, ...] = ()
-    for f in frames:  # a few trackers: adding tuples is the cheapest way to join them
-        human_ids += f.human_ids
-        capsule_names += f.capsule_names
-    return HumanCapsules(
-        np.concatenate([f.h_a_world for f in frames]),
-        np.concatenate([f.h_b_world for f in frames]),
-        np.concatenate([f.radius_m for f in frames]),
-        human_ids,
-        capsule_names,
-    )
 
 
 class _Merged(NamedTuple):

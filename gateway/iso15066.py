@@ -58,8 +58,8 @@ import numpy.typing as npt
 
 from gateway.geometry import segment_distances
 from gateway.kinematics import LinkKinematics
-from gateway.metric import HumanCapsules
 from hrc_common.config import SafetyConfig
+from hrc_common.humans import HumanCapsules
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -34,8 +34,9 @@ import numpy.typing as npt
 from gateway.geometry import SegmentDistances
 from gateway.kinematics import PRISMATIC, REVOLUTE, KinematicChain, LinkKinematics, kinematic_chain
 from gateway.kinematics import link_kinematics as pinocchio_link_kinematics
-from gateway.metric import ConstraintRows, HumanCapsules
+from gateway.metric import ConstraintRows
 from hrc_common.config import ConfigError, SafetyConfig
+from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]

@@ -36,8 +36,9 @@ import pinocchio as pin
 from gateway import iso15066
 from gateway.delay import NS_PER_S
 from gateway.kinematics import LinkKinematics
-from gateway.metric import ConstraintRows, HumanCapsules, override_from_rows
+from gateway.metric import ConstraintRows, override_from_rows
 from hrc_common.config import ConfigError, SafetyConfig
+from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]

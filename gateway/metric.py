@@ -24,32 +24,9 @@ import numpy.typing as npt
 from gateway.geometry import segment_distances
 from gateway.kinematics import LinkKinematics
 from hrc_common.config import SafetyConfig
+from hrc_common.humans import HumanCapsules
 
 FloatArray = npt.NDArray[np.float64]
-
-
-class HumanCapsules(NamedTuple):
-    """All human capsules seen by the gateway, flattened over trackers and humans.
-
-    Attributes:
-        h_a_world, h_b_world: capsule end points, shape (H, 3) [m].
-        radius_m: capsule radii, shape (H,) [m].
-        human_ids: id of the human each capsule belongs to (prefixed with the tracker name).
-        capsule_names: name of each capsule.
-    """
-
-    h_a_world: FloatArray
-    h_b_world: FloatArray
-    radius_m: FloatArray
-    human_ids: tuple[str, ...]
-    capsule_names: tuple[str, ...]
-
-    @property
-    def n_capsules(self) -> int:
-        return len(self.radius_m)
-
-
-NO_HUMANS = HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
 
 
 class ConstraintRows(NamedTuple):

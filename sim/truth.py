@@ -14,7 +14,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from gateway.metric import NO_HUMANS, HumanCapsules
+from hrc_common.humans import NO_HUMANS, HumanCapsules
 from tracker_emu.body import body_capsules_local
 from tracker_emu.scenario import Scenario, pose_at, scenario_time
 

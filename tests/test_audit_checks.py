@@ -11,7 +11,7 @@ import pytest
 
 from audit.checks import AuditAccumulator, CycleAudit, audit_cycle, audit_links, merge_summaries
 from gateway.kinematics import LinkKinematics, link_kinematics
-from gateway.metric import NO_HUMANS, HumanCapsules
+from hrc_common.humans import NO_HUMANS, HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 K = 1.6  # human approach speed [m/s]

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from gateway.inputs import FUTURE_STAMP_TOLERANCE_NS, InputStore, humans_to_capsules
+from gateway.inputs import FUTURE_STAMP_TOLERANCE_NS, InputStore, capsules_from_message
 from hrc_common import keys
 from hrc_common.messages import Humans
 
@@ -375,7 +375,7 @@ def test_flattened_capsules_match_the_message_on_random_frames() -> None:
             for i in range(int(rng.integers(0, 4)))
         ]
         message = Humans.model_validate(hm(humans=humans))
-        caps = humans_to_capsules("side", message)
+        caps = capsules_from_message("side", message)
         flat = [(f"side/{h['id']}", c) for h in humans for c in h["capsules"]]
         assert caps.human_ids == tuple(hid for hid, _ in flat)
         assert caps.capsule_names == tuple(c["name"] for _, c in flat)

@@ -15,8 +15,9 @@ from gateway import geometry, kernels, metric
 from gateway.core import SafetyCore
 from gateway.kernels import CHECK_TOLERANCE, RobotKernels, check_chain
 from gateway.kinematics import PRISMATIC, REVOLUTE, kinematic_chain, link_kinematics
-from gateway.metric import NO_HUMANS, ConstraintRows, HumanCapsules, override_from_rows
+from gateway.metric import ConstraintRows, override_from_rows
 from hrc_common.config import CellConfig, ConfigError, SafetyConfig
+from hrc_common.humans import NO_HUMANS, HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 SAFETY_VARIANTS = (

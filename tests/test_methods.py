@@ -22,8 +22,8 @@ from gateway.methods import (
     point_surface_distance_m,
     three_zones_override,
 )
-from gateway.metric import HumanCapsules
 from hrc_common.config import SAFETY_METHODS, ConfigError, SafetyConfig
+from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 SAFETY = SafetyConfig()
@@ -299,7 +299,8 @@ def test_three_zones_tool_point_default_and_configured(ur5: RobotModel) -> None:
     tool0 = ur5.R_world_base @ data.oMf[ur5.model.getFrameId("tool0")].translation + ur5.p_world_base
     wrist = ur5.R_world_base @ data.oMf[ur5.model.getFrameId("wrist_2_link")].translation + ur5.p_world_base
     from gateway.methods import MethodInput
-    from gateway.metric import NO_HUMANS, build_rows
+    from gateway.metric import build_rows
+    from hrc_common.humans import NO_HUMANS
 
     rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, NO_HUMANS, SAFETY, 0.1)
     x = MethodInput(ur5, scratch, q, links, rows, NO_HUMANS, np.zeros(6), 0.1, 1.0, 0.0, 0.004)

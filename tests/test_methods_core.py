@@ -12,13 +12,14 @@ from test_config import _replace, write_cell
 from test_core import FAR_TORSO, MS, NEAR_HAND, NOW, PERIOD_S, QD_NOMINAL, Cell, Q
 
 from gateway import iso15066
-from gateway.core import SafetyCore, merge_humans
+from gateway.core import SafetyCore
 from gateway.kinematics import link_kinematics
-from gateway.metric import HumanCapsules, build_rows, override_from_rows
+from gateway.metric import build_rows, override_from_rows
 from gateway.status import robot_status
 from gateway.zones import Zone
 from hrc_common import keys
 from hrc_common.config import SAFETY_METHODS, CellConfig, ConfigError, load_cell_config
+from hrc_common.humans import HumanCapsules, merge_humans
 from hrc_common.robot_model import RobotModel, load_robot_model
 
 # t_delay of the Cell helper with fresh data: reaction 0.040 + human 0.030 + joint 0.004 + path 0.012

@@ -14,14 +14,13 @@ import pytest
 from gateway import kernels, metric
 from gateway.kinematics import LinkKinematics, link_kinematics
 from gateway.metric import (
-    NO_HUMANS,
     ConstraintRows,
-    HumanCapsules,
     clearance_m,
     decision_clearance_m,
     override_from_rows,
 )
 from hrc_common.config import SafetyConfig
+from hrc_common.humans import NO_HUMANS, HumanCapsules
 from hrc_common.robot_model import RobotModel
 
 SAFETY = SafetyConfig()  # K = 1.6 m/s, c = 0.05 m, ISO 13855 close-speed switch off

@@ -16,6 +16,9 @@ Every controller cycle, with the true joint state and the true human capsules (n
 
 The smallest margin over a run is the run's safety margin. :class:`AuditAccumulator` folds the cycles
 of a run into a frozen :class:`AuditSummary`. No I/O here.
+
+The auditor is independent of what it audits: it uses no code of ``gateway``. Link end points and velocities
+come from Pinocchio directly (:mod:`audit.kinematics`), surface distances from coal (:mod:`audit.distance`).
 """
 
 from __future__ import annotations
@@ -31,8 +34,8 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from gateway.geometry import segment_distances
-from gateway.kinematics import LinkKinematics, link_kinematics
+from audit.distance import CapsulePairs, CapsuleSet
+from audit.kinematics import LinkMotion, link_motion
 from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
@@ -68,8 +71,38 @@ class CycleAudit(NamedTuple):
     speed_mps: float | None
 
 
+_NO_HUMANS = CycleAudit(False, math.inf, False, None, None, None, None)
+
+
+class _PairJudge:
+    """The margin of one link–capsule pair from coal's exact distance (check 2 for that pair)."""
+
+    def __init__(self, pairs: CapsulePairs, links: LinkMotion, t_stop_s: float, human_speed_mps: float) -> None:
+        self.pairs = pairs
+        self._v_a = links.v_a_world.tolist()
+        self._v_b = links.v_b_world.tolist()
+        self._t_stop_s = t_stop_s
+        self._human_m = human_speed_mps * t_stop_s
+
+    def margin_and_distance(self, i: int, j: int) -> tuple[float, float]:
+        """(margin [m], surface distance clamped at 0 [m]) of link ``i`` and capsule ``j``."""
+        pair = self.pairs.exact(i, j)
+        surface_m = max(0.0, pair.surface_m)
+        s = pair.s_first
+        (vax, vay, vaz), (vbx, vby, vbz) = self._v_a[i], self._v_b[i]
+        # The velocity of the link's closest point (exact for a rigid segment: linear along it).
+        vx, vy, vz = vax + s * (vbx - vax), vay + s * (vby - vay), vaz + s * (vbz - vaz)
+        nx, ny, nz = pair.normal
+        if nx == 0.0 and ny == 0.0 and nz == 0.0:
+            # Centre lines touching: no direction to project on, count the whole speed as approaching.
+            v_toward = math.sqrt(vx * vx + vy * vy + vz * vz)
+        else:
+            v_toward = max(0.0, vx * nx + vy * ny + vz * nz)
+        return surface_m - (v_toward * self._t_stop_s / 2.0 + self._human_m), surface_m
+
+
 def audit_links(
-    links: LinkKinematics,
+    links: LinkMotion,
     link_radius_m: FloatArray,
     link_names: tuple[str, ...],
     delta_applied: float,
@@ -79,6 +112,21 @@ def audit_links(
     moving_eps_mps: float = MOVING_EPS_MPS,
 ) -> CycleAudit:
     """Both checks of safety-math.md §9 on link segments given directly (see :func:`audit_cycle`).
+
+    The result is the one of evaluating every link–capsule pair with coal; only the pairs that can change it
+    are evaluated (branch and bound on lower bounds, ~5 µs per exact pair against ~0.1 µs per bound):
+
+    - Margin: for a pair, ``d ≥ d_low`` (:meth:`CapsulePairs.lower_bounds_m`) and
+      ``v_toward ≤ max(|v_a|, |v_b|)`` of its link (the closest point's velocity is a convex combination of
+      the end velocities, and a projection is no longer than the vector), so its margin is at least
+      ``m_low = d_low − (max(|v_a|, |v_b|) t_stop / 2 + K t_stop)``. Pairs are evaluated in increasing
+      ``m_low``; once ``m_low`` exceeds the smallest margin found, that pair and all later ones have a larger
+      margin: the smallest margin is exact. Pairs whose ``m_low`` EQUALS it are still evaluated, so that the
+      worst pair is, as for a full evaluation, the first in (link, capsule) order among equal margins.
+    - Distance: the same in increasing ``d_low`` from the smallest distance of the pairs already evaluated:
+      the smallest distance is exact, and so is check 1 (``min d ≤ 0``).
+    - Violations: exact, since the smallest margin and distance are. A pair left out has margin > the
+      smallest margin, so it could never be the one that violates.
 
     Args:
         links: true link end points and their TRUE velocities (at the actual joint velocity) [m, m/s].
@@ -91,41 +139,55 @@ def audit_links(
         moving_eps_mps: speed below which the robot counts as standing still [m/s].
     """
     if humans.n_capsules == 0:
-        return CycleAudit(False, math.inf, False, None, None, None, None)
-    speed2 = np.maximum(
-        np.einsum("lj,lj->l", links.v_a_world, links.v_a_world), np.einsum("lj,lj->l", links.v_b_world, links.v_b_world)
-    )
-    speed_mps = math.sqrt(float(speed2.max())) if speed2.size else 0.0
-
-    seg = segment_distances(links.p_a_world, links.p_b_world, humans.h_a_world, humans.h_b_world)
-    surface_m = np.maximum(0.0, seg.distance_m - link_radius_m[:, None] - humans.radius_m[None, :])  # (L, H)
-
-    # Closest points and the velocity of the link's closest point (exact for a rigid segment).
-    s = seg.s_link[..., None]  # (L, H, 1)
-    t = seg.t_capsule[..., None]
-    p_link = links.p_a_world[:, None, :] + s * (links.p_b_world - links.p_a_world)[:, None, :]
-    p_capsule = humans.h_a_world[None, :, :] + t * (humans.h_b_world - humans.h_a_world)[None, :, :]
-    v_link = links.v_a_world[:, None, :] + s * (links.v_b_world - links.v_a_world)[:, None, :]
-    along = np.einsum("lhj,lhj->lh", v_link, p_capsule - p_link)  # v · (capsule point − link point)
-    centre_m = seg.distance_m  # = |capsule point − link point|
-    apart = centre_m > 0.0
-    v_toward = np.maximum(0.0, along) / np.where(apart, centre_m, 1.0)
-    if not apart.all():
-        # Centre lines touching: no direction to project on, count the whole speed as approaching.
-        v_toward = np.where(apart, v_toward, np.sqrt(np.einsum("lhj,lhj->lh", v_link, v_link)))
-
+        return _NO_HUMANS
+    v_a, v_b = links.v_a_world, links.v_b_world
+    end_speed_mps = np.sqrt(np.maximum(np.einsum("lj,lj->l", v_a, v_a), np.einsum("lj,lj->l", v_b, v_b)))  # (L,)
+    speed_mps = float(end_speed_mps.max()) if end_speed_mps.size else 0.0
     t_stop_s = max(0.0, delta_applied) * controller_braking_time_s
-    margin = surface_m - (v_toward * t_stop_s / 2.0 + human_speed_mps * t_stop_s)
-    i, j = np.unravel_index(int(np.argmin(margin)), margin.shape)
-    margin_m = float(margin[i, j])
-    contact = bool(surface_m.min() <= 0.0) and speed_mps > moving_eps_mps
+
+    pairs = CapsulePairs(
+        CapsuleSet(links.p_a_world, links.p_b_world, link_radius_m),
+        CapsuleSet(humans.h_a_world, humans.h_b_world, humans.radius_m),
+    )
+    judge = _PairJudge(pairs, links, t_stop_s, human_speed_mps)
+    n_capsules = humans.n_capsules
+    distance_low = pairs.lower_bounds_m()  # (L, H)
+    margin_low = (distance_low - (end_speed_mps * t_stop_s / 2.0 + human_speed_mps * t_stop_s)[:, None]).ravel()
+
+    # Smallest margin: pairs in increasing lower bound until the bound exceeds the smallest margin found.
+    margin_low_list = margin_low.tolist()
+    margin_m, worst = math.inf, -1
+    distances: dict[int, float] = {}  # flat pair index → exact surface distance, of the pairs evaluated
+    for k in np.argsort(margin_low, kind="stable").tolist():
+        if margin_low_list[k] > margin_m:
+            break
+        margin, distance = judge.margin_and_distance(*divmod(k, n_capsules))
+        distances[k] = distance
+        if margin < margin_m or (margin == margin_m and k < worst) or margin != margin:
+            margin_m, worst = margin, k
+            if margin != margin:  # nan: report it as the worst, as np.argmin would (never from a true state)
+                break
+
+    # Smallest distance: the same with the distance's own lower bounds, from the pairs already evaluated.
+    min_distance_m = min(distances.values())
+    if min_distance_m > 0.0:
+        distance_low_flat = distance_low.ravel()
+        distance_low_list = distance_low_flat.tolist()
+        for k in np.argsort(distance_low_flat, kind="stable").tolist():
+            if distance_low_list[k] >= min_distance_m:
+                break
+            if k not in distances:
+                min_distance_m = min(min_distance_m, max(0.0, pairs.exact(*divmod(k, n_capsules)).surface_m))
+
+    i, j = divmod(worst, n_capsules)
+    contact = min_distance_m <= 0.0 and speed_mps > moving_eps_mps
     return CycleAudit(
         contact_while_moving=contact,
         margin_m=margin_m,
         violation=contact or margin_m < 0.0,
-        min_distance_m=float(surface_m.min()),
-        worst_link=link_names[int(i)],
-        worst_capsule=int(j),
+        min_distance_m=min_distance_m,
+        worst_link=link_names[i],
+        worst_capsule=j,
         speed_mps=speed_mps,
     )
 
@@ -155,8 +217,8 @@ def audit_cycle(
         moving_eps_mps: speed below which the robot counts as standing still [m/s].
     """
     if humans.n_capsules == 0:
-        return CycleAudit(False, math.inf, False, None, None, None, None)
-    links = link_kinematics(robot, data, np.asarray(q_rad, dtype=float), np.asarray(qd_radps, dtype=float))
+        return _NO_HUMANS
+    links = link_motion(robot, data, np.asarray(q_rad, dtype=float), np.asarray(qd_radps, dtype=float))
     return audit_links(
         links,
         robot.link_radius_m,

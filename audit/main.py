@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import pinocchio as pin
 import zenoh
+from pydantic import ValidationError
 
 from audit.checks import AuditAccumulator, AuditSummary, audit_cycle
 from hrc_common import keys
@@ -46,6 +47,7 @@ from hrc_common.humans import HumanCapsules, capsules_from_message
 from hrc_common.messages import Humans, JointState, MessageError, parse_message
 from hrc_common.robot_model import RobotModel, load_robot_model
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
+from hrc_common.status_models import GatewayStatus
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
 
 PROG = "hrc-audit"
@@ -174,32 +176,25 @@ class TruthAuditor:
             self.human_truth_received += 1
 
     def on_status(self, payload: bytes) -> None:
+        """A gateway status (contract: ``GatewayStatus``); anything else is counted as ``status/invalid``."""
         try:
-            doc = json.loads(payload)
-            stamp_ns = int(doc["stamp_ns"])
-            robots = doc["robots"]
-            views = {}
-            for name in self._robots:
-                entry = robots.get(name) if isinstance(robots, dict) else None
-                if not isinstance(entry, dict):
-                    continue
-                views[name] = (entry.get("zone"), entry.get("t_delay_s"), entry.get("faults") or [], entry.get("delta"))
-        except (ValueError, KeyError, TypeError, AttributeError):
+            status = GatewayStatus.model_validate_json(payload)
+        except ValidationError:
             self._count("status/invalid")
             return
         with self._lock:
             self.status_received += 1
-            for name, (zone, t_delay, faults, delta) in views.items():
-                run = self._robots[name]
-                self._gateway[name] = _GatewayView(stamp_ns, zone if isinstance(zone, str) else None)
-                if isinstance(t_delay, int | float) and math.isfinite(t_delay):
-                    run.t_delay_s.append(float(t_delay))
-                codes = {f.get("code") for f in faults if isinstance(f, dict)}
+            for name, run in self._robots.items():
+                entry = status.robots.get(name)
+                if entry is None:
+                    continue
+                self._gateway[name] = _GatewayView(status.stamp_ns, entry.zone)
+                run.t_delay_s.append(entry.t_delay_s)
+                codes = {f.code for f in entry.faults}
                 for code in codes:
-                    if isinstance(code, str):
-                        run.faults_seen[code] += 1
-                if codes and isinstance(delta, int | float):
-                    run.max_delta_while_faulted = max(run.max_delta_while_faulted, float(delta))
+                    run.faults_seen[code] += 1
+                if codes:
+                    run.max_delta_while_faulted = max(run.max_delta_while_faulted, entry.delta)
 
     def on_emu_stats(self, robot: str, payload: bytes) -> None:
         try:

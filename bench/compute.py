@@ -36,6 +36,7 @@ from gateway.core import RobotDecision, SafetyCore
 from gateway.inputs import InputStore
 from gateway.kernels import RobotKernels
 from hrc_common import keys
+from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig, Pose, load_cell_config
 from hrc_common.robot_model import RobotModel, load_robot_model
 from tracker_emu.body import BodyPose, body_capsules
@@ -116,7 +117,7 @@ class Rig:
         self.config = config
         self.robots = robots
         self.trackers = sorted(config.trackers)
-        self.store = InputStore({name: r.n_joints for name, r in robots.items()}, self.trackers)
+        self.store = InputStore(config, robots)
         self.core = SafetyCore(config, robots)
         self.n_humans = n_humans
         self.start_ns = start_ns
@@ -135,6 +136,10 @@ class Rig:
     @property
     def now_ns(self) -> int:
         return self.start_ns + self.cycle * CYCLE_NS
+
+    def at(self, now_ns: int) -> Clocks:
+        """``now_ns`` on both clocks (the monotonic one starts with the rig)."""
+        return Clocks(now_ns, now_ns - self.start_ns)
 
     def _timed_callback(self, kind: str, call: Callable[[], None]) -> None:
         started = time.perf_counter_ns()
@@ -162,7 +167,7 @@ class Rig:
             }
             payload = json.dumps(raw).encode()
             key = keys.robot_state(self.config.cell, name)
-            self._timed_callback("on_joint_state", partial(self.store.on_joint_state, key, payload, now_ns))
+            self._timed_callback("on_joint_state", partial(self.store.on_joint_state, key, payload, self.at(now_ns)))
 
     def _feed_humans(self, now_ns: int) -> None:
         t_s = self.cycle * PERIOD_S
@@ -186,7 +191,7 @@ class Rig:
             }
             payload = json.dumps(raw).encode()
             key = keys.tracker_humans(self.config.cell, tracker)
-            self._timed_callback("on_humans", partial(self.store.on_humans, key, payload, now_ns))
+            self._timed_callback("on_humans", partial(self.store.on_humans, key, payload, self.at(now_ns)))
 
     def feed(self) -> int:
         """Deliver this cycle's messages; returns the cycle's time [ns since epoch]."""
@@ -199,11 +204,12 @@ class Rig:
     def step(self, now_ns: int) -> tuple[int, dict[str, RobotDecision]]:
         """One timed cycle (snapshot + step), then the overrides 'sent' as the gateway records them."""
         started = time.perf_counter_ns()
-        decisions = self.core.step(self.store.snapshot(), now_ns, PERIOD_S)
+        now = self.at(now_ns)
+        decisions = self.core.step(self.store.snapshot(now), now, PERIOD_S)
         elapsed = time.perf_counter_ns() - started
         self.override_seq += 1
         for name in decisions:
-            self.store.on_override_sent(name, self.override_seq, now_ns - OVERRIDE_PATH_NS)
+            self.store.on_override_sent(name, self.override_seq, 1.0, self.at(now_ns - OVERRIDE_PATH_NS))
         for d in decisions.values():
             self.zones[str(d.zone)] += 1
             self.faults.update(f.code for f in d.faults)
@@ -309,13 +315,14 @@ def breakdown(rig: Rig, cycles: int) -> dict[str, Any]:
                 spent.clear()
                 cycle_calls.clear()
                 started = time.perf_counter_ns()
-                snapshot = rig.store.snapshot()
+                now = rig.at(now_ns)
+                snapshot = rig.store.snapshot(now)
                 taken = time.perf_counter_ns()
-                decisions = rig.core.step(snapshot, now_ns, PERIOD_S)
+                decisions = rig.core.step(snapshot, now, PERIOD_S)
                 done = time.perf_counter_ns()
                 rig.override_seq += 1
                 for name in decisions:
-                    rig.store.on_override_sent(name, rig.override_seq, now_ns - OVERRIDE_PATH_NS)
+                    rig.store.on_override_sent(name, rig.override_seq, 1.0, rig.at(now_ns - OVERRIDE_PATH_NS))
                 rig.cycle += 1
                 per_cycle["snapshot"].append(taken - started)
                 per_cycle["step"].append(done - taken)

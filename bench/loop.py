@@ -41,7 +41,8 @@ import httpx
 import numpy as np
 import zenoh
 
-from bench._procs import (
+from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
+from bench.procs import (
     BenchError,
     StartupError,
     exited_programs,
@@ -53,7 +54,6 @@ from bench._procs import (
     with_retries,
     write_cell_config,
 )
-from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from hrc_common import keys
 from hrc_common.config import CellConfig, load_cell_config
 from hrc_common.zenoh_session import session_config

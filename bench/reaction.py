@@ -43,7 +43,8 @@ from typing import Any, NamedTuple
 import numpy as np
 import zenoh
 
-from bench._procs import (
+from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
+from bench.procs import (
     StartupError,
     exited_programs,
     free_port,
@@ -54,7 +55,6 @@ from bench._procs import (
     with_retries,
     write_cell_config,
 )
-from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from hrc_common import keys
 from hrc_common.config import CellConfig, TrackerConfig, load_cell_config
 from hrc_common.zenoh_session import session_config
@@ -67,7 +67,7 @@ K_PLUS_2 = "not reflected before sample k + 2 was sent"
 
 NEAR_CAPSULE = {"name": "enclosing", "a": [0.0, 0.0, 0.0], "b": [0.0, 0.0, 2.0], "radius": 1.5}
 """Encloses the whole UR5 of the default cell (base at 0.8 m, reach 0.85 m): surface distance 0, δ = 0."""
-FAR_CAPSULE = {"name": "torso", "a": [30.0, 30.0, 0.8], "b": [30.0, 30.0, 1.6], "radius": 0.2}
+FAR_CAPSULE = {"name": "torso", "a": [6.0, 6.0, 0.8], "b": [6.0, 6.0, 1.6], "radius": 0.2}  # inside the world volume
 """42 m away: autonomous, δ = 1."""
 
 

@@ -1,10 +1,17 @@
 """The emulated controller as a pure state machine: override in, program time and joint state out.
 
-No I/O and no clocks: the caller passes the times. One cycle is::
+No I/O and no clocks: the caller passes the times (:class:`controller_emu.node.ControllerNode` does, and is
+what the process and the simulated cell drive). One override, then one cycle::
 
-    state, reason = accept_override(state, newest_override, robot, now_ns)   # if one arrived
-    state = step(state, trajectory, config, now_s, dt_s)
-    message = joint_state(state, trajectory, robot, seq, stamp_ns)
+    reason = check_override(message, robot, newest_stamp_ns, now_wall_ns, watchdog_s)  # at arrival
+    state = apply_override(state, message, accepted_mono_ns)                            # if reason is None
+    state = step(state, trajectory, config, now_mono_ns, dt_s)
+    message = joint_state(state, trajectory, robot, seq, now_wall_ns)
+
+Two clocks, never mixed: the override's ``stamp_ns`` is the gateway's wall clock, so it is only compared
+with the controller's wall clock (is it stale, is it from the future); the watchdog runs on the
+controller's monotonic clock from the moment the override was accepted, so a wall-clock step can neither
+keep the robot running on an old command nor stop it while valid commands arrive.
 
 The applied override δ follows the commanded one through bounded rates: it falls by at most
 1/braking_time_s per second (full speed to standstill takes braking_time_s, never longer) and rises by at
@@ -16,9 +23,7 @@ the first one) the target is 0: the controller starts, and falls back, into a pr
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
-from types import MappingProxyType
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -30,8 +35,16 @@ from hrc_common.robot_model import RobotModel
 
 Mode = Literal["running", "stopped", "protective_stop"]
 
-MAX_FUTURE_S = 1.0
-"""An override stamped further than this ahead of the controller's clock is rejected as stale [s]."""
+Rejection = Literal["wrong_robot", "old_or_repeated", "stale", "stamp_in_future"]
+"""Why a schema-valid override was not accepted (:func:`check_override`)."""
+
+MAX_FUTURE_STAMP_S = 0.005
+"""An override stamped further than this ahead of the controller's wall clock is rejected [s].
+
+Overrides are ordered by stamp, so an accepted future stamp masks every genuine override stamped before
+it: this bounds how long one forged (or clock-skewed) message can hold back a genuine δ = 0. It is also
+the clock agreement the gateway and the controller need (same host, or PTP/NTP-disciplined hosts).
+"""
 
 _SNAP = 1e-12
 """δ within this of its target is set to the target, so that a ramp ends exactly on it."""
@@ -39,7 +52,7 @@ _SNAP = 1e-12
 
 @dataclass(frozen=True)
 class ControllerState:
-    """Everything the controller remembers between cycles.
+    """Everything the controller's program and watchdog remember between cycles.
 
     Attributes:
         tau_s: program time, in [0, trajectory.duration_s) [s].
@@ -47,10 +60,10 @@ class ControllerState:
         cycles_completed: number of times the program wrapped back to its start.
         mode: ``running``, ``stopped`` (δ reached 0) or ``protective_stop`` (watchdog expired).
         delta_commanded: ``delta`` of the last accepted override (not yet clipped).
-        override_stamp_ns: ``stamp_ns`` of the last accepted override; -1 before any [ns].
+        override_stamp_ns: ``stamp_ns`` of the last accepted override; -1 before any [ns, gateway wall clock].
         override_seq: ``seq`` of the last accepted override; -1 before any.
-        override_accepted_ns: the caller's clock when the last override was accepted; None before any [ns].
-        rejected: rejected overrides by reason (``wrong_robot``, ``old_or_repeated``, ``stale``).
+        override_accepted_mono_ns: when the last override was accepted; None before any
+            [ns, the controller's monotonic clock].
     """
 
     tau_s: float = 0.0
@@ -60,58 +73,69 @@ class ControllerState:
     delta_commanded: float = 0.0
     override_stamp_ns: int = -1
     override_seq: int = -1
-    override_accepted_ns: int | None = None
-    rejected: Mapping[str, int] = field(default_factory=lambda: MappingProxyType({}))
+    override_accepted_mono_ns: int | None = None
 
 
-def _reject(state: ControllerState, reason: str) -> tuple[ControllerState, str]:
-    counts = dict(state.rejected)
-    counts[reason] = counts.get(reason, 0) + 1
-    return replace(state, rejected=MappingProxyType(counts)), reason
-
-
-def accept_override(
-    state: ControllerState, msg: Override, robot_name: str, now_ns: int, watchdog_s: float
-) -> tuple[ControllerState, str | None]:
-    """Take an override command if it is for this robot, newer than the last one and fresh.
+def check_override(
+    msg: Override, robot_name: str, newest_stamp_ns: int, now_wall_ns: int, watchdog_s: float
+) -> Rejection | None:
+    """Why an override cannot be accepted on arrival, or None if it can.
 
     Order is decided by ``stamp_ns``, not by ``seq``: a restarted gateway, whose ``seq`` starts again
     at 0, is accepted as soon as its stamps are newer.
 
     Args:
-        state: current state.
         msg: a parsed, schema-valid override.
         robot_name: the robot this controller drives.
-        now_ns: the controller's clock (Unix epoch, the clock of ``stamp_ns``) [ns].
+        newest_stamp_ns: ``stamp_ns`` of the newest override accepted so far; -1 before any [ns].
+        now_wall_ns: the controller's wall clock at arrival (Unix epoch, the clock of ``stamp_ns``) [ns].
         watchdog_s: an override stamped longer ago than this is stale [s].
 
     Returns:
-        The new state and None, or the state with the rejection counted and the reason:
-        ``wrong_robot``, ``old_or_repeated`` (stamp not newer than the last accepted) or ``stale``
-        (older than ``watchdog_s`` or more than :data:`MAX_FUTURE_S` in the future).
+        None, or ``wrong_robot``; ``old_or_repeated`` (stamp not newer than ``newest_stamp_ns``);
+        ``stale`` (stamped more than ``watchdog_s`` ago); ``stamp_in_future`` (stamped more than
+        :data:`MAX_FUTURE_STAMP_S` ahead).
     """
     if msg.robot != robot_name:
-        return _reject(state, "wrong_robot")
-    if msg.stamp_ns <= state.override_stamp_ns:
-        return _reject(state, "old_or_repeated")
-    age_s = (now_ns - msg.stamp_ns) * 1e-9
-    if age_s > watchdog_s or age_s < -MAX_FUTURE_S:
-        return _reject(state, "stale")
-    accepted = replace(
+        return "wrong_robot"
+    if msg.stamp_ns <= newest_stamp_ns:
+        return "old_or_repeated"
+    age_s = (now_wall_ns - msg.stamp_ns) / 1e9
+    if age_s > watchdog_s:
+        return "stale"
+    if -age_s > MAX_FUTURE_STAMP_S:
+        return "stamp_in_future"
+    return None
+
+
+def apply_override(state: ControllerState, msg: Override, accepted_mono_ns: int) -> ControllerState:
+    """The state commanded by an accepted override (:func:`check_override` returned None).
+
+    Args:
+        state: current state.
+        msg: the accepted override.
+        accepted_mono_ns: when it was accepted [ns, the controller's monotonic clock]; the watchdog runs from here.
+    """
+    return replace(
         state,
         delta_commanded=msg.delta,
         override_stamp_ns=msg.stamp_ns,
         override_seq=msg.seq,
-        override_accepted_ns=now_ns,
+        override_accepted_mono_ns=accepted_mono_ns,
     )
-    return accepted, None
 
 
-def watchdog_expired(state: ControllerState, config: ControllerConfig, now_s: float) -> bool:
-    """True if no valid override was accepted within ``config.watchdog_s`` of ``now_s`` (or none yet)."""
-    if state.override_accepted_ns is None:
+def watchdog_expired(state: ControllerState, config: ControllerConfig, now_mono_ns: int) -> bool:
+    """True if no override was accepted within ``config.watchdog_s`` before ``now_mono_ns`` (or none yet).
+
+    Args:
+        state: current state.
+        config: the watchdog time.
+        now_mono_ns: now [ns, the monotonic clock of ``override_accepted_mono_ns``].
+    """
+    if state.override_accepted_mono_ns is None:
         return True
-    return now_s - state.override_accepted_ns * 1e-9 > config.watchdog_s
+    return (now_mono_ns - state.override_accepted_mono_ns) / 1e9 > config.watchdog_s
 
 
 def _ramp(delta: float, target: float, config: ControllerConfig, dt_s: float) -> float:
@@ -124,22 +148,22 @@ def _ramp(delta: float, target: float, config: ControllerConfig, dt_s: float) ->
 
 
 def step(
-    state: ControllerState, trajectory: Trajectory, config: ControllerConfig, now_s: float, dt_s: float
+    state: ControllerState, trajectory: Trajectory, config: ControllerConfig, now_mono_ns: int, dt_s: float
 ) -> ControllerState:
     """Advance the controller by one cycle.
 
     Args:
-        state: state after the overrides of this cycle were taken (:func:`accept_override`).
+        state: state after the overrides of this cycle were applied (:func:`apply_override`).
         trajectory: the program.
         config: braking, acceleration and watchdog times.
-        now_s: the clock of ``accept_override``'s ``now_ns``, in seconds [s].
+        now_mono_ns: now [ns, the monotonic clock of ``apply_override``'s ``accepted_mono_ns``].
         dt_s: time since the previous step [s] (negative values count as 0).
 
     Returns:
         The state with the new δ_applied, program time τ (wrapped, ``cycles_completed`` counted) and mode.
     """
     dt_s = max(dt_s, 0.0)
-    expired = watchdog_expired(state, config, now_s)
+    expired = watchdog_expired(state, config, now_mono_ns)
     target = 0.0 if expired else min(max(state.delta_commanded, 0.0), 1.0)
     delta = _ramp(state.delta_applied, target, config, dt_s)
     # Trapezoidal rule: δ changes linearly within the step.

@@ -1,7 +1,7 @@
-"""The controller emulator process: override in over Zenoh, program step, joint state out every cycle.
+"""The controller emulator process: the Zenoh, clock and logging shell around :class:`ControllerNode`.
 
-newest override (OverrideInbox.take) → accept_override → step(state, trajectory, config, now, dt)
-→ joint_state → publish (state and ground truth) → rate.sleep()
+override payload → node.on_override(payload, read_clocks())   (the subscriber's thread)
+rate.sleep() → node.cycle(read_clocks()) → publish the joint state (state and ground truth) → log, stats
 
 The same joint state also goes out on the ground-truth key (``hrc/<cell>/truth/robot/<robot>/state``) for
 the auditor: the emulator knows its true state exactly, so truth and report are the same message here. A
@@ -16,22 +16,18 @@ import logging
 import sys
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import zenoh
 
-from controller_emu.controller import (
-    ControllerState,
-    accept_override,
-    check_braking_time,
-    joint_state,
-    step,
-)
+from controller_emu.controller import ControllerState, check_braking_time
+from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
 from controller_emu.program import Trajectory, load_trajectory
 from hrc_common import keys
+from hrc_common.clocks import read_clocks
 from hrc_common.config import CellConfig, ConfigError, ControllerConfig, load_cell_config
-from hrc_common.messages import MessageError, Override, parse_message, to_payload
+from hrc_common.messages import to_payload
 from hrc_common.robot_model import load_robot_model
 from hrc_common.service import (
     RateLoop,
@@ -50,53 +46,26 @@ STATS_EVERY_S = 1.0
 PROGRESS_EVERY_S = 5.0
 
 
-class OverrideInbox:
-    """The newest valid override from the subscriber, and the payloads rejected while parsing.
+def _callback(node: ControllerNode) -> Callable[[zenoh.Sample], None]:
+    """The override subscriber's callback: the payload and its arrival times to the node, nothing else."""
 
-    The subscriber callback only parses and stores (:meth:`on_payload`); the loop takes the newest
-    message once (:meth:`take`), so an override is offered to the controller at most once.
-    """
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._newest: Override | None = None
-        self._rejected: Counter[str] = Counter()
-
-    def on_payload(self, payload: bytes) -> None:
-        """Parse a payload; keep it if valid, else count it by :attr:`MessageError.reason`."""
-        try:
-            message = parse_message(payload, Override)
-        except MessageError as exc:
-            with self._lock:
-                self._rejected[exc.reason] += 1
-            return
-        with self._lock:
-            self._newest = message
-
-    def count(self, reason: str) -> None:
-        with self._lock:
-            self._rejected[reason] += 1
-
-    def take(self) -> Override | None:
-        """The newest valid override received since the last call, or None."""
-        with self._lock:
-            message, self._newest = self._newest, None
-        return message
-
-    def rejected(self) -> dict[str, int]:
-        with self._lock:
-            return dict(self._rejected)
-
-
-def _callback(inbox: OverrideInbox) -> Callable[[zenoh.Sample], None]:
     def on_sample(sample: zenoh.Sample) -> None:
         try:
-            inbox.on_payload(sample.payload.to_bytes())
+            reason = node.on_override(sample.payload.to_bytes(), read_clocks())
         except Exception:  # a callback must never die: count it, the watchdog stops the robot
             log.exception("error while handling an override")
-            inbox.count("internal_error")
+            node.count_rejected("internal_error")
+            return
+        if reason is not None:
+            log.debug("override rejected: %s", reason)
 
     return on_sample
+
+
+class _Publishers(NamedTuple):
+    state: zenoh.Publisher
+    truth: zenoh.Publisher
+    stats: zenoh.Publisher
 
 
 def select_robot(config: CellConfig, robot: str | None) -> str:
@@ -115,25 +84,75 @@ def select_robot(config: CellConfig, robot: str | None) -> str:
     return robot
 
 
-def _rejections(state: ControllerState, inbox: OverrideInbox) -> dict[str, int]:
-    counts = Counter(inbox.rejected())
-    counts.update(state.rejected)
-    return dict(sorted(counts.items()))
-
-
-def _log_mode_change(before: ControllerState, after: ControllerState, config: ControllerConfig, now_s: float) -> None:
-    if after.mode == "protective_stop":
-        if after.override_accepted_ns is None:
+def _log_mode_change(change: ModeChange, state: ControllerState, config: ControllerConfig) -> None:
+    if change.after == "protective_stop":
+        if change.silent_s is None:
             log.warning("protective stop: no valid override yet")
         else:
-            silent_s = now_s - after.override_accepted_ns * 1e-9
-            log.warning("protective stop: no valid override for %.2f s (watchdog %.2f s)", silent_s, config.watchdog_s)
-    elif after.mode == "stopped":
-        log.info("stopped: override 0 reached (program time %.2f s)", after.tau_s)
-    elif before.mode == "protective_stop":
-        log.info("running: valid overrides (override seq %d, δ → %.2f)", after.override_seq, after.delta_commanded)
+            log.warning(
+                "protective stop: no valid override for %.2f s (watchdog %.2f s)", change.silent_s, config.watchdog_s
+            )
+    elif change.after == "stopped":
+        log.info("stopped: override 0 reached (program time %.2f s)", state.tau_s)
+    elif change.before == "protective_stop":
+        log.info("running: valid overrides (override seq %d, δ → %.2f)", state.override_seq, state.delta_commanded)
     else:
-        log.info("running: override %.2f", after.delta_commanded)
+        log.info("running: override %.2f", state.delta_commanded)
+
+
+def _stats_doc(robot: str, stats: ControllerStats, missed_cycles: int) -> bytes:
+    """The ``emu_stats`` payload."""
+    doc = {
+        "robot": robot,
+        "cycles_completed": stats.cycles_completed,
+        "mode": stats.mode,
+        "override": stats.delta_applied,
+        "rejected": dict(stats.rejected),
+        "missed_cycles": missed_cycles,
+    }
+    return json.dumps(doc).encode()
+
+
+def _log_progress(node: ControllerNode, missed_cycles: int) -> None:
+    stats = node.stats()
+    log.info(
+        "%s: %s δ=%.2f τ=%.2f/%.2f s cycles=%d override_seq=%d rejected=%s missed_cycles=%d",
+        node.robot,
+        stats.mode,
+        stats.delta_applied,
+        stats.tau_s,
+        node.trajectory.duration_s,
+        stats.cycles_completed,
+        stats.override_seq,
+        dict(stats.rejected),
+        missed_cycles,
+    )
+
+
+def _publish(output: ControllerOutput, publishers: _Publishers, config: ControllerConfig) -> None:
+    payload = to_payload(output.joint_state)
+    publishers.state.put(payload)
+    publishers.truth.put(payload)
+    if output.mode_change is not None:
+        _log_mode_change(output.mode_change, output.state, config)
+
+
+def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Event) -> RateLoop:
+    """Cycle the node at its rate until ``stop`` is set; stats every second, a progress line every 5 s."""
+    rate = RateLoop(node.config.cycle_s)
+    next_stats_s = time.monotonic() + STATS_EVERY_S
+    next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+    while rate.sleep(stop):
+        now = read_clocks()
+        _publish(node.cycle(now), publishers, node.config)
+        now_s = now.mono_ns / 1e9
+        if now_s >= next_stats_s:
+            next_stats_s = now_s + STATS_EVERY_S
+            publishers.stats.put(_stats_doc(node.robot, node.stats(), rate.missed_cycles))
+        if now_s >= next_progress_s:
+            next_progress_s = now_s + PROGRESS_EVERY_S
+            _log_progress(node, rate.missed_cycles)
+    return rate
 
 
 def _open_session(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Session:
@@ -152,6 +171,23 @@ def _open_session(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Sessio
         ) from None
 
 
+def _declare_publishers(session: zenoh.Session, cell: str, robot: str) -> _Publishers:
+    return _Publishers(
+        state=session.declare_publisher(
+            keys.robot_state(cell, robot),
+            express=True,
+            priority=zenoh.Priority.REAL_TIME,
+            congestion_control=zenoh.CongestionControl.DROP,
+        ),
+        truth=session.declare_publisher(
+            keys.truth_robot_state(cell, robot),
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+        ),
+        stats=session.declare_publisher(keys.robot_emu_stats(cell, robot)),
+    )
+
+
 def run_controller(
     cell: str,
     robot: str,
@@ -166,23 +202,11 @@ def run_controller(
     Raises:
         ConfigError: the Zenoh session cannot be opened with these endpoints.
     """
-    inbox = OverrideInbox()
-    state = ControllerState()
+    node = ControllerNode(robot, trajectory, config)
     override_key = keys.robot_override(cell, robot)
     with _open_session(listen, connect) as session:
-        subscriber = session.declare_subscriber(override_key, _callback(inbox))
-        state_pub = session.declare_publisher(
-            keys.robot_state(cell, robot),
-            express=True,
-            priority=zenoh.Priority.REAL_TIME,
-            congestion_control=zenoh.CongestionControl.DROP,
-        )
-        truth_pub = session.declare_publisher(
-            keys.truth_robot_state(cell, robot),
-            express=True,
-            congestion_control=zenoh.CongestionControl.DROP,
-        )
-        stats_pub = session.declare_publisher(keys.robot_emu_stats(cell, robot))
+        subscriber = session.declare_subscriber(override_key, _callback(node))
+        publishers = _declare_publishers(session, cell, robot)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
         log.info(
             "controller %s of cell %r: program %.2f s per cycle, %.0f Hz; waiting for overrides on %s "
@@ -193,66 +217,21 @@ def run_controller(
             1.0 / config.cycle_s,
             override_key,
         )
-        seq = 0
-        rate = RateLoop(config.cycle_s)
-        last_s = time.monotonic()
-        next_stats_s = last_s + STATS_EVERY_S
-        next_progress_s = last_s + PROGRESS_EVERY_S
         try:
-            while rate.sleep(stop):
-                now_mono_s = time.monotonic()
-                dt_s, last_s = now_mono_s - last_s, now_mono_s
-                now_ns = time.time_ns()
-                before = state
-                override = inbox.take()
-                if override is not None:
-                    state, reason = accept_override(state, override, robot, now_ns, config.watchdog_s)
-                    if reason is not None:
-                        log.debug("override seq %d rejected: %s", override.seq, reason)
-                state = step(state, trajectory, config, now_ns * 1e-9, dt_s)
-                payload = to_payload(joint_state(state, trajectory, robot, seq, now_ns))
-                state_pub.put(payload)
-                truth_pub.put(payload)
-                seq += 1
-                if state.mode != before.mode:
-                    _log_mode_change(before, state, config, now_ns * 1e-9)
-                if now_mono_s >= next_stats_s:
-                    next_stats_s = now_mono_s + STATS_EVERY_S
-                    stats = {
-                        "robot": robot,
-                        "cycles_completed": state.cycles_completed,
-                        "mode": state.mode,
-                        "override": state.delta_applied,
-                        "rejected": _rejections(state, inbox),
-                        "missed_cycles": rate.missed_cycles,
-                    }
-                    stats_pub.put(json.dumps(stats).encode())
-                if now_mono_s >= next_progress_s:
-                    next_progress_s = now_mono_s + PROGRESS_EVERY_S
-                    log.info(
-                        "%s: %s δ=%.2f τ=%.2f/%.2f s cycles=%d override_seq=%d rejected=%s missed_cycles=%d",
-                        robot,
-                        state.mode,
-                        state.delta_applied,
-                        state.tau_s,
-                        trajectory.duration_s,
-                        state.cycles_completed,
-                        state.override_seq,
-                        _rejections(state, inbox),
-                        rate.missed_cycles,
-                    )
+            rate = _run_loop(node, publishers, stop)
         finally:
             del token, subscriber  # undeclared when the session closes
+    stats = node.stats()
     log.info(
         "controller %s stopped: %d program cycles completed, %d joint states published, %d missed cycles, "
         "rejected overrides: %s",
         robot,
-        state.cycles_completed,
-        seq,
+        stats.cycles_completed,
+        stats.joint_states,
         rate.missed_cycles,
-        _rejections(state, inbox) or "none",
+        dict(stats.rejected) or "none",
     )
-    return state
+    return node.state
 
 
 def main(

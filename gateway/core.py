@@ -1,32 +1,34 @@
-"""The gateway's core: one step from an input snapshot and a time to one decision per robot.
+"""The gateway's decision: one input snapshot and a time → one decision per robot.
 
-No I/O, no clock: the caller passes ``now_ns``. Faults (missing, stale or invalid input, an override
-path that is not confirmed) force δ = 0 for the robots they concern and put the robot in
-``safety_exception``, from which it recovers by the zone rules once the fault has cleared.
+No I/O, no clock: the caller passes ``now`` (both clocks). Faults (missing, stale, invalid, implausible,
+out-of-order or inconsistent input, an override path that is not confirmed, a clock step) force δ = 0 for the
+robots they concern and put the robot in ``safety_exception``, from which it recovers by the zone rules once the
+fault has cleared. Per robot, everything remembered between cycles is one :class:`RobotState`.
 """
 
 from __future__ import annotations
 
 import operator
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+import pinocchio as pin
 
 from gateway.delay import NS_PER_S, DelayBudget, WindowMax
-from gateway.inputs import InputSnapshot, JointSample
+from gateway.inputs import HumanFrame, InputSnapshot, JointSample, OverridePathEstimate, TopicFault, age_s
 from gateway.kernels import RobotKernels, capsule_columns
-from gateway.methods import MethodInput, ReplanMonitor, build_method
+from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.metric import decision_clearance_m
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
+from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
 from hrc_common.humans import NO_HUMANS, HumanCapsules, merge_humans
 from hrc_common.robot_model import RobotModel
 
-
-class Fault(NamedTuple):
-    code: str
-    reason: str
+Fault = TopicFault
+"""A fault of one decision: ``code`` (machine-readable, listed in docs/contract.md) and ``reason`` (for people)."""
 
 
 class ClosestPair(NamedTuple):
@@ -50,6 +52,7 @@ class RobotDecision(NamedTuple):
         controller_mode: mode reported by the controller, None before its first state.
         replan_request: eq. (16) of Pupa et al. 2021: δ has stayed below ``safety.replan_delta_below``
             for ``safety.replan_after_s`` (never while faulted).
+        delta_applied: the override the controller reported applying in its newest state, None before one.
     """
 
     robot: str
@@ -65,25 +68,74 @@ class RobotDecision(NamedTuple):
     data_age_s: dict[str, float | None]
     controller_mode: str | None
     replan_request: bool = False
+    delta_applied: float | None = None
 
 
-def _age_s(stamp_ns: int | None, now_ns: int) -> float | None:
-    if stamp_ns is None:
-        return None
-    age_s = (now_ns - stamp_ns) / NS_PER_S
-    return age_s if age_s > 0.0 else 0.0
+class HumansView(NamedTuple):
+    """What every robot's decision shares in one cycle: the merged capsules, their age and the shared faults.
+
+    Attributes:
+        capsules: all trackers' capsules merged.
+        columns: ``capsules`` as the compiled rows take them.
+        age_s: the oldest tracker's data age (a tracker without data counts at the age limit) [s].
+        ages_s: per tracker topic, its data age (None without data) [s].
+        faults: faults of the trackers and of this host's clock: they concern every robot.
+    """
+
+    capsules: HumanCapsules
+    columns: npt.NDArray[np.float64]
+    age_s: float
+    ages_s: dict[str, float | None]
+    faults: tuple[Fault, ...]
 
 
-class _Merged(NamedTuple):
-    """The capsules of all trackers, merged from ``frames``, and their columns for the compiled rows."""
+@dataclass
+class RobotState:
+    """One robot: its model and compiled kernels, and what its decisions remember between cycles."""
 
-    frames: tuple[HumanCapsules, ...]
-    humans: HumanCapsules
-    capsules: npt.NDArray[np.float64]
+    name: str
+    robot: RobotModel
+    kernels: RobotKernels
+    data: pin.Data
+    speed_hold: WindowMax
+    replan: ReplanMonitor
+    topic: str
+    zone: Zone = Zone.SAFETY_EXCEPTION
+    previous_delta: float = 0.0
+
+
+def tracker_faults(tracker: str, frame: HumanFrame | None, age: float | None, max_age_s: float) -> list[Fault]:
+    """Faults of one tracker's newest data: none yet, or too old."""
+    if frame is None:
+        return [Fault("tracker_missing", f"no valid data from tracker {tracker!r} yet")]
+    if age is not None and age > max_age_s:
+        return [Fault("tracker_stale", f"tracker {tracker!r} data is {age:.3f} s old (limit {max_age_s} s)")]
+    return []
+
+
+def joint_faults(robot: str, joint: JointSample | None, age: float | None, max_age_s: float) -> list[Fault]:
+    """Faults of one robot's newest joint state: none yet, or too old."""
+    if joint is None:
+        return [Fault("joint_state_missing", f"no valid joint state from robot {robot!r} yet")]
+    if age is not None and age > max_age_s:
+        return [Fault("joint_state_stale", f"joint state is {age:.3f} s old (limit {max_age_s} s)")]
+    return []
+
+
+def override_path_faults(path: OverridePathEstimate, now_mono_ns: int, max_age_s: float) -> list[Fault]:
+    """Faults of the override path: never echoed, or its newest echo is of an override sent too long ago."""
+    if path.latency_s is None or path.acked_sent_mono_ns is None:
+        return [Fault("override_path_unconfirmed", "the controller has not yet echoed an override")]
+    ack_age_s = (now_mono_ns - path.acked_sent_mono_ns) / NS_PER_S
+    if ack_age_s > max_age_s:
+        return [
+            Fault("override_path_stale", f"newest override echoed was sent {ack_age_s:.3f} s ago (limit {max_age_s} s)")
+        ]
+    return []
 
 
 class SafetyCore:
-    """Holds the per-robot state between cycles (zone, Pinocchio data) and steps all robots.
+    """Steps all robots from an input snapshot; holds one :class:`RobotState` per robot.
 
     Building it checks each robot's compiled kinematics against Pinocchio and compiles the per-cycle kernels
     (or loads them from numba's cache): :class:`gateway.kernels.RobotKernels`.
@@ -96,176 +148,111 @@ class SafetyCore:
     def __init__(self, config: CellConfig, robots: dict[str, RobotModel]) -> None:
         self.config = config
         self.robots = robots
-        self._kernels = {name: RobotKernels(robot, config.safety) for name, robot in robots.items()}
-        self._data = {name: robot.model.createData() for name, robot in robots.items()}
-        self._zones = dict.fromkeys(robots, Zone.SAFETY_EXCEPTION)
+        safety = config.safety
         hold_ns = int(config.zones.adaptive_speed_hold_s * NS_PER_S)
-        self._speeds = {name: WindowMax(hold_ns) for name in robots}
-        self._delay_aware = not config.safety.unsafe_ignore_delay_for_tests
-        self._method = build_method(config.safety, robots)
-        self._previous_delta = dict.fromkeys(robots, 0.0)
-        self._replan = {
-            name: ReplanMonitor(config.safety.replan_delta_below, config.safety.replan_after_s) for name in robots
-        }
-        # The trackers' newest frames and their merge: a frame changes at the tracker's rate (~30 Hz), not the
-        # gateway's, so the merge is redone only when one of them is a new object (held here, so no id reuse).
-        self._merged = _Merged((), NO_HUMANS, capsule_columns(NO_HUMANS))
-        # Input topic names ("robot/<r>", "tracker/<t>"), built once rather than formatted every cycle.
-        self._robot_topics = {name: f"robot/{name}" for name in robots}
-        self._tracker_topics = {tracker: f"tracker/{tracker}" for tracker in config.trackers}
-
-    def _humans(self, frames: tuple[HumanCapsules, ...]) -> _Merged:
-        """``merge_humans(frames)`` and its capsule columns, cached while the frames are the same objects."""
-        previous = self._merged.frames
-        if len(frames) != len(previous) or not all(map(operator.is_, frames, previous)):
-            humans = merge_humans(list(frames))
-            self._merged = _Merged(frames, humans, capsule_columns(humans))
-        return self._merged
-
-    def step(self, inputs: InputSnapshot, now_ns: int, gateway_period_s: float) -> dict[str, RobotDecision]:
-        safety = self.config.safety
-        max_age_s = safety.max_data_age_s
-        tracker_faults: list[Fault] = []
-        tracker_ages: dict[str, float | None] = {}
-        human_age_s = -1.0
-        frames: list[HumanCapsules] = []
-        for tracker, frame in inputs.humans.items():
-            if frame is not None:
-                frames.append(frame.capsules)
-            age = _age_s(frame.stamp_ns if frame else None, now_ns)
-            topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
-            tracker_ages[topic] = age
-            age_or_limit_s = max_age_s if age is None else age  # no data yet counts as data at the age limit
-            if age_or_limit_s > human_age_s:
-                human_age_s = age_or_limit_s
-            if frame is None:
-                tracker_faults.append(Fault("tracker_missing", f"no valid data from tracker {tracker!r} yet"))
-            elif age is not None and age > max_age_s:
-                tracker_faults.append(
-                    Fault("tracker_stale", f"tracker {tracker!r} data is {age:.3f} s old (limit {max_age_s} s)")
-                )
-            reason = inputs.invalid.get(topic)
-            if reason:
-                tracker_faults.append(Fault("tracker_invalid", f"last message of tracker {tracker!r}: {reason}"))
-        merged = self._humans(tuple(frames))
-        if human_age_s < 0.0:  # no tracker configured
-            human_age_s = max_age_s
-
-        decisions = {}
-        for name, robot in self.robots.items():
-            decisions[name] = self._step_robot(
+        self.states = {
+            name: RobotState(
                 name,
                 robot,
-                inputs,
-                now_ns,
-                merged,
-                human_age_s,
-                tracker_faults,
-                tracker_ages,
-                gateway_period_s,
+                RobotKernels(robot, safety),
+                robot.model.createData(),
+                WindowMax(hold_ns),
+                ReplanMonitor(safety.replan_delta_below, safety.replan_after_s),
+                f"robot/{name}",
             )
-        return decisions
+            for name, robot in robots.items()
+        }
+        self._delay_aware = not safety.unsafe_ignore_delay_for_tests
+        self._method: OverrideMethod = build_method(safety, robots)
+        # The trackers' newest frames and their merge: a frame changes at the tracker's rate (~30 Hz), not the
+        # gateway's, so the merge is redone only when one of them is a new object (held here, so no id reuse).
+        self._merged: tuple[tuple[HumanCapsules, ...], HumanCapsules, npt.NDArray[np.float64]] = (
+            (),
+            NO_HUMANS,
+            capsule_columns(NO_HUMANS),
+        )
+        self._tracker_topics = {tracker: f"tracker/{tracker}" for tracker in config.trackers}
 
-    def _step_robot(
-        self,
-        name: str,
-        robot: RobotModel,
-        inputs: InputSnapshot,
-        now_ns: int,
-        merged: _Merged,
-        human_age_s: float,
-        tracker_faults: list[Fault],
-        tracker_ages: dict[str, float | None],
-        gateway_period_s: float,
+    def step(self, inputs: InputSnapshot, now: Clocks, gateway_period_s: float) -> dict[str, RobotDecision]:
+        """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s]."""
+        humans = self._humans_view(inputs, now.mono_ns)
+        return {
+            name: self._decide(state, inputs, now, humans, gateway_period_s) for name, state in self.states.items()
+        }
+
+    def _humans_view(self, inputs: InputSnapshot, now_mono_ns: int) -> HumansView:
+        max_age_s = self.config.safety.max_data_age_s
+        faults: list[Fault] = [] if inputs.clock_fault is None else [inputs.clock_fault]
+        ages: dict[str, float | None] = {}
+        frames: list[HumanCapsules] = []
+        oldest_s = -1.0
+        for tracker, frame in inputs.humans.items():
+            topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
+            age = age_s(frame, now_mono_ns)
+            ages[topic] = age
+            oldest_s = max(oldest_s, max_age_s if age is None else age)  # no data yet counts as data at the limit
+            faults += tracker_faults(tracker, frame, age, max_age_s)
+            if topic in inputs.faults:
+                faults.append(inputs.faults[topic])
+            if frame is not None:
+                frames.append(frame.capsules)
+        capsules, columns = self._merge(tuple(frames))
+        return HumansView(capsules, columns, max_age_s if oldest_s < 0.0 else oldest_s, ages, tuple(faults))
+
+    def _merge(self, frames: tuple[HumanCapsules, ...]) -> tuple[HumanCapsules, npt.NDArray[np.float64]]:
+        """``merge_humans(frames)`` and its capsule columns, cached while the frames are the same objects."""
+        previous = self._merged[0]
+        if len(frames) != len(previous) or not all(map(operator.is_, frames, previous)):
+            humans = merge_humans(list(frames))
+            self._merged = (frames, humans, capsule_columns(humans))
+        return self._merged[1], self._merged[2]
+
+    def _delay(
+        self, joint_age: float | None, path: OverridePathEstimate, humans_age_s: float, period_s: float
+    ) -> DelayBudget:
+        if not self._delay_aware:  # test-only: shows that the delay terms matter
+            return DelayBudget(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        max_age_s = self.config.safety.max_data_age_s
+        return DelayBudget(  # positional (a keyword call costs twice as much): the fields' order
+            self.config.safety.t_reaction_s,
+            humans_age_s,
+            max_age_s if joint_age is None else joint_age,
+            max_age_s if path.latency_s is None else path.latency_s,
+            max_age_s if path.controller_cycle_s is None else path.controller_cycle_s,
+            period_s,
+        )
+
+    def _decide(
+        self, state: RobotState, inputs: InputSnapshot, now: Clocks, humans: HumansView, period_s: float
     ) -> RobotDecision:
-        safety = self.config.safety
-        max_age_s = safety.max_data_age_s
-        faults = list(tracker_faults)
-        joint: JointSample | None = inputs.joint[name]
-        joint_age = _age_s(joint.stamp_ns if joint else None, now_ns)
-        if joint is None:
-            faults.append(Fault("joint_state_missing", f"no valid joint state from robot {name!r} yet"))
-        elif joint_age is not None and joint_age > max_age_s:
-            faults.append(Fault("joint_state_stale", f"joint state is {joint_age:.3f} s old (limit {max_age_s} s)"))
-        reason = inputs.invalid.get(self._robot_topics[name])
-        if reason:
-            faults.append(Fault("joint_state_invalid", f"last joint state message: {reason}"))
-
-        path = inputs.override_path[name]
-        ack_age = _age_s(path.acked_sent_ns, now_ns)
-        if path.latency_s is None or ack_age is None:
-            faults.append(Fault("override_path_unconfirmed", "the controller has not yet echoed an override"))
-        elif ack_age > max_age_s:
-            faults.append(
-                Fault(
-                    "override_path_stale",
-                    f"newest override echoed was sent {ack_age:.3f} s ago (limit {max_age_s} s)",
-                )
-            )
-
-        if self._delay_aware:
-            delay = DelayBudget(  # positional (a keyword call costs twice as much): the fields' order
-                safety.t_reaction_s,
-                human_age_s,
-                joint_age if joint_age is not None else max_age_s,
-                path.latency_s if path.latency_s is not None else max_age_s,
-                path.controller_cycle_s if path.controller_cycle_s is not None else max_age_s,
-                gateway_period_s,
-            )
-        else:  # test-only: shows that the delay terms matter
-            delay = DelayBudget(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        t_delay = delay.total_s
-        kernels = self._kernels[name]
-        t_brake_max = kernels.t_brake_max_s
-        clearance = decision_clearance_m(safety, t_brake_max, t_delay)
-
-        delta_bound = 0.0
-        min_distance: float | None = None
-        closest: ClosestPair | None = None
-        speed_mps = 0.0
-        humans = merged.humans
+        max_age_s = self.config.safety.max_data_age_s
+        joint = inputs.joint[state.name]
+        joint_age = age_s(joint, now.mono_ns)
+        path = inputs.override_path[state.name]
+        faults = list(humans.faults)
+        faults += joint_faults(state.name, joint, joint_age, max_age_s)
+        if state.topic in inputs.faults:
+            faults.append(inputs.faults[state.topic])
+        faults += override_path_faults(path, now.mono_ns, max_age_s)
+        delay = self._delay(joint_age, path, humans.age_s, period_s)
+        t_brake_max_s = state.kernels.t_brake_max_s
+        clearance = decision_clearance_m(self.config.safety, t_brake_max_s, delay.total_s)
+        delta_bound, min_distance, closest, speed_mps = 0.0, None, None, 0.0
         if joint is not None:
-            links, speed_mps, rows, (i, j, distance_m) = kernels.cycle(
-                joint.q_rad, joint.qd_nominal_radps, merged.capsules, t_delay
-            )
-            delta_bound = self._method.bound(
-                MethodInput(
-                    robot,
-                    self._data[name],
-                    joint.q_rad,
-                    links,
-                    rows,
-                    humans,
-                    joint.qd_nominal_radps,
-                    t_delay,
-                    clearance,
-                    self._previous_delta[name],
-                    gateway_period_s,
-                )
-            )
-            if i >= 0:  # a capsule is seen
-                min_distance = distance_m
-                closest = ClosestPair(humans.human_ids[j], humans.capsule_names[j], robot.link_names[i])
-
+            delta_bound, min_distance, closest, speed_mps = self._bound(state, joint, humans, delay.total_s, clearance, period_s)
+            delta_bound = delta_bound if delta_bound == delta_bound else 0.0  # nan never moves a robot
         thresholds = zone_thresholds(
-            self.config.zones,
-            clearance,
-            t_brake_max + t_delay,
-            self._speeds[name].push(now_ns, speed_mps),  # the adaptive thresholds' held speed
+            self.config.zones, clearance, t_brake_max_s + delay.total_s, state.speed_hold.push(now.mono_ns, speed_mps)
         )
         if faults:
-            zone = Zone.SAFETY_EXCEPTION
-            delta = 0.0
+            state.zone, delta = Zone.SAFETY_EXCEPTION, 0.0
         else:
-            zone = next_zone(self._zones[name], min_distance, delta_bound, thresholds, self.config.zones)
-            delta = commanded_override(zone, delta_bound)
-        self._zones[name] = zone
-        self._previous_delta[name] = delta
-        replan = self._replan[name].update(now_ns, delta, faulted=bool(faults))
-        ages = {"joint_state": joint_age, **tracker_ages}
+            state.zone = next_zone(state.zone, min_distance, delta_bound, thresholds, self.config.zones)
+            delta = commanded_override(state.zone, delta_bound)
+        state.previous_delta = delta
         return RobotDecision(  # positional (a keyword call costs twice as much), in the order of the fields
-            name,
-            zone,
+            state.name,
+            state.zone,
             delta,
             delta_bound,
             min_distance,
@@ -274,7 +261,42 @@ class SafetyCore:
             clearance,
             thresholds,
             tuple(faults),
-            ages,
+            {"joint_state": joint_age, **humans.ages_s},
             joint.mode if joint else None,
-            replan,
+            state.replan.update(now.mono_ns, delta, faulted=bool(faults)),
+            joint.override if joint else None,
         )
+
+    def _bound(
+        self,
+        state: RobotState,
+        joint: JointSample,
+        humans: HumansView,
+        t_delay_s: float,
+        clearance_m: float,
+        period_s: float,
+    ) -> tuple[float, float | None, ClosestPair | None, float]:
+        """The method's δ bound, the closest pair and its distance [m], and the largest link-end speed [m/s]."""
+        links, speed_mps, rows, (i, j, distance_m) = state.kernels.cycle(
+            joint.q_rad, joint.qd_nominal_radps, humans.columns, t_delay_s
+        )
+        bound = self._method.bound(
+            MethodInput(
+                state.robot,
+                state.data,
+                joint.q_rad,
+                links,
+                rows,
+                humans.capsules,
+                joint.qd_nominal_radps,
+                t_delay_s,
+                clearance_m,
+                state.previous_delta,
+                period_s,
+            )
+        )
+        if i < 0:  # nobody seen
+            return bound, None, None, speed_mps
+        capsules = humans.capsules
+        closest = ClosestPair(capsules.human_ids[j], capsules.capsule_names[j], state.robot.link_names[i])
+        return bound, distance_m, closest, speed_mps

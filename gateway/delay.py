@@ -67,18 +67,20 @@ class OverridePath:
 
     def __init__(self, window_s: float = 1.0, history: int = 4096) -> None:
         self._window_ns = int(window_s * NS_PER_S)
-        self._sent_ns: dict[int, int] = {}
+        self._sent_ns: dict[int, tuple[int, int]] = {}
         self._sent_order: deque[int] = deque()
         self._history = history
         self._latency_ns = WindowMax(self._window_ns)
         self._cycle_ns = WindowMax(self._window_ns)
         self._last_ack_seq: int | None = None
         self._last_state_stamp_ns: int | None = None
-        self.acked_sent_ns: int | None = None
-        """Send time of the newest override the controller reported [ns since epoch]."""
+        self.acked_sent_mono_ns: int | None = None
+        """Send time of the newest override the controller reported, on the gateway's monotonic clock [ns]."""
 
-    def on_sent(self, seq: int, sent_ns: int) -> None:
-        self._sent_ns[seq] = sent_ns
+    def on_sent(self, seq: int, sent_ns: int, sent_mono_ns: int) -> None:
+        """Record an override sent at ``sent_ns`` (wall clock, compared with the controller's stamps) and
+        ``sent_mono_ns`` (this process's monotonic clock, for the age of the newest echo)."""
+        self._sent_ns[seq] = (sent_ns, sent_mono_ns)
         self._sent_order.append(seq)
         while len(self._sent_order) > self._history:
             self._sent_ns.pop(self._sent_order.popleft(), None)
@@ -93,8 +95,8 @@ class OverridePath:
             return
         if override_seq != self._last_ack_seq:
             self._last_ack_seq = override_seq
-            self.acked_sent_ns = sent
-            self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent))
+            sent_ns, self.acked_sent_mono_ns = sent
+            self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent_ns))
 
     def latency_s(self) -> float | None:
         """Largest override path latency within the window, None before the first echo [s]."""

@@ -2,6 +2,11 @@
 
 The app only reads a :class:`StatusBoard`, which the safety loop fills; the app cannot slow the loop
 down (in the running gateway it lives in its own process, fed through a pipe).
+
+Every route declares its response model (:mod:`hrc_common.status_models`), so ``/openapi.json`` documents
+the real shapes. The status is validated once, when it reaches the board; a GET then answers with the bytes
+the gateway produced (``/api/v1/status``, ``/api/v1/config``) or serialises the parsed model
+(``/api/v1/robots/{robot}``), without validating the response again.
 """
 
 from __future__ import annotations
@@ -9,12 +14,32 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Annotated, Any
+from typing import Annotated, Any, NamedTuple
 
-from fastapi import APIRouter, Depends, FastAPI, HTTPException, Request
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, Request, Response
+
+from hrc_common.status_models import (
+    EffectiveConfig,
+    ErrorResponse,
+    GatewayStatus,
+    Health,
+    NotReady,
+    NotReadyResponse,
+    Ready,
+    RobotStatusResponse,
+)
 
 STATUS_STALE_AFTER_S = 1.0
 """A status older than this means the safety loop is not running: the API says so with 503."""
+
+JSON = "application/json"
+
+
+class PublishedStatus(NamedTuple):
+    """A status document as parsed (``status``) and as the gateway serialised it (``json``, UTF-8)."""
+
+    status: GatewayStatus
+    json: bytes
 
 
 class StatusBoard:
@@ -22,23 +47,35 @@ class StatusBoard:
 
     def __init__(
         self,
-        effective_config: dict[str, Any],
+        effective_config: EffectiveConfig,
         stale_after_s: float = STATUS_STALE_AFTER_S,
         clock_s: Callable[[], float] = time.monotonic,
     ) -> None:
         self.effective_config = effective_config
+        self.effective_config_json = effective_config.model_dump_json().encode()
         self.stale_after_s = stale_after_s
         self._clock_s = clock_s
         self._lock = threading.Lock()
-        self._doc: dict[str, Any] | None = None
+        self._doc: PublishedStatus | None = None
         self._received_s = 0.0
 
-    def publish(self, doc: dict[str, Any]) -> None:
+    def publish(self, status: GatewayStatus, status_json: bytes | None = None) -> None:
+        """Make ``status`` the newest document; ``status_json`` is its serialisation, if the caller has it."""
+        published = PublishedStatus(status, status.model_dump_json().encode() if status_json is None else status_json)
         with self._lock:
-            self._doc = doc
+            self._doc = published
             self._received_s = self._clock_s()
 
-    def latest(self) -> tuple[dict[str, Any] | None, float | None]:
+    def publish_json(self, line: bytes | str) -> None:
+        """Parse one status document (a JSON line from the gateway) and make it the newest.
+
+        Raises:
+            pydantic.ValidationError: the line is not a status document; the board keeps the previous one.
+        """
+        raw = line.encode() if isinstance(line, str) else line
+        self.publish(GatewayStatus.model_validate_json(raw), raw.strip())
+
+    def latest(self) -> tuple[PublishedStatus | None, float | None]:
         """The newest document and its age [s] (None, None before the first)."""
         with self._lock:
             if self._doc is None:
@@ -54,7 +91,7 @@ def _board(request: Request) -> StatusBoard:
 Board = Annotated[StatusBoard, Depends(_board)]
 
 
-def _fresh_status(board: StatusBoard) -> dict[str, Any]:
+def _fresh_status(board: StatusBoard) -> PublishedStatus:
     doc, age = board.latest()
     if doc is None or age is None:
         raise HTTPException(503, "the gateway's safety loop has not published a status yet")
@@ -63,53 +100,74 @@ def _fresh_status(board: StatusBoard) -> dict[str, Any]:
     return doc
 
 
+_NOT_RUNNING: dict[int | str, dict[str, Any]] = {
+    503: {"model": ErrorResponse, "description": "The safety loop has published no status (yet, or for 1 s)."}
+}
+
 status_router = APIRouter(prefix="/api/v1", tags=["status"])
 
 
-@status_router.get("/status", summary="Zones, δ and faults of every robot")
-def get_status(board: Board) -> dict[str, Any]:
-    return _fresh_status(board)
+@status_router.get(
+    "/status", summary="Zones, δ and faults of every robot", response_model=GatewayStatus, responses=_NOT_RUNNING
+)
+def get_status(board: Board) -> Response:
+    return Response(_fresh_status(board).json, media_type=JSON)
 
 
-@status_router.get("/robots/{robot}", summary="Zone, δ and faults of one robot")
-def get_robot(robot: str, board: Board) -> dict[str, Any]:
-    doc = _fresh_status(board)
-    robots: dict[str, Any] = doc["robots"]
-    if robot not in robots:
-        raise HTTPException(404, f"unknown robot {robot!r}; known robots: {', '.join(sorted(robots))}")
-    entry: dict[str, Any] = robots[robot]
-    return {"cell": doc["cell"], "stamp_ns": doc["stamp_ns"], "robot": robot, **entry}
+@status_router.get(
+    "/robots/{robot}",
+    summary="Zone, δ and faults of one robot",
+    response_model=RobotStatusResponse,
+    responses={
+        404: {"model": ErrorResponse, "description": "Unknown robot; the message names the known robots."},
+        **_NOT_RUNNING,
+    },
+)
+def get_robot(robot: str, board: Board) -> Response:
+    status = _fresh_status(board).status
+    entry = status.robots.get(robot)
+    if entry is None:
+        raise HTTPException(404, f"unknown robot {robot!r}; known robots: {', '.join(sorted(status.robots))}")
+    # Built from a validated entry: constructed without validating it again, serialised once.
+    body = RobotStatusResponse.model_construct(cell=status.cell, stamp_ns=status.stamp_ns, robot=robot, **dict(entry))
+    return Response(body.model_dump_json(), media_type=JSON)
 
 
-@status_router.get("/config", summary="The effective safety configuration, with its sha256")
-def get_config(board: Board) -> dict[str, Any]:
-    return board.effective_config
+@status_router.get(
+    "/config", summary="The effective safety configuration, with its sha256", response_model=EffectiveConfig
+)
+def get_config(board: Board) -> Response:
+    return Response(board.effective_config_json, media_type=JSON)
 
 
 health_router = APIRouter(tags=["health"])
 
 
-@health_router.get("/healthz", summary="The process is up")
-def healthz() -> dict[str, str]:
-    return {"status": "ok"}
+@health_router.get("/healthz", summary="The process is up", response_model=Health)
+def healthz() -> Health:
+    return Health(status="ok")
 
 
-@health_router.get("/readyz", summary="Inputs are fresh and overrides flow for every robot")
-def readyz(board: Board) -> dict[str, Any]:
-    doc = _fresh_status(board)
-    not_ready = {
-        name: [f["reason"] for f in robot["faults"]] for name, robot in doc["robots"].items() if robot["faults"]
-    }
+@health_router.get(
+    "/readyz",
+    summary="Inputs are fresh and overrides flow for every robot",
+    response_model=Ready,
+    responses={503: {"model": NotReadyResponse, "description": "No fresh status, or a robot has active faults."}},
+)
+def readyz(board: Board) -> Ready:
+    status = _fresh_status(board).status
+    not_ready = {name: [f.reason for f in robot.faults] for name, robot in status.robots.items() if robot.faults}
     if not_ready:
-        raise HTTPException(503, {"ready": False, "faults": not_ready})
-    return {"ready": True}
+        raise HTTPException(503, NotReady(ready=False, faults=not_ready).model_dump())
+    return Ready(ready=True)
 
 
 def create_app(board: StatusBoard) -> FastAPI:
     app = FastAPI(
         title="hrc-gateway",
         version="1",
-        description="Status of the human-robot collaboration safety gateway (zones, speed override δ, faults).",
+        description="Status of the human-robot collaboration safety gateway (zones, speed override δ, faults). "
+        "The contract: docs/contract.md.",
     )
     app.state.board = board
     app.include_router(status_router)

@@ -1,25 +1,27 @@
 """The gateway's HTTP server, run as a child process of the gateway so it cannot stall the safety loop.
 
 Protocol on standard input, one JSON document per line: the first line is the effective
-configuration, every further line a status document. End of input (the gateway exited or was killed)
-stops the server.
+configuration (:class:`~hrc_common.status_models.EffectiveConfig`), every further line a status document
+(:class:`~hrc_common.status_models.GatewayStatus`), each validated once on arrival. End of input (the
+gateway exited or was killed) stops the server.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import os
 import subprocess
 import sys
 import threading
-from typing import IO, Any
+from typing import IO
 
 import uvicorn
+from pydantic import ValidationError
 
 from gateway.http_api import StatusBoard, create_app
+from hrc_common.status_models import EffectiveConfig
 
 log = logging.getLogger("hrc-gateway.http")
 
@@ -28,12 +30,24 @@ NICENESS_INCREMENT = 10
 scheduler runs the safety loop (and the programs it talks to) first on a busy machine."""
 
 
-def _feed(board: StatusBoard, lines: IO[str], server: uvicorn.Server) -> None:
+def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server) -> None:
+    """Publish every line on the board until end of input, then stop the server.
+
+    A line that is not a status document is skipped (the board keeps the previous one and goes stale, so the
+    API answers 503 if no valid line follows); a warning is logged when valid lines turn invalid.
+    """
+    previous_valid = True
     for line in lines:
         try:
-            board.publish(json.loads(line))
-        except ValueError:
-            log.warning("ignored a malformed status line from the gateway")
+            board.publish_json(line)
+        except ValidationError as exc:
+            if previous_valid:
+                error = exc.errors()[0]
+                where = ".".join(str(p) for p in error["loc"])
+                log.warning("skipping status lines that are not a status document (%s: %s)", where, error["msg"])
+            previous_valid = False
+        else:
+            previous_valid = True
     server.should_exit = True
 
 
@@ -47,10 +61,11 @@ def main(argv: list[str] | None = None) -> int:
         os.nice(NICENESS_INCREMENT)
     except OSError as exc:  # never a reason not to serve
         log.warning("could not lower the HTTP server's CPU priority: %s", exc)
-    first = sys.stdin.readline()
+    stdin = sys.stdin.buffer
+    first = stdin.readline()
     if not first:
         return 0
-    board = StatusBoard(json.loads(first))
+    board = StatusBoard(EffectiveConfig.model_validate_json(first))
     config = uvicorn.Config(
         create_app(board),
         host=args.http_host,
@@ -59,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         timeout_graceful_shutdown=2,
     )
     server = uvicorn.Server(config)
-    threading.Thread(target=_feed, args=(board, sys.stdin, server), daemon=True).start()
+    threading.Thread(target=_feed, args=(board, stdin, server), daemon=True).start()
     server.run()
     return 0 if server.started else 1
 
@@ -71,7 +86,7 @@ class HttpServerProcess:
     the (possibly blocking) pipe write. A slow or dead child only makes the API lag.
     """
 
-    def __init__(self, host: str, port: int, effective_config: dict[str, Any]) -> None:
+    def __init__(self, host: str, port: int, effective_config: EffectiveConfig) -> None:
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "gateway.http_server", "--http-host", host, "--http-port", str(port)],
             stdin=subprocess.PIPE,
@@ -79,7 +94,7 @@ class HttpServerProcess:
         )
         if self._proc.stdin is not None:
             # A few kB into a fresh pipe: never blocks.
-            self._proc.stdin.write(json.dumps(effective_config).encode() + b"\n")
+            self._proc.stdin.write(effective_config.model_dump_json().encode() + b"\n")
             self._proc.stdin.flush()
         self._pending: bytes | None = None
         self._cond = threading.Condition()

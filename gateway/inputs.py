@@ -1,34 +1,100 @@
-"""The gateway's inputs: newest valid sample per topic, rejections counted by reason.
+"""The gateway's inputs at the door: parse, judge, keep the newest valid sample per topic, hold faults.
 
-Zenoh callbacks call :meth:`InputStore.on_joint_state` and :meth:`InputStore.on_humans`; they only
-validate and store (and ``on_humans`` may wake the loop to decide at once). The safety loop takes a
-consistent :class:`InputSnapshot` once per cycle.
-A topic whose newest message was invalid is *latched invalid* until a valid one arrives: the robots it
-concerns get δ = 0 meanwhile (contract, "Bad input").
+Zenoh callbacks call :meth:`InputStore.on_joint_state` and :meth:`InputStore.on_humans` with the time the
+message arrived on both clocks; they only judge and store (``on_humans`` may wake the loop to decide at once).
+The safety loop takes one consistent :class:`InputSnapshot` per cycle.
+
+Every input is treated as hostile. A message on a configured topic is rejected, counted by reason and raises a
+*topic fault* (δ = 0 for the robots it concerns) when it
+
+- does not parse or does not fit the cell (``not_json``, ``invalid``, ``name_mismatch``, ``wrong_joint_count`` ...);
+- is implausible: capsules outside the cell's volume or larger than a body part (``outside_world``,
+  ``capsule_too_long``, ``radius_too_large``), joints beyond the URDF's limits (``q_out_of_limits``,
+  ``qd_above_limit``);
+- breaks the stream's order: stamped ahead of this host's clock by more than ``streams.max_future_stamp_s``
+  (``stamp_in_future``), stamp or seq not after the newest accepted (``stamp_backwards``, ``seq_backwards``: a
+  forged "newer" frame would otherwise hide every genuine one);
+- contradicts what the gateway commanded: joints moving faster than ``override · qd_nominal``
+  (``qd_inconsistent``), or an applied override above every recent command and not braking toward it
+  (``override_above_commanded``, on two joint states in a row, i.e. longer than one controller cycle).
+
+A topic fault lasts until a valid message has arrived after it AND ``streams.fault_hold_s`` has passed since its
+last occurrence, so that an attacker interleaving bad frames with good ones keeps the robot stopped instead of
+flickering. An exact repeat of a recently accepted message (same seq and stamp: a duplicated packet) is counted
+as ``duplicate`` and is not a fault. Messages for robots or trackers the cell does not have are counted
+(``unknown_robot``, ``unknown_tracker``) and concern no robot.
+
+Ages run on the monotonic clock: a sample's age is its transit time measured at arrival (receive wall clock −
+``stamp_ns``, across processes) plus the monotonic time since it arrived, so a wall-clock step on this host cannot
+make an old sample look fresh. The snapshot reports a *clock step* fault when this host's wall clock moves
+against its monotonic clock by more than ``streams.max_clock_step_s`` between two cycles.
 """
 
 from __future__ import annotations
 
 import threading
-from collections import Counter
-from collections.abc import Callable
-from typing import NamedTuple
+from collections import Counter, deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Literal, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
-from gateway.delay import OverridePath
+from gateway.delay import NS_PER_S, OverridePath, WindowMax
 from hrc_common import keys
-from hrc_common.humans import HumanCapsules, capsules_from_message
+from hrc_common.clocks import Clocks
+from hrc_common.config import CellConfig
+from hrc_common.humans import HumanCapsules, capsules_from_message, implausible_reason
 from hrc_common.messages import Humans, JointState, MessageError, parse_message
+from hrc_common.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
+TopicKind = Literal["joint_state", "tracker"]
 
-FUTURE_STAMP_TOLERANCE_NS = 5_000_000
-"""A stamp later than the receive time by more than this is a clock fault (it would hide a delay)."""
+RECENT_MESSAGES = 64
+"""(seq, stamp) pairs remembered per topic to recognise an exact repeat (a duplicated packet)."""
+
+LIMIT_MARGIN_RAD = 0.01
+"""A joint position this far beyond its URDF limit is still plausible (encoder and interpolation noise) [rad]."""
+
+VELOCITY_LIMIT_FACTOR = 1.05
+"""A joint velocity up to this multiple of its URDF limit is still plausible (interpolation overshoot)."""
+
+_FAULT_KIND: Mapping[str, str] = {
+    "stamp_in_future": "out_of_order",
+    "stamp_backwards": "out_of_order",
+    "seq_backwards": "out_of_order",
+    "outside_world": "implausible",
+    "capsule_too_long": "implausible",
+    "radius_too_large": "implausible",
+    "q_out_of_limits": "implausible",
+    "qd_above_limit": "implausible",
+    "qd_inconsistent": "inconsistent",
+}
+"""Rejection reason → fault kind; any other reason of a configured topic is ``invalid``."""
+
+
+def fault_code(kind: TopicKind, reason: str) -> str:
+    """The status's fault code for a rejection ``reason`` on a topic of ``kind``, e.g. ``tracker_implausible``."""
+    if reason == "override_above_commanded":
+        return "override_not_followed"
+    return f"{kind}_{_FAULT_KIND.get(reason, 'invalid')}"
+
+
+class TopicFault(NamedTuple):
+    code: str
+    reason: str
 
 
 class JointSample(NamedTuple):
+    """A valid joint state, with when it arrived.
+
+    Attributes:
+        transit_ns: receive wall clock − ``stamp_ns`` at arrival, at least 0 [ns].
+        received_mono_ns: the gateway's monotonic clock at arrival [ns].
+    """
+
     stamp_ns: int
     seq: int
     q_rad: FloatArray
@@ -36,19 +102,32 @@ class JointSample(NamedTuple):
     override: float
     override_seq: int
     mode: str
+    transit_ns: int
+    received_mono_ns: int
 
 
 class HumanFrame(NamedTuple):
+    """A valid tracker frame, with when it arrived (as :class:`JointSample`)."""
+
     stamp_ns: int
     seq: int
     capsules: HumanCapsules
     human_count: int
+    transit_ns: int
+    received_mono_ns: int
+
+
+def age_s(sample: JointSample | HumanFrame | None, now_mono_ns: int) -> float | None:
+    """Age of a sample at ``now_mono_ns``: transit at arrival plus time since, None without a sample [s]."""
+    if sample is None:
+        return None
+    return (sample.transit_ns + max(0, now_mono_ns - sample.received_mono_ns)) / NS_PER_S
 
 
 class OverridePathEstimate(NamedTuple):
     latency_s: float | None
     controller_cycle_s: float | None
-    acked_sent_ns: int | None
+    acked_sent_mono_ns: int | None
 
 
 class InputSnapshot(NamedTuple):
@@ -57,63 +136,140 @@ class InputSnapshot(NamedTuple):
     Attributes:
         joint: newest valid joint state per configured robot (None if none yet).
         humans: newest valid frame per configured tracker (None if none yet).
-        invalid: topics whose newest message was invalid, with the reason (``robot/<r>`` or ``tracker/<t>``).
+        faults: active topic faults (``robot/<r>`` or ``tracker/<t>`` → fault), held as the module says.
         override_path: per robot, what the override echo taught.
+        clock_fault: a wall-clock step of this host within the hold time, else None.
     """
 
     joint: dict[str, JointSample | None]
     humans: dict[str, HumanFrame | None]
-    invalid: dict[str, str]
+    faults: dict[str, TopicFault]
     override_path: dict[str, OverridePathEstimate]
+    clock_fault: TopicFault | None = None
+
+
+@dataclass
+class _Stream:
+    """One configured topic: order of the accepted messages and its fault."""
+
+    kind: TopicKind
+    seq: int = -1
+    stamp_ns: int = -1
+    recent: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=RECENT_MESSAGES))
+    fault: TopicFault | None = None
+    fault_mono_ns: int = 0
+    valid_since_fault: bool = True
+
+    def order(self, seq: int, stamp_ns: int, received: Clocks, max_future_ns: int) -> str | None:
+        """Why this message breaks the stream's order, ``duplicate`` for an exact repeat, or None."""
+        if (seq, stamp_ns) in self.recent:
+            return "duplicate"
+        if stamp_ns > received.wall_ns + max_future_ns:
+            return "stamp_in_future"
+        if stamp_ns <= self.stamp_ns:
+            return "stamp_backwards"
+        if seq <= self.seq:
+            return "seq_backwards"
+        return None
+
+    def accept(self, seq: int, stamp_ns: int) -> None:
+        self.seq, self.stamp_ns = seq, stamp_ns
+        self.recent.append((seq, stamp_ns))
+        self.valid_since_fault = True
+
+    def raise_fault(self, reason: str, detail: str, now_mono_ns: int, code: str | None = None) -> None:
+        """Start (or restart) the fault: it lasts until a valid message came after it and the hold passed."""
+        code = code or fault_code(self.kind, reason)
+        self.fault = TopicFault(code, f"{reason}: {detail}" if detail else reason)
+        self.fault_mono_ns = now_mono_ns
+        self.valid_since_fault = False
+
+    def active_fault(self, now_mono_ns: int, hold_ns: int) -> TopicFault | None:
+        if self.fault is not None and self.valid_since_fault and now_mono_ns - self.fault_mono_ns >= hold_ns:
+            self.fault = None
+        return self.fault
+
+
+@dataclass
+class _Robot:
+    """What the store knows of one robot besides its newest state: limits, commands, override path."""
+
+    n_joints: int
+    q_min_rad: FloatArray
+    q_max_rad: FloatArray
+    qd_max_radps: FloatArray
+    t_brake_min_s: float
+    commanded: WindowMax
+    path: OverridePath = field(default_factory=OverridePath)
+    above_commanded: int = 0
+    sample: JointSample | None = None
+
+
+def _robot_entry(robot: RobotModel, command_window_ns: int) -> _Robot:
+    moving = robot.t_brake_link_s[robot.t_brake_link_s > 0.0]
+    return _Robot(
+        n_joints=robot.n_joints,
+        q_min_rad=np.asarray(robot.model.lowerPositionLimit, dtype=float) - LIMIT_MARGIN_RAD,
+        q_max_rad=np.asarray(robot.model.upperPositionLimit, dtype=float) + LIMIT_MARGIN_RAD,
+        qd_max_radps=np.asarray(robot.velocity_limit_radps, dtype=float) * VELOCITY_LIMIT_FACTOR,
+        t_brake_min_s=float(moving.min()) if moving.size else float(robot.braking_time_s.max()),
+        commanded=WindowMax(command_window_ns),
+    )
 
 
 class InputStore:
-    """Thread-safe store of the newest valid input per topic, with rejection counters."""
+    """Thread-safe store of the newest valid input per topic, with rejection counters and topic faults."""
 
     def __init__(
         self,
-        robot_joint_counts: dict[str, int],
-        trackers: list[str],
+        config: CellConfig,
+        robots: Mapping[str, RobotModel],
         on_tracker_change: Callable[[], None] | None = None,
     ) -> None:
         """
         Args:
-            robot_joint_counts: joints per configured robot.
-            trackers: the configured trackers.
-            on_tracker_change: called (on the callback's thread, after storing) when what the loop sees
-                of a tracker changed, e.g. ``threading.Event.set`` to wake the loop; must not block.
+            config: the cell (trackers, plausibility and stream limits).
+            robots: the configured robots' models (joint counts and limits, braking times).
+            on_tracker_change: called (on the callback's thread, after storing) when what the loop sees of a
+                tracker changed, e.g. ``threading.Event.set`` to wake the loop; must not block.
         """
+        streams = config.streams
+        self._plausibility = config.plausibility
+        self._max_future_ns = round(streams.max_future_stamp_s * NS_PER_S)
+        self._hold_ns = round(streams.fault_hold_s * NS_PER_S)
+        self._max_clock_step_ns = round(streams.max_clock_step_s * NS_PER_S)
+        self._qd_tolerance = (streams.qd_tolerance_radps, streams.qd_tolerance_ratio)
+        self._override_tolerance = streams.override_tolerance
         self._on_tracker_change = on_tracker_change or _nothing
         self._lock = threading.Lock()
-        self._joint_counts = dict(robot_joint_counts)
-        self._joint: dict[str, JointSample | None] = dict.fromkeys(robot_joint_counts)
-        self._frames: dict[str, HumanFrame | None] = dict.fromkeys(trackers)
-        self._invalid: dict[str, str] = {}  # topic name -> reason of its newest, invalid message
-        self._paths = {name: OverridePath() for name in robot_joint_counts}
+        window_ns = round(2 * config.safety.max_data_age_s * NS_PER_S)  # a command and its echo each within the age limit
+        self._robots = {name: _robot_entry(robot, window_ns) for name, robot in robots.items()}
+        self._frames: dict[str, HumanFrame | None] = dict.fromkeys(sorted(config.trackers))
+        self._streams = {f"robot/{name}": _Stream("joint_state") for name in robots}
+        self._streams.update({f"tracker/{name}": _Stream("tracker") for name in config.trackers})
         self._rejected: Counter[tuple[str, str]] = Counter()
         self._received: Counter[str] = Counter()
+        self._clock_offset_ns: int | None = None
+        self._clock_fault = _Stream("tracker")  # only its fault and hold are used
 
     # -- callbacks (Zenoh threads) -------------------------------------------------------------
 
-    def on_joint_state(self, key: str, payload: bytes, now_ns: int) -> None:
+    def on_joint_state(self, key: str, payload: bytes, received: Clocks) -> None:
+        """Judge and store a joint state that arrived at ``received``."""
         robot = keys.name_from_key(key, "robot") or "?"
-        topic_name = f"robot/{robot}"
-        if robot not in self._joint:
-            self._reject(topic_name, "unknown_robot", latch=False)
+        topic = f"robot/{robot}"
+        entry = self._robots.get(robot)
+        if entry is None:
+            self._count(topic, "unknown_robot")
             return
         try:
             msg = parse_message(payload, JointState)
         except MessageError as exc:
-            self._reject(topic_name, exc.reason)
+            self._reject(topic, exc.reason, exc.detail, received)
             return
-        if msg.robot != robot:
-            self._reject(topic_name, "name_mismatch")
-            return
-        if len(msg.q) != self._joint_counts[robot]:
-            self._reject(topic_name, "wrong_joint_count")
-            return
-        if msg.stamp_ns > now_ns + FUTURE_STAMP_TOLERANCE_NS:
-            self._reject(topic_name, "stamp_in_future")
+        reason, detail = _joint_state_problem(msg, robot, entry, self._qd_tolerance)
+        if reason is not None:
+            self._reject(topic, reason, detail, received)
             return
         sample = JointSample(
             msg.stamp_ns,
@@ -123,91 +279,171 @@ class InputStore:
             msg.override,
             msg.override_seq,
             msg.mode,
+            max(0, received.wall_ns - msg.stamp_ns),
+            received.mono_ns,
         )
         with self._lock:
-            if _is_old(self._joint[robot], msg.seq, msg.stamp_ns):
-                self._rejected[(topic_name, "old_or_repeated")] += 1
+            if not self._in_order(topic, msg.seq, msg.stamp_ns, received):
                 return
-            self._joint[robot] = sample
-            self._invalid.pop(topic_name, None)
-            self._received[topic_name] += 1
-            self._paths[robot].on_state(msg.override_seq, msg.stamp_ns)
+            previous, entry.sample = entry.sample, sample
+            entry.path.on_state(msg.override_seq, msg.stamp_ns)
+            self._check_override_followed(topic, entry, previous, sample, received)
 
-    def on_humans(self, key: str, payload: bytes, now_ns: int) -> None:
-        """Validate and store a tracker frame; call ``on_tracker_change`` when what the loop sees of a
-        configured tracker changed (a new frame, or its newest message latched invalid), not for an
-        unknown tracker or an old or repeated frame."""
+    def on_humans(self, key: str, payload: bytes, received: Clocks) -> None:
+        """Judge and store a tracker frame; call ``on_tracker_change`` when what the loop sees of a configured
+        tracker changed (a new frame, or a fault), not for an unknown tracker, a duplicate or a no-op."""
         tracker = keys.name_from_key(key, "tracker") or "?"
-        topic_name = f"tracker/{tracker}"
+        topic = f"tracker/{tracker}"
         if tracker not in self._frames:
-            self._reject(topic_name, "unknown_tracker", latch=False)
+            self._count(topic, "unknown_tracker")
             return
         try:
             msg = parse_message(payload, Humans)
         except MessageError as exc:
-            self._reject(topic_name, exc.reason)
+            self._reject(topic, exc.reason, exc.detail, received)
             self._on_tracker_change()
             return
-        if msg.tracker != tracker:
-            self._reject(topic_name, "name_mismatch")
+        capsules = capsules_from_message(tracker, msg) if msg.tracker == tracker else None
+        reason = "name_mismatch" if capsules is None else implausible_reason(capsules, self._plausibility)
+        if capsules is None or reason is not None:
+            self._reject(topic, reason or "name_mismatch", f"tracker {msg.tracker!r}", received)
             self._on_tracker_change()
             return
-        if msg.stamp_ns > now_ns + FUTURE_STAMP_TOLERANCE_NS:
-            self._reject(topic_name, "stamp_in_future")
-            self._on_tracker_change()
-            return
-        frame = HumanFrame(msg.stamp_ns, msg.seq, capsules_from_message(tracker, msg), len(msg.humans))
+        transit_ns = max(0, received.wall_ns - msg.stamp_ns)
+        frame = HumanFrame(msg.stamp_ns, msg.seq, capsules, len(msg.humans), transit_ns, received.mono_ns)
         with self._lock:
-            if _is_old(self._frames[tracker], msg.seq, msg.stamp_ns):
-                self._rejected[(topic_name, "old_or_repeated")] += 1
-                return
-            self._frames[tracker] = frame
-            self._invalid.pop(topic_name, None)
-            self._received[topic_name] += 1
-        self._on_tracker_change()
+            if not self._in_order(topic, msg.seq, msg.stamp_ns, received):
+                changed = self._streams[topic].fault is not None
+            else:
+                self._frames[tracker] = frame
+                changed = True
+        if changed:
+            self._on_tracker_change()
 
-    def count_rejection(self, topic_name: str, reason: str) -> None:
-        """Count a rejection found outside the store (e.g. an exception in a callback)."""
-        self._reject(topic_name, reason)
-
-    def _reject(self, topic_name: str, reason: str, latch: bool = True) -> None:
-        with self._lock:
-            self._rejected[(topic_name, reason)] += 1
-            if latch:
-                self._invalid[topic_name] = reason
+    def count_rejection(self, topic: str, reason: str, received: Clocks) -> None:
+        """Count a rejection found outside the store (e.g. an exception in a callback) and fault the topic."""
+        self._reject(topic, reason, "", received)
 
     # -- loop side --------------------------------------------------------------------------
 
-    def on_override_sent(self, robot: str, seq: int, sent_ns: int) -> None:
+    def on_override_sent(self, robot: str, seq: int, delta: float, sent: Clocks) -> None:
+        """Record an override the loop sent (its echo teaches the path; its δ bounds the applied override)."""
+        entry = self._robots[robot]
         with self._lock:
-            self._paths[robot].on_sent(seq, sent_ns)
+            entry.path.on_sent(seq, sent.wall_ns, sent.mono_ns)
+            entry.commanded.push(sent.mono_ns, delta)
 
-    def snapshot(self) -> InputSnapshot:
+    def snapshot(self, now: Clocks) -> InputSnapshot:
+        """The newest samples, the active faults and the override paths at ``now``."""
         with self._lock:
-            joint = dict(self._joint)
-            humans = dict(self._frames)
-            invalid = dict(self._invalid)
+            self._watch_clock(now)
+            faults = {}
+            for topic, stream in self._streams.items():
+                fault = stream.active_fault(now.mono_ns, self._hold_ns)
+                if fault is not None:
+                    faults[topic] = fault
             paths = {
-                name: OverridePathEstimate(p.latency_s(), p.controller_cycle_s(), p.acked_sent_ns)
-                for name, p in self._paths.items()
+                name: OverridePathEstimate(r.path.latency_s(), r.path.controller_cycle_s(), r.path.acked_sent_mono_ns)
+                for name, r in self._robots.items()
             }
-        return InputSnapshot(joint, humans, invalid, paths)
+            return InputSnapshot(
+                {name: r.sample for name, r in self._robots.items()},
+                dict(self._frames),
+                faults,
+                paths,
+                self._clock_fault.active_fault(now.mono_ns, self._hold_ns),
+            )
 
     def counters(self) -> tuple[dict[str, dict[str, int]], dict[str, int]]:
         """Rejections per topic and reason, and valid messages per topic."""
         with self._lock:
             rejected: dict[str, dict[str, int]] = {}
-            for (topic_name, reason), count in self._rejected.items():
-                rejected.setdefault(topic_name, {})[reason] = count
+            for (topic, reason), count in self._rejected.items():
+                rejected.setdefault(topic, {})[reason] = count
             return rejected, dict(self._received)
 
+    # -- internals (the lock is held where noted) -----------------------------------------------
 
-def _is_old(previous: JointSample | HumanFrame | None, seq: int, stamp_ns: int) -> bool:
-    """Older than, or a repeat of, the newest accepted sample. A producer restart (seq back to 0 with a
-    newer stamp) is accepted."""
-    if previous is None:
-        return False
-    return stamp_ns < previous.stamp_ns or (seq <= previous.seq and stamp_ns <= previous.stamp_ns)
+    def _count(self, topic: str, reason: str) -> None:
+        with self._lock:
+            self._rejected[(topic, reason)] += 1
+
+    def _reject(self, topic: str, reason: str, detail: str, received: Clocks) -> None:
+        with self._lock:
+            self._rejected[(topic, reason)] += 1
+            stream = self._streams.get(topic)
+            if stream is not None:
+                stream.raise_fault(reason, detail[:200], received.mono_ns)
+
+    def _in_order(self, topic: str, seq: int, stamp_ns: int, received: Clocks) -> bool:
+        """(lock held) Whether to store this valid message; counts it, or its rejection and fault."""
+        stream = self._streams[topic]
+        problem = stream.order(seq, stamp_ns, received, self._max_future_ns)
+        if problem == "duplicate":
+            self._rejected[(topic, problem)] += 1
+            return False
+        if problem is not None:
+            self._rejected[(topic, problem)] += 1
+            newest = f"seq {seq} stamp_ns {stamp_ns} after seq {stream.seq} stamp_ns {stream.stamp_ns}"
+            stream.raise_fault(problem, newest, received.mono_ns)
+            if problem != "seq_backwards":  # a newer stamp with an older seq (a restart) is kept, still a fault
+                return False
+            stream.accept(seq, stamp_ns)
+            stream.valid_since_fault = False
+        else:
+            stream.accept(seq, stamp_ns)
+        self._received[topic] += 1
+        return True
+
+    def _check_override_followed(
+        self, topic: str, entry: _Robot, previous: JointSample | None, sample: JointSample, received: Clocks
+    ) -> None:
+        """(lock held) Fault a controller whose applied override stays above every recent command without
+        braking toward it at the rate the gateway plans with (from 1 to 0 within the smallest braking time)."""
+        if previous is None:
+            return
+        commanded = entry.commanded.max() or 0.0
+        braked = previous.override - (sample.stamp_ns - previous.stamp_ns) / NS_PER_S / entry.t_brake_min_s
+        if sample.override <= max(commanded, braked) + self._override_tolerance:
+            entry.above_commanded = 0
+            return
+        entry.above_commanded += 1
+        if entry.above_commanded >= 2:
+            self._rejected[(topic, "override_above_commanded")] += 1
+            detail = f"applied {sample.override:.3f}, commanded at most {commanded:.3f} within the path window"
+            self._streams[topic].raise_fault("override_above_commanded", detail, received.mono_ns)
+
+    def _watch_clock(self, now: Clocks) -> None:
+        """(lock held) Raise a clock-step fault when the wall clock moved against the monotonic one."""
+        offset_ns = now.wall_ns - now.mono_ns
+        if self._clock_offset_ns is not None:
+            step_ns = offset_ns - self._clock_offset_ns
+            if abs(step_ns) > self._max_clock_step_ns:
+                detail = f"this host's wall clock stepped by {step_ns / NS_PER_S:+.3f} s"
+                self._clock_fault.raise_fault("clock_step", detail, now.mono_ns, code="clock_step")
+                self._clock_fault.valid_since_fault = True  # clears by time alone
+        self._clock_offset_ns = offset_ns
+
+
+def _joint_state_problem(
+    msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float]
+) -> tuple[str | None, str]:
+    """Why a parsed joint state cannot be this robot's, or (None, "")."""
+    if msg.robot != robot:
+        return "name_mismatch", f"robot {msg.robot!r} on the key of {robot!r}"
+    if len(msg.q) != entry.n_joints:
+        return "wrong_joint_count", f"{len(msg.q)} joints, the robot has {entry.n_joints}"
+    q = np.asarray(msg.q)
+    if not ((q >= entry.q_min_rad) & (q <= entry.q_max_rad)).all():
+        return "q_out_of_limits", "a joint position beyond its URDF limit"
+    qd = np.abs(np.asarray(msg.qd))
+    qd_nominal = np.abs(np.asarray(msg.qd_nominal))
+    if (qd > entry.qd_max_radps).any() or (qd_nominal > entry.qd_max_radps).any():
+        return "qd_above_limit", "a joint velocity above its URDF limit"
+    absolute, ratio = qd_tolerance
+    if (qd > msg.override * qd_nominal + absolute + ratio * qd_nominal).any():
+        return "qd_inconsistent", f"qd beyond override {msg.override:.3f} × qd_nominal"
+    return None, ""
 
 
 def _nothing() -> None:

@@ -43,6 +43,10 @@ deceleration). δ = 0 is feasible, and the objective is monotone, so
 
     δ* = clip(min(1, min_k δ_max,k, min_j q̇_max,j / |q̇_nom,j|, δ_prev + T min_j q̈_max,j / |q̇_nom,j|), 0, 1).
 
+Fail closed: a nan or inf in the rows' data (separation, speeds toward the human, human speed), a nan bound, or
+a joint input that is not finite (q̇_nom, δ_prev, T) gives δ* = 0 — ``min(1.0, nan)`` is 1.0 in Python. The only
+infinity that bounds nothing is the one this module makes for a point that does not approach.
+
 ``δ_prev`` is the δ commanded in the previous cycle and ``T`` the gateway period: in the paper the
 previous velocity is the last commanded one (the robot integrates the QP's output); here the applied
 velocity follows the commanded δ through the controller's own ramp. The program's own acceleration
@@ -51,6 +55,7 @@ along its path is not constrained (it was planned within the robot's limits at 1
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -237,9 +242,13 @@ def joint_limit_bound(
     """The joint velocity and acceleration rows of QP (12) reduced to one upper bound on δ.
 
     ``min_j q̇_max,j / |q̇_nom,j|`` and ``δ_prev + T q̈_max / |q̇_nom,j|`` over the joints that move;
-    +inf when no joint moves. Velocity limits that are not positive and finite (a URDF without them)
-    bound nothing.
+    +inf when no joint moves. Velocity limits that are zero or +inf (a URDF without them) bound nothing.
+    0 (fail closed) when q̇_nom, δ_prev, T or q̈_max is not finite or a velocity limit is nan: a nan joint
+    would otherwise count as "not moving".
     """
+    scalars = previous_delta + period_s + acceleration_limit_radps2
+    if not (math.isfinite(scalars) and np.isfinite(qd_nominal_radps).all()) or np.isnan(velocity_limit_radps).any():
+        return 0.0
     speed = np.abs(qd_nominal_radps)
     moving = speed > _EPS
     if not moving.any():
@@ -252,7 +261,21 @@ def joint_limit_bound(
     return min(velocity_bound, acceleration_bound)
 
 
+def rows_are_numbers(rows: Iso15066Rows) -> bool:
+    """True if the rows were built from finite data and no bound is nan (+inf bounds of points that do not
+    approach are numbers)."""
+    return bool(
+        np.isfinite(rows.separation_m).all()
+        and np.isfinite(rows.v_toward_mps).all()
+        and np.isfinite(rows.v_h_mps).all()
+        and not np.isnan(rows.bound).any()
+    )
+
+
 def override(rows: Iso15066Rows, joint_bound: float) -> float:
-    """δ* of QP (12): clip(min(1, every ISO row's bound, the joint limits' bound), 0, 1)."""
-    iso = float(rows.bound.min()) if rows.bound.size else float("inf")
-    return float(np.clip(min(1.0, iso, joint_bound), 0.0, 1.0))
+    """δ* of QP (12): clip(min(1, every ISO row's bound, the joint limits' bound), 0, 1); 0 when a row is not
+    built from numbers (:func:`rows_are_numbers`) or the joint bound is nan (fail closed)."""
+    if math.isnan(joint_bound) or not rows_are_numbers(rows):
+        return 0.0
+    iso = float(rows.bound.min()) if rows.bound.size else math.inf
+    return max(min(1.0, iso, joint_bound), 0.0)

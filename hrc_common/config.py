@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -25,7 +27,21 @@ DEFAULT_CELL_PATH = REPO_ROOT / "configs" / "cell.toml"
 ISO13855_WALKING_SPEED_MPS = 1.6
 """K of ISO 13855 for separations above 0.5 m (Zanchettin et al. 2016, eq. (11))."""
 
+MAX_GUARD_TIME_S = 1.0
+"""Longest time limit that guards safety: data age, controller watchdog, reaction-time floor [s]. A person walks
+1.6 m in 1 s; a chain slower than that is no speed-and-separation monitoring, and a larger value is a unit slip
+(milliseconds typed as seconds)."""
+MIN_BRAKING_TIME_S = 0.02
+"""Shortest braking time (full speed to standstill) of a joint or a controller [s]: five 4 ms controller cycles. No
+industrial drive stops faster; a smaller value shrinks the clearance K t_b and the braking horizon to nothing."""
+MAX_BRAKING_TIME_S = 5.0
+"""Longest braking time [s]: beyond the stop of any industrial arm (a UR5 shoulder: 0.53 s); a unit slip."""
+
+UNSAFE_ENV_VAR = "HRC_ALLOW_UNSAFE"
+"""Environment variable that must name a test-only setting (comma-separated) for a configuration with it to load."""
+
 Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
+BrakingTime = Annotated[float, Field(ge=MIN_BRAKING_TIME_S, le=MAX_BRAKING_TIME_S, allow_inf_nan=False)]
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -37,6 +53,17 @@ class ConfigError(HrcError):
 
 class _Frozen(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def unsafe_allowed(setting: str, environ: Mapping[str, str] | None = None) -> bool:
+    """True if the environment variable :data:`UNSAFE_ENV_VAR` names ``setting`` (a comma-separated list).
+
+    Args:
+        setting: the name of a test-only setting, e.g. ``unsafe_ignore_delay_for_tests``.
+        environ: the environment to read; None = this process's (``os.environ``).
+    """
+    value = (os.environ if environ is None else environ).get(UNSAFE_ENV_VAR, "")
+    return setting in {name.strip() for name in value.split(",")}
 
 
 def example_robot_data_dir() -> Path:
@@ -52,7 +79,11 @@ SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
 
 
 class SafetyConfig(_Frozen):
-    """Parameters of the separation criterion (safety-math.md §3–§5) and of the selectable methods (§7–§8)."""
+    """Parameters of the separation criterion (safety-math.md §3–§5) and of the selectable methods (§7–§8).
+
+    Time limits that guard safety have an upper bound (a larger value is less safe, or a unit slip). Values for
+    which larger is only more cautious (human speeds, clearances, uncertainties, zone distances) have none.
+    """
 
     method: SafetyMethod = Field(
         "zanchettin2016",
@@ -66,11 +97,22 @@ class SafetyConfig(_Frozen):
         description="Use human_speed_close_mps when the separation is below this [m]; 0 = off (ISO 13855 uses 0.5).",
     )
     clearance_static_m: NonNegativeFloat = 0.05
-    t_reaction_s: NonNegativeFloat = 0.04
-    max_data_age_s: PositiveFloat = 0.2
+    t_reaction_s: Annotated[float, Field(ge=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.04,
+        description="Floor of the reaction time; the measured delays are added to it [s]. At most 1 s: the "
+        "default cell's whole measured chain is about 0.13 s, and a floor of seconds is a unit slip (ms).",
+    )
+    max_data_age_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.2,
+        description="Older human data, joint state or override echo stops the robot [s]. At most 1 s: a person "
+        "walks 1.6 m in that time, so older data no longer describes the cell, and accepting it hides a dead "
+        "sensor or link for that long.",
+    )
     allow_human_speed_below_iso13855: bool = False
     unsafe_ignore_delay_for_tests: bool = Field(
-        False, description="TEST ONLY: t_delay = 0, to show that the delay terms matter. Never in a real cell."
+        False,
+        description="TEST ONLY: t_delay = 0, to show that the delay terms matter. Never in a real cell: refused "
+        f"unless the environment variable {UNSAFE_ENV_VAR} names it ({UNSAFE_ENV_VAR}=unsafe_ignore_delay_for_tests).",
     )
     # -- method "iso15066" (Pupa et al. 2021; safety-math.md §7) -----------------------------------------
     iso15066_human_uncertainty_m: NonNegativeFloat = Field(
@@ -79,9 +121,10 @@ class SafetyConfig(_Frozen):
     iso15066_robot_uncertainty_m: NonNegativeFloat = Field(
         0.0, description="Z_r of ISO/TS 15066: position uncertainty of the robot [m]."
     )
-    iso15066_joint_acceleration_limit_radps2: PositiveFloat = Field(
+    iso15066_joint_acceleration_limit_radps2: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = Field(
         10.0,
-        description="Joint acceleration limit of QP (12), every joint [rad/s²]; bounds how fast δ may rise.",
+        description="Joint acceleration limit of QP (12), every joint [rad/s²]; bounds how fast δ may rise. At most "
+        "100 rad/s²: beyond any industrial arm's joints; a larger value is a unit slip (deg/s²).",
     )
     # -- method "three_zones" (Marvel 2013; safety-math.md §8) -------------------------------------------
     three_zones_tool_frame: str | None = Field(
@@ -112,6 +155,16 @@ class SafetyConfig(_Frozen):
     def _known_method(cls, value: object) -> object:
         if value not in SAFETY_METHODS:
             raise ValueError(f"unknown method {value!r}; allowed: {', '.join(SAFETY_METHODS)}")
+        return value
+
+    @field_validator("unsafe_ignore_delay_for_tests")
+    @classmethod
+    def _unsafe_only_when_named(cls, value: bool) -> bool:
+        if value and not unsafe_allowed("unsafe_ignore_delay_for_tests"):
+            raise ValueError(
+                "true is refused: a test-only setting (t_delay = 0) that makes the gateway unsafe; allowed: false, "
+                f"or true with the environment variable {UNSAFE_ENV_VAR}=unsafe_ignore_delay_for_tests"
+            )
         return value
 
     @model_validator(mode="after")
@@ -146,8 +199,11 @@ class ZonesConfig(_Frozen):
         description="Monitored distance from the current programmed speed, or from fixed_speed_mps.",
     )
     fixed_speed_mps: PositiveFloat = Field(1.5, description="Largest programmed link speed, for 'fixed' [m/s].")
-    adaptive_speed_hold_s: NonNegativeFloat = Field(
-        2.0, description="'adaptive' uses the largest programmed link speed of this last stretch of time [s]."
+    adaptive_speed_hold_s: Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)] = Field(
+        2.0,
+        description="'adaptive' uses the largest programmed link speed of this last stretch of time [s]. At most "
+        "60 s: the hold bridges the program's slow stretches between fast moves (a few seconds); a longer one "
+        "only keeps a stale peak, and minutes are a unit slip (ms).",
     )
     monitored_distance_min_m: NonNegativeFloat = Field(
         1.0, description="A human closer than this (beyond the clearance) is always 'in the workspace' [m]."
@@ -199,9 +255,20 @@ class ControllerConfig(_Frozen):
     """The emulated controller's own behaviour (a real controller's is fixed by its vendor)."""
 
     cycle_s: Annotated[float, Field(ge=0.0005, le=0.1)] = 0.004
-    braking_time_s: PositiveFloat = Field(0.24, description="Override 1 → 0 takes at most this long [s].")
-    accel_time_s: PositiveFloat = Field(0.5, description="Override 0 → 1 takes at least this long [s].")
-    watchdog_s: PositiveFloat = Field(0.1, description="No valid override for this long → protective stop [s].")
+    braking_time_s: BrakingTime = Field(
+        0.24,
+        description="Override 1 → 0 takes at most this long [s]. 0.02–5 s: a real drive's stop (nanoseconds "
+        "would hide every delay from the tests); it must not exceed the t_b of any link the gateway assumes.",
+    )
+    accel_time_s: Annotated[float, Field(ge=MIN_BRAKING_TIME_S, le=10.0, allow_inf_nan=False)] = Field(
+        0.5,
+        description="Override 0 → 1 takes at least this long [s]. 0.02–10 s: a real drive's ramp; more is a unit slip.",
+    )
+    watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="No valid override for this long → protective stop [s]. At most 1 s: until then a silent "
+        "gateway leaves the robot running at the last override.",
+    )
 
 
 class LinkSegment(_Frozen):
@@ -218,7 +285,10 @@ class RobotModelConfig(_Frozen):
 
     urdf: str
     joints: Annotated[list[str], Field(min_length=1)]
-    braking_time_s: Annotated[list[PositiveFloat], Field(min_length=1)]
+    braking_time_s: Annotated[list[BrakingTime], Field(min_length=1)] = Field(
+        description="Stopping time of each joint from full speed, in the order of joints [s]; 0.02–5 s each: a "
+        "real drive's (the robot's manual, stop category 0 or 1); t_b of eq. (15) and of ISO/TS 15066 S_s."
+    )
     links: Annotated[list[LinkSegment], Field(min_length=1)]
 
     @model_validator(mode="after")
@@ -252,11 +322,92 @@ class TrackerConfig(_Frozen):
     latency_s: NonNegativeFloat = Field(0.0, description="Capture-to-publish latency [s].")
 
 
+Vector3 = tuple[Finite, Finite, Finite]
+
+MAX_WORLD_EXTENT_M = 100.0
+"""Widest a cell's world volume may be along each axis [m]: more is a unit slip (mm)."""
+
+
+class PlausibilityConfig(_Frozen):
+    """What a tracker may report, checked at the door (gateway): where capsules may be and how big they may be."""
+
+    world_min_m: Vector3 = Field(
+        (-7.0, -7.0, -0.2),
+        description="Lower corner of the cell's volume in the world frame; every capsule end point lies inside "
+        "[m]. The default reaches beyond where the shipped scenarios and the sweep's people appear (6.1 m).",
+    )
+    world_max_m: Vector3 = Field((7.0, 7.0, 2.6), description="Upper corner of the cell's volume [m].")
+    max_capsule_length_m: Annotated[float, Field(gt=0.0, le=2.5, allow_inf_nan=False)] = Field(
+        1.0,
+        description="Longest human capsule (a leg, the torso) [m]. At most 2.5 m: no body part is longer than a "
+        "person is tall; a longer 'capsule' is not a person.",
+    )
+    max_capsule_radius_m: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.35, description="Largest human capsule radius [m]. At most 1 m: no body part is thicker than 2 m."
+    )
+
+    @model_validator(mode="after")
+    def _world_is_a_volume(self) -> PlausibilityConfig:
+        for axis, lo, hi in zip("xyz", self.world_min_m, self.world_max_m, strict=True):
+            if not lo < hi:
+                raise ValueError(
+                    f"world_min_m {axis} = {lo} is not below world_max_m {axis} = {hi}; allowed: min < max per axis"
+                )
+            if hi - lo > MAX_WORLD_EXTENT_M:
+                raise ValueError(
+                    f"the world volume is {hi - lo} m wide along {axis}; allowed: at most {MAX_WORLD_EXTENT_M} m"
+                )
+        return self
+
+
+class StreamsConfig(_Frozen):
+    """How the gateway judges the order and timing of each input stream (stamps, sequence numbers, clocks)
+    and whether the reported joint rates and override agree with what was commanded.
+
+    Every tolerance has an upper bound: a looser one lets a wrong stamp, a clock step or a controller that runs
+    faster than commanded pass unnoticed.
+    """
+
+    max_future_stamp_s: Annotated[float, Field(ge=0.0, le=0.05, allow_inf_nan=False)] = Field(
+        0.005,
+        description="A stamp ahead of the receiver's clock by more is rejected [s]. At most 0.05 s: a stamp from "
+        "the future shortens the measured age, so the delay budget would be understated by up to this.",
+    )
+    fault_hold_s: Annotated[float, Field(ge=0.1, le=10.0, allow_inf_nan=False)] = Field(
+        0.5,
+        description="A stream fault (stamps or seqs backwards, clock step) keeps δ = 0 this long after its last "
+        "occurrence [s]. At least 0.1 s: every stream (≥ 10 Hz) delivers a fresh sample before δ may rise again, "
+        "and a fault that recurs every few cycles keeps the robot stopped. At most 10 s: one glitch should not stop "
+        "the cell for longer than a stream needs to show it is sound; more is a unit slip (ms).",
+    )
+    max_clock_step_s: Annotated[float, Field(ge=0.001, le=0.05, allow_inf_nan=False)] = Field(
+        0.02,
+        description="The gateway's wall clock moving against its monotonic clock by more is a clock step (a "
+        "fault) [s]. 0.001–0.05 s: a smaller step goes unnoticed and shifts every measured age by up to this "
+        "much; reading two clocks and NTP slewing (≤ 0.5 ms/s) must not count as a step.",
+    )
+    qd_tolerance_radps: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
+        0.01,
+        description="Reported q̇ may exceed override · q̇_nominal by this plus qd_tolerance_ratio · |q̇_nominal| "
+        "before it is a fault [rad/s]. At most 0.1 rad/s (0.1 m/s at 1 m reach) of unnoticed extra speed.",
+    )
+    qd_tolerance_ratio: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
+        0.02, description="See qd_tolerance_radps [1]. At most 0.1: a joint 10 % faster than commanded is a fault."
+    )
+    override_tolerance: Annotated[float, Field(ge=0.0, le=0.02, allow_inf_nan=False)] = Field(
+        0.001,
+        description="An applied override above the commanded one (beyond the braking ramp) by more is a fault [1]. "
+        "At most 0.02: two steps of a controller that rounds its override to whole percent.",
+    )
+
+
 class CellConfig(_Frozen):
     cell: Name
     safety: SafetyConfig = SafetyConfig()
     zones: ZonesConfig = ZonesConfig()
     gateway: GatewayConfig = GatewayConfig()
+    plausibility: PlausibilityConfig = PlausibilityConfig()
+    streams: StreamsConfig = StreamsConfig()
     robots: dict[Name, RobotConfig]
     trackers: dict[Name, TrackerConfig]
     default_scenario: str = "walk_in_reach_leave"
@@ -303,12 +454,19 @@ def resolve_urdf(urdf: str, config_dir: Path) -> Path:
     )
 
 
+_RANGE_ERRORS = frozenset({"greater_than", "greater_than_equal", "less_than", "less_than_equal", "finite_number"})
+"""Pydantic error types whose message says what is allowed but not what was given."""
+
+
 def one_line(exc: ValidationError, source: Path | str) -> str:
-    """A pydantic validation error as one line: ``source: field: message; ...`` (at most three errors)."""
+    """A pydantic validation error as one line: ``source: field: message; ...`` (at most three errors); a value
+    out of range is quoted: ``field: Input should be less than or equal to 1 (given 3600.0)``."""
     parts = []
     for err in exc.errors()[:3]:
         where = ".".join(str(p) for p in err["loc"])
         msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] in _RANGE_ERRORS:
+            msg += f" (given {err['input']!r})"
         parts.append(f"{where}: {msg}" if where else msg)
     more = f" (and {exc.error_count() - 3} more)" if exc.error_count() > 3 else ""
     return f"{source}: " + "; ".join(parts) + more

@@ -7,7 +7,7 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     ├── MessageError     (hrc_common.messages)    a payload that is not a valid message: count it, fail closed
     ├── RuleError        (faultinject.rules)      a fault-injection rule that does not parse
     ├── RelayError       (faultinject.relay)      the fault relay cannot run
-    └── BenchError       (bench._procs)           a benchmark could not run
+    └── BenchError       (bench.procs)            a benchmark could not run
 
 Every message says what was given and what is allowed.
 """

@@ -3,17 +3,26 @@
 One shape of the human data for the gateway, the auditor, the simulated cell and the tests:
 :class:`HumanCapsules` (end points, radii, and who each capsule belongs to), in the cell's world frame.
 
-    Humans message ──capsules_from_message──▶ HumanCapsules ──merge_humans──▶ HumanCapsules (all trackers)
+    Humans message ──capsules_from_message──▶ HumanCapsules ──implausible_reason──▶ (accepted)
+                   ──merge_humans──▶ HumanCapsules of all trackers ──gateway.kernels.capsule_columns──▶ rows
+
+Plausibility at the door: a capsule whose end points leave the cell's volume, longer or thicker than any human
+body part, is refused (:func:`implausible_reason`). Besides catching a broken or hostile tracker, it keeps every
+accepted coordinate within a few metres, where the segment distances are exact to ~1e-12 m (absurd magnitudes,
+e.g. a capsule kilometres long passing a hand's width from the tool, lose all precision in floating point).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
 from hrc_common.messages import Humans
+
+if TYPE_CHECKING:
+    from hrc_common.config import PlausibilityConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -82,3 +91,25 @@ def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
         human_ids,
         capsule_names,
     )
+
+
+def implausible_reason(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> str | None:
+    """Why a tracker's capsules cannot be real, or None if they can.
+
+    Returns:
+        ``outside_world`` (an end point outside ``world_min_m``..``world_max_m``), ``capsule_too_long``
+        (``‖b − a‖`` above ``max_capsule_length_m``) or ``radius_too_large`` (above ``max_capsule_radius_m``).
+    """
+    if capsules.n_capsules == 0:
+        return None
+    low = np.asarray(plausibility.world_min_m)
+    high = np.asarray(plausibility.world_max_m)
+    for ends in (capsules.h_a_world, capsules.h_b_world):
+        if not ((ends >= low) & (ends <= high)).all():
+            return "outside_world"
+    axis = capsules.h_b_world - capsules.h_a_world
+    if float(np.einsum("ij,ij->i", axis, axis).max()) > plausibility.max_capsule_length_m**2:
+        return "capsule_too_long"
+    if float(capsules.radius_m.max()) > plausibility.max_capsule_radius_m:
+        return "radius_too_large"
+    return None

@@ -1,4 +1,4 @@
-"""Zenoh key expressions of the contract (`shared/docs/contract.md`)."""
+"""Zenoh key expressions of the contract (`docs/contract.md`, "Zenoh key expressions")."""
 
 from __future__ import annotations
 

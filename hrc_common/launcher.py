@@ -1,7 +1,10 @@
 """``hrc-cell``: run a whole cell (gateway, one controller emulator per robot, tracker emulator) on this machine.
 
-Each program is its own process, as in production; they meet over Zenoh on loopback. Ctrl-C (or
-SIGTERM) stops all of them cleanly; if one of them exits on its own, the others are stopped too.
+Each program is its own process, as in production; they meet over Zenoh on loopback, with mutual TLS and the
+cell's access control: on first start the cell CA and the programs' certificates are created in the state
+folder (``$HRC_STATE_DIR/pki``, else ``.state/pki``; see README, Security). ``--insecure-plain-tcp`` runs them
+over plain TCP instead (development only, loudly). Ctrl-C (or SIGTERM) stops all of them cleanly; if one of
+them exits on its own, the others are stopped too.
 """
 
 from __future__ import annotations
@@ -11,8 +14,12 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
-from hrc_common.config import ConfigError, load_cell_config
+from hrc_common.access_control import CellPolicy
+from hrc_common.cert_cli import provision_cell
+from hrc_common.config import CellConfig, ConfigError, load_cell_config
+from hrc_common.pki import CellPki, default_pki_dir
 from hrc_common.service import stop_on_signals
 
 
@@ -20,22 +27,26 @@ def _module_command(module: str, *args: str) -> list[str]:
     return [sys.executable, "-m", module, *args]
 
 
-def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="hrc-cell", description="Run gateway + controller and tracker emulators")
-    parser.add_argument("--config", default=None, metavar="PATH", help="cell configuration (default configs/cell.toml)")
-    parser.add_argument("--scenario", default=None, help="tracker scenario (default: the cell's default_scenario)")
-    parser.add_argument("--http-port", type=int, default=None, help="REST port (default: gateway.http_port)")
-    parser.add_argument("--zenoh-port", type=int, default=7447, help="loopback port of the gateway's Zenoh listener")
-    args = parser.parse_args(argv)
-    try:
-        config = load_cell_config(args.config)
-    except ConfigError as exc:
-        print(f"hrc-cell: invalid configuration: {exc}", file=sys.stderr)
-        sys.exit(2)
-    endpoint = f"tcp/127.0.0.1:{args.zenoh_port}"
-    common = ["--config", args.config] if args.config else []
-    http_port = args.http_port if args.http_port is not None else config.gateway.http_port
-    commands = {
+def program_commands(
+    config: CellConfig,
+    config_path: str | None,
+    scenario: str | None,
+    http_port: int,
+    endpoint: str,
+    security_args: list[str],
+) -> dict[str, list[str]]:
+    """The command line of each program of the cell, by name (gateway, controller-<robot>, tracker).
+
+    Args:
+        config: the cell.
+        config_path: its file, passed on (None: the programs' default).
+        scenario: the tracker's scenario (None: the cell's default).
+        http_port: the gateway's REST port.
+        endpoint: the gateway's Zenoh endpoint; the emulators connect to it.
+        security_args: given to every program (``--pki-dir DIR`` or ``--insecure-plain-tcp``).
+    """
+    common = [*(["--config", config_path] if config_path else []), *security_args]
+    return {
         "gateway": _module_command("gateway.main", *common, "--zenoh-listen", endpoint, "--http-port", str(http_port)),
         **{
             f"controller-{robot}": _module_command(
@@ -44,17 +55,65 @@ def cli(argv: list[str] | None = None) -> None:
             for robot in config.robots
         },
         "tracker": _module_command(
-            "tracker_emu.main",
-            *common,
-            *(["--scenario", args.scenario] if args.scenario else []),
-            "--zenoh-connect",
-            endpoint,
+            "tracker_emu.main", *common, *(["--scenario", scenario] if scenario else []), "--zenoh-connect", endpoint
         ),
     }
+
+
+def _security(config: CellConfig, pki_dir: Path, zenoh_port: int, insecure: bool) -> tuple[str, list[str]]:
+    """The gateway's endpoint and the programs' security options; sets up the PKI on first start.
+
+    Raises:
+        ConfigError: (PkiError) the PKI folder cannot provide the programs' identities.
+    """
+    if insecure:
+        print(
+            "hrc-cell: WARNING: --insecure-plain-tcp: plain TCP on loopback, no authentication, no encryption, no "
+            "access control: any process on this machine can command the robot. Development only.",
+            file=sys.stderr,
+            flush=True,
+        )
+        return f"tcp/127.0.0.1:{zenoh_port}", ["--insecure-plain-tcp"]
+    pki = CellPki(pki_dir)
+    created = pki.ensure_ca()
+    issued = provision_cell(pki, CellPolicy.from_config(config))
+    if created or issued:
+        print(
+            f"hrc-cell: {'created the cell CA and ' if created else ''}issued certificates for {', '.join(issued)} in "
+            f"{pki_dir} (see README, Security)",
+            flush=True,
+        )
+    return f"tls/127.0.0.1:{zenoh_port}", ["--pki-dir", str(pki_dir)]
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="hrc-cell", description="Run gateway + controller and tracker emulators")
+    parser.add_argument("--config", default=None, metavar="PATH", help="cell configuration (default configs/cell.toml)")
+    parser.add_argument("--scenario", default=None, help="tracker scenario (default: the cell's default_scenario)")
+    parser.add_argument("--http-port", type=int, default=None, help="REST port (default: gateway.http_port)")
+    parser.add_argument("--zenoh-port", type=int, default=7447, help="loopback port of the gateway's Zenoh listener")
+    parser.add_argument(
+        "--pki-dir", default=None, metavar="DIR", help="the cell's CA and certificates (default $HRC_STATE_DIR/pki)"
+    )
+    parser.add_argument(
+        "--insecure-plain-tcp",
+        action="store_true",
+        help="DEVELOPMENT ONLY: plain TCP on loopback, without authentication, encryption or access control",
+    )
+    args = parser.parse_args(argv)
+    try:
+        config = load_cell_config(args.config)
+        pki_dir = Path(args.pki_dir) if args.pki_dir else default_pki_dir()
+        endpoint, security_args = _security(config, pki_dir, args.zenoh_port, args.insecure_plain_tcp)
+    except ConfigError as exc:
+        print(f"hrc-cell: invalid configuration: {' '.join(str(exc).split())}", file=sys.stderr)
+        sys.exit(2)
+    http_port = args.http_port if args.http_port is not None else config.gateway.http_port
+    commands = program_commands(config, args.config, args.scenario, http_port, endpoint, security_args)
     with stop_on_signals() as stop:
         procs = {name: subprocess.Popen(cmd, start_new_session=True) for name, cmd in commands.items()}
         url = f"http://{config.gateway.http_host}:{http_port}/api/v1/status"
-        print(f"hrc-cell: cell {config.cell!r} running ({', '.join(procs)}); status: {url}", flush=True)
+        print(f"hrc-cell: cell {config.cell!r} running ({', '.join(procs)}) on {endpoint}; status: {url}", flush=True)
         print("hrc-cell: Ctrl-C stops everything", flush=True)
         failed = None
         while not stop.wait(0.2):

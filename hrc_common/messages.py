@@ -73,8 +73,10 @@ class Capsule(_Message):
 
 
 class Human(_Message):
+    """One detected person: at least one capsule (a person with none would read as nobody)."""
+
     id: Annotated[str, Field(min_length=1, max_length=64)]
-    capsules: Annotated[list[Capsule], Field(max_length=MAX_CAPSULES_PER_MESSAGE)]
+    capsules: Annotated[list[Capsule], Field(min_length=1, max_length=MAX_CAPSULES_PER_MESSAGE)]
 
 
 class Humans(_Message):

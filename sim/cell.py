@@ -1,11 +1,10 @@
 """The whole cell on a simulated clock, in one process, with the real pure parts of each program.
 
-- controllers: :func:`controller_emu.controller.accept_override` / :func:`~controller_emu.controller.step` /
-  :func:`~controller_emu.controller.joint_state` over the robot's program, every ``controller.cycle_s``;
+- controllers: :class:`controller_emu.node.ControllerNode`, the process's own step object, given each override
+  at its arrival time and cycled every ``controller.cycle_s`` (simulated time is its monotonic clock);
 - trackers: :class:`tracker_emu.emulator.TrackerEmulator` playing the scenario (rate, noise, drops, latency);
-- gateway: :class:`gateway.inputs.InputStore` + :class:`gateway.core.SafetyCore` stepped at
-  ``gateway.rate_hz`` exactly as ``gateway/main.py`` does (overrides stamped and sent, then
-  ``on_override_sent``);
+- gateway: :class:`gateway.node.GatewayNode`, the process's own step object, given every message at its arrival
+  time and cycled at ``gateway.rate_hz`` (simulated time on both of its clocks);
 - the three paths (tracker → gateway, controller → gateway, gateway → controller) are :class:`sim.links.SimLink`
   carrying the contract's payload bytes, so that every message is serialised and validated;
 - the auditor checks every controller cycle the TRUE controller state (no link) against the TRUE humans
@@ -29,13 +28,15 @@ from typing import Any
 import numpy as np
 
 from audit.checks import MOVING_EPS_MPS, AuditAccumulator, AuditSummary, audit_cycle, merge_summaries
-from controller_emu.controller import ControllerState, accept_override, check_braking_time, joint_state, step
+from controller_emu.controller import ControllerState, check_braking_time
+from controller_emu.node import ControllerNode
 from controller_emu.program import Trajectory, load_trajectory
-from gateway.core import RobotDecision, SafetyCore
-from gateway.inputs import InputStore
+from gateway.core import RobotDecision
+from gateway.node import GatewayNode
 from hrc_common import keys
+from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
-from hrc_common.messages import MessageError, Override, parse_message, to_payload
+from hrc_common.messages import to_payload
 from hrc_common.robot_model import RobotModel
 from sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
 from sim.truth import true_humans
@@ -115,18 +116,194 @@ def _rng(seed: int, *names: str) -> np.random.Generator:
 class _Controller:
     name: str
     robot: RobotModel
-    trajectory: Trajectory
+    node: ControllerNode
     cycle_ns: int
-    state: ControllerState
     tau0_s: float
     data: Any
     state_link: SimLink[Payload]
     override_link: SimLink[Payload]
     accumulator: AuditAccumulator
     next_ns: int = 0
-    seq: int = 0
     zone: str | None = None
-    parse_rejected: Counter[str] = field(default_factory=Counter)
+
+    @property
+    def state(self) -> ControllerState:
+        return self.node.state
+
+    @property
+    def trajectory(self) -> Trajectory:
+        return self.node.trajectory
+
+
+def _build_controller(
+    config: CellConfig,
+    name: str,
+    robot: RobotModel,
+    links: LinkFaults,
+    seed: int,
+    program_start_s: Mapping[str, float] | None,
+) -> _Controller:
+    """A robot's controller node (program started at ``program_start_s`` or a seeded phase) and its two links.
+
+    Raises:
+        ConfigError: the controller's braking time exceeds the gateway's, or the program is invalid.
+    """
+    robot_config = config.robots[name]
+    check_braking_time(robot_config.controller, robot)
+    trajectory = load_trajectory(robot_config.program, robot)
+    if program_start_s is not None and name in program_start_s:
+        tau0_s = program_start_s[name] % trajectory.duration_s
+    else:
+        tau0_s = float(_rng(seed, "program-phase", name).uniform(0.0, trajectory.duration_s))
+    return _Controller(
+        name=name,
+        robot=robot,
+        node=ControllerNode(name, trajectory, robot_config.controller, tau0_s),
+        cycle_ns=round(robot_config.controller.cycle_s * NS_PER_S),
+        tau0_s=tau0_s,
+        data=robot.model.createData(),
+        state_link=SimLink(links.controller_to_gateway, _rng(seed, "link-state", name)),
+        override_link=SimLink(links.gateway_to_controller, _rng(seed, "link-override", name)),
+        accumulator=AuditAccumulator(),
+    )
+
+
+@dataclass
+class _GatewayTally:
+    """What the run counts of the gateway's decisions."""
+
+    t_delays: list[float] = field(default_factory=list)
+    decisions: int = 0
+    fault_decisions: int = 0
+    faults: Counter[str] = field(default_factory=Counter)
+
+    def count(self, decision: RobotDecision) -> None:
+        self.decisions += 1
+        if decision.faults:
+            self.fault_decisions += 1
+            self.faults.update({f.code for f in decision.faults})
+        else:
+            self.t_delays.append(decision.delay.total_s)
+
+
+class _SimCell:
+    """The cell's programs and links on one simulated clock; :meth:`run` advances it event by event."""
+
+    def __init__(
+        self,
+        config: CellConfig,
+        robots: Mapping[str, RobotModel],
+        scenario: Scenario,
+        links: LinkFaults,
+        seed: int,
+        program_start_s: Mapping[str, float] | None,
+        moving_eps_mps: float,
+    ) -> None:
+        self.config = config
+        self.scenario = scenario
+        self.moving_eps_mps = moving_eps_mps
+        self.gateway = GatewayNode(config, robots)
+        self.gateway_period_ns = round(NS_PER_S / config.gateway.rate_hz)
+        self.gateway_next_ns = int(_rng(seed, "gateway-phase").integers(0, self.gateway_period_ns))
+        self.controllers = {
+            name: _build_controller(config, name, robot, links, seed, program_start_s) for name, robot in robots.items()
+        }
+        self.tracker_links: dict[str, SimLink[Payload]] = {
+            name: SimLink(links.tracker_to_gateway, _rng(seed, "link-tracker", name)) for name in config.trackers
+        }
+        self.emulator = TrackerEmulator(scenario, config.trackers, seed, start_s=0.0)
+        self.tracker_next_ns = _ceil_ns(self.emulator.next_event_s())
+        self.truth = (-1, true_humans(scenario, 0.0))
+        self.tally = _GatewayTally()
+
+    def run(self, end_ns: int) -> None:
+        """Advance to ``end_ns``: at each event time, trackers, then controllers (audited), then the gateway."""
+        while True:
+            controller_next_ns = min(c.next_ns for c in self.controllers.values())
+            now_ns = min(controller_next_ns, self.gateway_next_ns, self.tracker_next_ns)
+            if now_ns >= end_ns:
+                return
+            if self.tracker_next_ns == now_ns:
+                self._tracker_frames(now_ns)
+            for ctrl in self.controllers.values():
+                if ctrl.next_ns == now_ns:
+                    _controller_cycle(ctrl, self.config, now_ns)
+                    self._audit(ctrl, now_ns)
+                    ctrl.next_ns += ctrl.cycle_ns
+            if self.gateway_next_ns == now_ns:
+                self._gateway_cycle(now_ns)
+                self.gateway_next_ns += self.gateway_period_ns
+
+    def _tracker_frames(self, now_ns: int) -> None:
+        for tracker, message in self.emulator.step(now_ns / NS_PER_S, EPOCH_NS + now_ns):
+            key = keys.tracker_humans(self.config.cell, tracker)
+            self.tracker_links[tracker].send((key, to_payload(message)), now_ns)
+        self.tracker_next_ns = max(now_ns + 1, _ceil_ns(self.emulator.next_event_s()))
+
+    def _audit(self, ctrl: _Controller, now_ns: int) -> None:
+        """The auditor on this controller cycle: the TRUE state against the TRUE humans."""
+        if self.truth[0] != now_ns:
+            self.truth = (now_ns, true_humans(self.scenario, now_ns / NS_PER_S))
+        truth = self.truth[1]
+        q_rad, qd_nominal_radps = ctrl.trajectory.sample(ctrl.state.tau_s)
+        delta_applied = ctrl.state.delta_applied
+        audit = audit_cycle(
+            ctrl.robot,
+            ctrl.data,
+            q_rad,
+            delta_applied * qd_nominal_radps,
+            delta_applied,
+            self.config.robots[ctrl.name].controller.braking_time_s,
+            truth,
+            self.config.safety.human_speed_mps,
+            self.moving_eps_mps,
+        )
+        worst = audit.worst_capsule
+        ctrl.accumulator.add(
+            audit,
+            t_s=now_ns / NS_PER_S,
+            dt_s=ctrl.cycle_ns / NS_PER_S,
+            delta_applied=delta_applied,
+            zone=ctrl.zone,
+            program_cycles_completed=ctrl.state.cycles_completed,
+            capsule_label=None if worst is None else f"{truth.human_ids[worst]}/{truth.capsule_names[worst]}",
+        )
+
+    def _gateway_cycle(self, now_ns: int) -> None:
+        """The gateway node's cycle, exactly the process's: what arrived, then ``cycle``, then the overrides out."""
+        _deliver_to_gateway(self.gateway, self.controllers.values(), self.tracker_links.values(), now_ns)
+        cycle = self.gateway.cycle(_clocks(now_ns), self.gateway_period_ns / NS_PER_S)
+        for name, decision in cycle.decisions.items():
+            self.tally.count(decision)
+            ctrl = self.controllers[name]
+            ctrl.zone = decision.zone.value
+            key = keys.robot_override(self.config.cell, name)
+            ctrl.override_link.send((key, to_payload(cycle.overrides[name])), now_ns)
+
+    def result(self, end_ns: int, wall_s: float) -> RunResult:
+        per_robot = {name: c.accumulator.summary() for name, c in self.controllers.items()}
+        controller_rejected: Counter[str] = Counter()
+        for c in self.controllers.values():
+            controller_rejected.update(c.node.stats().rejected)
+        t_delays = self.tally.t_delays
+        return RunResult(
+            audit=merge_summaries(list(per_robot.values())),
+            per_robot=MappingProxyType(per_robot),
+            t_delay_mean_s=float(np.mean(t_delays)) if t_delays else None,
+            t_delay_min_s=min(t_delays) if t_delays else None,
+            t_delay_max_s=max(t_delays) if t_delays else None,
+            program_progress_cycles=sum(
+                c.state.cycles_completed + (c.state.tau_s - c.tau0_s) / c.trajectory.duration_s
+                for c in self.controllers.values()
+            ),
+            decisions=self.tally.decisions,
+            fault_decisions=self.tally.fault_decisions,
+            faults=MappingProxyType(dict(self.tally.faults)),
+            rejected=MappingProxyType(self.gateway.inputs.counters()[0]),
+            controller_rejected=MappingProxyType(dict(controller_rejected)),
+            duration_s=end_ns / NS_PER_S,
+            wall_s=wall_s,
+        )
 
 
 def simulate(
@@ -157,129 +334,10 @@ def simulate(
         The auditor's summary and the gateway's figures. The same arguments give the same result.
     """
     started_wall_s = time.perf_counter()
-    cell = config.cell
     end_ns = round(duration_s * NS_PER_S)
-    store = InputStore({name: r.n_joints for name, r in robots.items()}, sorted(config.trackers))
-    core = SafetyCore(config, dict(robots))
-    gateway_period_s = 1.0 / config.gateway.rate_hz
-    gateway_period_ns = round(gateway_period_s * NS_PER_S)
-    gateway_next_ns = int(_rng(seed, "gateway-phase").integers(0, gateway_period_ns))
-    gateway_seq = 0
-
-    controllers: dict[str, _Controller] = {}
-    for name, robot in robots.items():
-        robot_config = config.robots[name]
-        check_braking_time(robot_config.controller, robot)
-        trajectory = load_trajectory(robot_config.program, robot)
-        if program_start_s is not None and name in program_start_s:
-            tau0_s = program_start_s[name] % trajectory.duration_s
-        else:
-            tau0_s = float(_rng(seed, "program-phase", name).uniform(0.0, trajectory.duration_s))
-        controllers[name] = _Controller(
-            name=name,
-            robot=robot,
-            trajectory=trajectory,
-            cycle_ns=round(robot_config.controller.cycle_s * NS_PER_S),
-            state=ControllerState(tau_s=tau0_s),
-            tau0_s=tau0_s,
-            data=robot.model.createData(),
-            state_link=SimLink(links.controller_to_gateway, _rng(seed, "link-state", name)),
-            override_link=SimLink(links.gateway_to_controller, _rng(seed, "link-override", name)),
-            accumulator=AuditAccumulator(),
-        )
-    tracker_links: dict[str, SimLink[Payload]] = {
-        name: SimLink(links.tracker_to_gateway, _rng(seed, "link-tracker", name)) for name in config.trackers
-    }
-    emulator = TrackerEmulator(scenario, config.trackers, seed, start_s=0.0)
-    tracker_next_ns = _ceil_ns(emulator.next_event_s())
-
-    truth_t_ns = -1
-    truth = true_humans(scenario, 0.0)
-    t_delays: list[float] = []
-    decisions = 0
-    fault_decisions = 0
-    faults: Counter[str] = Counter()
-    human_speed_mps = config.safety.human_speed_mps
-
-    while True:
-        controller_next_ns = min(c.next_ns for c in controllers.values())
-        now_ns = min(controller_next_ns, gateway_next_ns, tracker_next_ns)
-        if now_ns >= end_ns:
-            break
-        if tracker_next_ns == now_ns:
-            for tracker, message in emulator.step(now_ns / NS_PER_S, EPOCH_NS + now_ns):
-                tracker_links[tracker].send((keys.tracker_humans(cell, tracker), to_payload(message)), now_ns)
-            tracker_next_ns = max(now_ns + 1, _ceil_ns(emulator.next_event_s()))
-        for ctrl in controllers.values():
-            if ctrl.next_ns != now_ns:
-                continue
-            _controller_cycle(ctrl, config, now_ns)
-            if truth_t_ns != now_ns:
-                truth_t_ns = now_ns
-                truth = true_humans(scenario, now_ns / NS_PER_S)
-            q_rad, qd_nominal_radps = ctrl.trajectory.sample(ctrl.state.tau_s)
-            delta_applied = ctrl.state.delta_applied
-            audit = audit_cycle(
-                ctrl.robot,
-                ctrl.data,
-                q_rad,
-                delta_applied * qd_nominal_radps,
-                delta_applied,
-                config.robots[ctrl.name].controller.braking_time_s,
-                truth,
-                human_speed_mps,
-                moving_eps_mps,
-            )
-            worst = audit.worst_capsule
-            ctrl.accumulator.add(
-                audit,
-                t_s=now_ns / NS_PER_S,
-                dt_s=ctrl.cycle_ns / NS_PER_S,
-                delta_applied=delta_applied,
-                zone=ctrl.zone,
-                program_cycles_completed=ctrl.state.cycles_completed,
-                capsule_label=None if worst is None else f"{truth.human_ids[worst]}/{truth.capsule_names[worst]}",
-            )
-            ctrl.next_ns += ctrl.cycle_ns
-        if gateway_next_ns == now_ns:
-            _deliver_to_gateway(store, controllers.values(), tracker_links.values(), now_ns)
-            result = core.step(store.snapshot(), EPOCH_NS + now_ns, gateway_period_s)
-            gateway_seq += 1
-            for name, decision in result.items():
-                _count_decision(decision, t_delays, faults)
-                decisions += 1
-                fault_decisions += bool(decision.faults)
-                ctrl = controllers[name]
-                ctrl.zone = decision.zone.value
-                override = Override(robot=name, seq=gateway_seq, stamp_ns=EPOCH_NS + now_ns, delta=decision.delta)
-                ctrl.override_link.send((keys.robot_override(cell, name), to_payload(override)), now_ns)
-                store.on_override_sent(name, gateway_seq, EPOCH_NS + now_ns)
-            gateway_next_ns += gateway_period_ns
-
-    per_robot = {name: c.accumulator.summary() for name, c in controllers.items()}
-    rejected, _ = store.counters()
-    controller_rejected: Counter[str] = Counter()
-    for c in controllers.values():
-        controller_rejected.update(c.state.rejected)
-        controller_rejected.update(c.parse_rejected)
-    return RunResult(
-        audit=merge_summaries(list(per_robot.values())),
-        per_robot=MappingProxyType(per_robot),
-        t_delay_mean_s=float(np.mean(t_delays)) if t_delays else None,
-        t_delay_min_s=min(t_delays) if t_delays else None,
-        t_delay_max_s=max(t_delays) if t_delays else None,
-        program_progress_cycles=sum(
-            c.state.cycles_completed + (c.state.tau_s - c.tau0_s) / c.trajectory.duration_s
-            for c in controllers.values()
-        ),
-        decisions=decisions,
-        fault_decisions=fault_decisions,
-        faults=MappingProxyType(dict(faults)),
-        rejected=MappingProxyType(rejected),
-        controller_rejected=MappingProxyType(dict(controller_rejected)),
-        duration_s=end_ns / NS_PER_S,
-        wall_s=time.perf_counter() - started_wall_s,
-    )
+    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps)
+    cell.run(end_ns)
+    return cell.result(end_ns, time.perf_counter() - started_wall_s)
 
 
 def _ceil_ns(t_s: float) -> int:
@@ -289,47 +347,32 @@ def _ceil_ns(t_s: float) -> int:
 
 
 def _controller_cycle(ctrl: _Controller, config: CellConfig, now_ns: int) -> None:
-    """One controller cycle as controller_emu/main.py runs it: newest override, step, publish the state."""
-    controller_config = config.robots[ctrl.name].controller
-    newest: Override | None = None
-    for _, (_, payload) in ctrl.override_link.deliver(now_ns):
-        try:
-            newest = parse_message(payload, Override)  # the inbox keeps the newest that arrived
-        except MessageError as exc:
-            ctrl.parse_rejected[exc.reason] += 1
-    stamp_ns = EPOCH_NS + now_ns
-    if newest is not None:
-        ctrl.state, _ = accept_override(ctrl.state, newest, ctrl.name, stamp_ns, controller_config.watchdog_s)
-    ctrl.state = step(ctrl.state, ctrl.trajectory, controller_config, stamp_ns * 1e-9, ctrl.cycle_ns / NS_PER_S)
-    message = joint_state(ctrl.state, ctrl.trajectory, ctrl.name, ctrl.seq, stamp_ns)
-    ctrl.seq += 1
-    ctrl.state_link.send((keys.robot_state(config.cell, ctrl.name), to_payload(message)), now_ns)
+    """One controller cycle: the overrides that arrived, each at its arrival time, then the node's cycle."""
+    for arrived_ns, (_, payload) in ctrl.override_link.deliver(now_ns):
+        ctrl.node.on_override(payload, _clocks(arrived_ns))
+    output = ctrl.node.cycle(_clocks(now_ns))
+    ctrl.state_link.send((keys.robot_state(config.cell, ctrl.name), to_payload(output.joint_state)), now_ns)
+
+
+def _clocks(t_ns: int) -> Clocks:
+    """Simulated time ``t_ns`` on both clocks: the wall clock starts at ``EPOCH_NS``, the monotonic one at 0."""
+    return Clocks(EPOCH_NS + t_ns, t_ns)
 
 
 def _deliver_to_gateway(
-    store: InputStore,
+    node: GatewayNode,
     controllers: Iterable[_Controller],
     tracker_links: Iterable[SimLink[Payload]],
     now_ns: int,
 ) -> None:
-    """Hand every message that has arrived by ``now_ns`` to the store, in arrival order, at its arrival time."""
+    """Hand every message that has arrived by ``now_ns`` to the gateway, in arrival order, at its arrival time."""
     arrived: list[tuple[int, int, str, bytes]] = []
     sources = [c.state_link for c in controllers] + list(tracker_links)
     for index, link in enumerate(sources):
         arrived.extend((t_ns, index, key, payload) for t_ns, (key, payload) in link.deliver(now_ns))
     arrived.sort(key=lambda m: (m[0], m[1]))  # stable: a link's own order is kept at equal times
     for t_ns, _, key, payload in arrived:
-        if keys.name_from_key(key, "tracker") is not None:
-            store.on_humans(key, payload, EPOCH_NS + t_ns)
-        else:
-            store.on_joint_state(key, payload, EPOCH_NS + t_ns)
-
-
-def _count_decision(decision: RobotDecision, t_delays: list[float], faults: Counter[str]) -> None:
-    if decision.faults:
-        faults.update({f.code for f in decision.faults})
-    else:
-        t_delays.append(decision.delay.total_s)
+        node.on_message(key, payload, _clocks(t_ns))
 
 
 __all__ = ["EPOCH_NS", "LinkFault", "LinkFaults", "RunResult", "simulate"]

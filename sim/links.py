@@ -2,7 +2,9 @@
 
 Each message sent at ``sent_ns`` is lost with probability ``loss``; otherwise it arrives at
 ``sent_ns + delay_s + U(0, jitter_s)``, and with probability ``duplication`` a second copy arrives with
-its own jitter. Messages overtake each other when their jitter differs: reordering comes from jitter.
+its own jitter. With ``in_order`` (the default, like Zenoh over TCP: one publisher's messages never overtake
+each other) a message arrives no earlier than the one sent before it; without it, messages overtake each other
+when their jitter differs (reordering, which the gateway treats as a stream fault).
 """
 
 from __future__ import annotations
@@ -28,12 +30,14 @@ class LinkFault:
         jitter_s: extra delay, uniform in [0, jitter_s], drawn per message [s].
         loss: probability that a message is lost.
         duplication: probability that a delivered message arrives a second time.
+        in_order: messages arrive in the order they were sent (jitter delays, never reorders).
     """
 
     delay_s: float = 0.0
     jitter_s: float = 0.0
     loss: float = 0.0
     duplication: float = 0.0
+    in_order: bool = True
 
     def __post_init__(self) -> None:
         for name in ("delay_s", "jitter_s"):
@@ -94,11 +98,16 @@ class SimLink(Generic[T]):
         self._rng = rng
         self._in_flight: list[_InFlight[T]] = []
         self._order = 0
+        self._last_arrival_ns = -1
         self.counters = LinkCounters()
 
     def _arrival_ns(self, sent_ns: int) -> int:
         jitter_s = self._rng.random() * self.fault.jitter_s if self.fault.jitter_s > 0.0 else 0.0
-        return sent_ns + round((self.fault.delay_s + jitter_s) * NS_PER_S)
+        arrive_ns = sent_ns + round((self.fault.delay_s + jitter_s) * NS_PER_S)
+        if self.fault.in_order:
+            arrive_ns = max(arrive_ns, self._last_arrival_ns)
+            self._last_arrival_ns = arrive_ns
+        return arrive_ns
 
     def _push(self, arrive_ns: int, item: T) -> None:
         self._order += 1

@@ -116,7 +116,8 @@ class CellVariant:
     """Changes to the cell of a sweep.
 
     Attributes:
-        unsafe_ignore_delay: TEST ONLY: the gateway ignores the delay (t_delay = 0), to show the auditor's teeth.
+        unsafe_ignore_delay: TEST ONLY: the gateway ignores the delay (t_delay = 0), to show the auditor's teeth;
+            ``apply`` refuses it unless ``HRC_ALLOW_UNSAFE`` names ``unsafe_ignore_delay_for_tests``.
         tight_braking: the gateway assumes for every joint the braking time the controller really has
             (``controller.braking_time_s``) instead of the robot model's, so that no slack in the braking
             model hides a wrong delay handling.
@@ -321,7 +322,8 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--unsafe-ignore-delay",
         action="store_true",
-        help="TEST ONLY: run the gateway with t_delay = 0, to show the auditor's teeth",
+        help="TEST ONLY: run the gateway with t_delay = 0, to show the auditor's teeth (refused unless the "
+        "environment variable HRC_ALLOW_UNSAFE=unsafe_ignore_delay_for_tests is set)",
     )
     parser.add_argument(
         "--tight-braking",

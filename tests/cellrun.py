@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import socket
@@ -20,6 +19,7 @@ import httpx
 import zenoh
 
 from hrc_common import keys
+from hrc_common.status_models import GatewayStatus, RobotStatusResponse
 from hrc_common.zenoh_session import session_config
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -96,7 +96,9 @@ class Cell:
             response = self.get(f"/api/v1/robots/{name}")
         except httpx.HTTPError:
             return None
-        return response.json() if response.status_code == 200 else None
+        if response.status_code != 200:
+            return None
+        return RobotStatusResponse.model_validate_json(response.content).model_dump(mode="json")
 
     def wait_until(self, predicate: Any, timeout_s: float, what: str, robot: str = "ur5") -> dict[str, Any]:
         deadline = time.monotonic() + timeout_s
@@ -174,9 +176,9 @@ def record(
     start = time.monotonic()
 
     def on_status(sample: zenoh.Sample) -> None:
-        doc = json.loads(sample.payload.to_bytes())
+        doc = GatewayStatus.model_validate_json(sample.payload.to_bytes())  # raises (drops it) if not the contract
         with lock:
-            trace.append({**doc["robots"][robot], "t_s": time.monotonic() - start})
+            trace.append({**doc.robots[robot].model_dump(mode="json"), "t_s": time.monotonic() - start})
 
     with zenoh.open(session_config(connect=[cell.gateway_endpoint])) as session:
         session.declare_subscriber(keys.gateway_status(cell.name), on_status)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from audit.checks import AuditAccumulator, CycleAudit, audit_cycle, audit_links, merge_summaries
-from gateway.kinematics import LinkKinematics, link_kinematics
+from audit.kinematics import LinkMotion, link_motion
 from hrc_common.humans import NO_HUMANS, HumanCapsules
 from hrc_common.robot_model import RobotModel
 
@@ -20,8 +20,8 @@ RADIUS = np.array([0.05])  # link radius [m]
 NAMES = ("link",)
 
 
-def _links(p_a, p_b, v_a, v_b) -> LinkKinematics:
-    return LinkKinematics(*(np.atleast_2d(np.asarray(x, dtype=float)) for x in (p_a, p_b, v_a, v_b)))
+def _links(p_a, p_b, v_a, v_b) -> LinkMotion:
+    return LinkMotion(*(np.atleast_2d(np.asarray(x, dtype=float)) for x in (p_a, p_b, v_a, v_b)))
 
 
 def _points(points, radius=0.05) -> HumanCapsules:
@@ -130,13 +130,13 @@ def test_the_worst_pair_is_named() -> None:
     assert got.min_distance_m == pytest.approx(0.5)
 
 
-def test_audit_cycle_on_the_ur5_matches_its_link_kinematics(ur5: RobotModel) -> None:
+def test_audit_cycle_on_the_ur5_is_audit_links_on_its_link_motion(ur5: RobotModel) -> None:
     data = ur5.model.createData()
     q = np.array([0.3, -1.14, 1.25, -1.68, -1.57, 0.3])
     qd = np.array([-1.0, 0.2, 0.4, -0.5, 0.0, -1.0])
     humans = _points([(0.9, 0.2, 1.1), (0.5, -0.6, 1.0)])
     got = audit_cycle(ur5, data, q, qd, 0.7, T_B, humans, K)
-    links = link_kinematics(ur5, ur5.model.createData(), q, qd)
+    links = link_motion(ur5, ur5.model.createData(), q, qd)
     expected = audit_links(links, ur5.link_radius_m, ur5.link_names, 0.7, T_B, humans, K)
     assert got.margin_m == pytest.approx(expected.margin_m)
     assert got.worst_link == expected.worst_link

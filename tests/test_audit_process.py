@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
+import status_examples as ex
 import zenoh
-from cellrun import REPO_ROOT, free_port, start_program, stop_program
 
 from audit.main import (
     EXIT_INCONCLUSIVE,
@@ -24,8 +24,9 @@ from audit.main import (
     exit_code,
     format_report,
 )
+from bench.procs import free_port, start_program, stop_program
 from hrc_common import keys
-from hrc_common.config import CellConfig
+from hrc_common.config import REPO_ROOT, CellConfig
 from hrc_common.messages import Capsule, Human, Humans, JointState, to_payload
 from hrc_common.robot_model import RobotModel
 from hrc_common.zenoh_session import session_config
@@ -148,11 +149,8 @@ def test_without_any_human_truth_nothing_is_audited(auditor: TruthAuditor) -> No
 
 
 def test_zones_program_cycles_gaps_and_rejections(auditor: TruthAuditor) -> None:
-    status = {
-        "stamp_ns": START_NS,
-        "robots": {"ur5": {"zone": "reduced_speed", "t_delay_s": 0.12, "faults": [], "delta": 0.5}},
-    }
-    auditor.on_status(json.dumps(status).encode())
+    status = ex.gateway_status(START_NS, ur5=ex.robot_status(delta=0.5, zone="reduced_speed", t_delay_s=0.12))
+    auditor.on_status(status.model_dump_json().encode())
     auditor.on_emu_stats("ur5", json.dumps({"robot": "ur5", "cycles_completed": 7}).encode())
     for k in (0, 1, 2, 5):  # seq 3 and 4 lost
         stamp = START_NS + k * CYCLE_NS

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from bench import compute, loop, reaction
-from bench._procs import with_gateway_rate, write_cell_config
+from bench.procs import with_gateway_rate, write_cell_config
 from bench.reaction import OverrideSeen, Sample, StateSeen, StatusSeen, check_against_status, match_reactions
 from hrc_common.config import load_cell_config
 

@@ -177,7 +177,7 @@ def test_controller_follows_overrides_and_stops_on_its_own(
     [
         (["--robot", "nope"], "unknown robot 'nope'; allowed: ur5"),
         (["--config", "{bad}"], "robots: Field required"),
-        (["--zenoh-listen", "bogus"], "cannot open a Zenoh session"),
+        (["--zenoh-listen", "tcp/127.0.0.1:notaport"], "cannot open a Zenoh session"),
     ],
 )
 def test_invalid_configuration_exits_2_with_one_line(tmp_path: Path, args: list[str], expected: str) -> None:

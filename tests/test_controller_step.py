@@ -1,18 +1,24 @@
-"""The controller emulator's step function: override acceptance, bounded ramps, watchdog, program time."""
+"""The controller emulator's pure functions: override checks, bounded ramps, watchdog, program time, message.
+
+The node that drives them (arrival times, newest wins, counting) is in ``test_controller_node.py``, the two
+clocks in ``test_controller_clocks.py``.
+"""
 
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from controller_emu.controller import (
-    MAX_FUTURE_S,
+    MAX_FUTURE_STAMP_S,
     ControllerState,
-    accept_override,
+    apply_override,
     check_braking_time,
+    check_override,
     joint_state,
     step,
 )
@@ -23,6 +29,7 @@ from hrc_common.robot_model import RobotModel, load_robot_model
 
 CONFIG = ControllerConfig(cycle_s=0.004, braking_time_s=0.24, accel_time_s=0.5, watchdog_s=0.1)
 DT_S = CONFIG.cycle_s
+DT_NS = round(DT_S * 1e9)
 T0_NS = 1_790_000_000_000_000_000
 ROBOT = "ur5"
 
@@ -45,28 +52,42 @@ def trajectory(robot: RobotModel) -> Trajectory:
 
 
 class Sim:
-    """Drives the controller on a simulated clock: one override per cycle (or none), then a step."""
+    """Drives the pure functions on simulated clocks: one override per cycle (or none), then a step.
+
+    ``mono_ns`` is the controller's monotonic clock, ``now_ns`` the wall clock (of the controller and of
+    the gateway's stamps, here the same).
+    """
 
     def __init__(self, trajectory: Trajectory, state: ControllerState | None = None) -> None:
         self.trajectory = trajectory
         self.state = state or ControllerState()
+        self.mono_ns = 0
         self.now_ns = T0_NS
         self.seq = 0
+        self.rejected: Counter[str] = Counter()
 
     def override(self, delta: float, robot: str = ROBOT, stamp_ns: int | None = None) -> str | None:
         message = Override(
             robot=robot, seq=self.seq, stamp_ns=self.now_ns if stamp_ns is None else stamp_ns, delta=delta
         )
         self.seq += 1
-        self.state, reason = accept_override(self.state, message, ROBOT, self.now_ns, CONFIG.watchdog_s)
+        reason = check_override(message, ROBOT, self.state.override_stamp_ns, self.now_ns, CONFIG.watchdog_s)
+        if reason is None:
+            self.state = apply_override(self.state, message, self.mono_ns)
+        else:
+            self.rejected[reason] += 1
         return reason
 
+    def tick(self) -> None:
+        self.mono_ns += DT_NS
+        self.now_ns += DT_NS
+
     def cycle(self, delta: float | None) -> ControllerState:
-        """Advance the clock by one cycle; send ``delta`` (unless None) and step."""
-        self.now_ns += round(DT_S * 1e9)
+        """Advance the clocks by one cycle; send ``delta`` (unless None) and step."""
+        self.tick()
         if delta is not None:
             self.override(delta)
-        self.state = step(self.state, self.trajectory, CONFIG, self.now_ns * 1e-9, DT_S)
+        self.state = step(self.state, self.trajectory, CONFIG, self.mono_ns, DT_S)
         return self.state
 
     def run(self, delta: float | None, cycles: int) -> list[ControllerState]:
@@ -191,21 +212,26 @@ def test_rejections_are_counted_by_reason(trajectory: Trajectory) -> None:
     assert sim.override(0.0, robot="ur10") == "wrong_robot"
     assert sim.override(0.0, stamp_ns=last.override_stamp_ns) == "old_or_repeated"
     assert sim.override(0.0, stamp_ns=last.override_stamp_ns - 1) == "old_or_repeated"
-    assert sim.override(0.0, stamp_ns=now_ns + round((MAX_FUTURE_S + 0.01) * 1e9)) == "stale"
+    assert sim.override(0.0, stamp_ns=now_ns + round((MAX_FUTURE_STAMP_S + 0.001) * 1e9)) == "stamp_in_future"
     # Newer than the last accepted but older than the watchdog: stale.
     sim.now_ns += round(0.5 * 1e9)
     assert sim.override(0.0, stamp_ns=sim.now_ns - round(0.2 * 1e9)) == "stale"
-    assert dict(sim.state.rejected) == {"wrong_robot": 1, "old_or_repeated": 2, "stale": 2}
+    assert sim.override(0.0, stamp_ns=sim.now_ns - round((CONFIG.watchdog_s + 1e-6) * 1e9)) == "stale"
+    assert dict(sim.rejected) == {"wrong_robot": 1, "old_or_repeated": 2, "stamp_in_future": 1, "stale": 2}
     # None of them changed the command or the echoed seq.
     assert sim.state.delta_commanded == 1.0
     assert sim.state.override_seq == last.override_seq
     assert sim.state.override_stamp_ns == last.override_stamp_ns
 
 
-def test_a_slightly_future_stamp_is_accepted(trajectory: Trajectory) -> None:
+def test_stamps_at_the_limits_are_accepted(trajectory: Trajectory) -> None:
     sim = Sim(trajectory)
-    assert sim.override(0.5, stamp_ns=sim.now_ns + round(0.5 * 1e9)) is None
+    assert sim.override(0.5, stamp_ns=sim.now_ns + round(MAX_FUTURE_STAMP_S * 1e9)) is None
     assert sim.state.delta_commanded == 0.5
+    sim.now_ns += round(1e9)
+    assert sim.override(0.25, stamp_ns=sim.now_ns - round(CONFIG.watchdog_s * 1e9)) is None
+    assert sim.state.delta_commanded == 0.25
+    assert sim.state.override_accepted_mono_ns == sim.mono_ns
 
 
 def test_restarted_gateway_with_seq_from_zero_is_accepted(trajectory: Trajectory) -> None:
@@ -216,16 +242,17 @@ def test_restarted_gateway_with_seq_from_zero_is_accepted(trajectory: Trajectory
     sim.cycle(0.5)
     assert sim.state.override_seq == 0
     assert sim.state.delta_commanded == 0.5
-    assert not sim.state.rejected
+    assert not sim.rejected
 
 
 def test_rejected_overrides_never_raise_speed(trajectory: Trajectory) -> None:
     sim = Sim(trajectory)
     for _ in range(200):
-        sim.now_ns += round(DT_S * 1e9)
+        sim.tick()
         sim.override(1.0, robot="ur10")
         sim.override(1.0, stamp_ns=sim.now_ns - round(1e9))
-        sim.state = step(sim.state, trajectory, CONFIG, sim.now_ns * 1e-9, DT_S)
+        sim.override(1.0, stamp_ns=sim.now_ns + round(1e9))
+        sim.state = step(sim.state, trajectory, CONFIG, sim.mono_ns, DT_S)
         assert sim.state.delta_applied == 0.0
         assert sim.state.mode == "protective_stop"
 

@@ -1,4 +1,4 @@
-"""SafetyCore.step with the real UR5 and InputStore-fed messages: decisions, faults, recovery, delay."""
+"""SafetyCore.step with the real UR5 and InputStore-fed messages: decisions, faults, recovery, delay, clocks."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from gateway.core import RobotDecision, SafetyCore
 from gateway.inputs import InputStore
 from gateway.zones import Zone
 from hrc_common import keys
+from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
 from hrc_common.robot_model import RobotModel
 
@@ -22,11 +23,18 @@ PERIOD_S = 0.004
 Q = [0.3, -1.2, 1.4, -0.5, 1.2, 0.0]
 QD_NOMINAL = [0.6, -0.4, 0.5, 0.3, 0.2, 0.1]
 CYCLE_MS = 4
+MONO0 = 3_000_000_000  # the gateway's monotonic clock at NOW [ns]
+HOLD_MS = 500  # streams.fault_hold_s of the default cell
 LATENCY_MS = 12
 
 FAR_TORSO = {"name": "torso", "a": [4.0, 4.0, 0.8], "b": [4.0, 4.0, 1.6], "radius": 0.2}  # ≈ 5 m from the robot
 # A hand 1.8 m ahead of tool0 along its programmed velocity at (Q, QD_NOMINAL): 0 < δ < 1 at the default delays.
 NEAR_HAND = {"name": "hand_r", "a": [-0.88, 1.39, 1.08], "b": [-0.88, 1.39, 1.08], "radius": 0.05}
+
+
+def at(t_ns: int, wall_step_ns: int = 0) -> Clocks:
+    """The gateway's clocks at wall time ``t_ns``, its wall clock stepped by ``wall_step_ns``."""
+    return Clocks(t_ns + wall_step_ns, MONO0 + t_ns - NOW)
 
 
 class Cell:
@@ -35,7 +43,7 @@ class Cell:
 
     def __init__(self, config: CellConfig, ur5: RobotModel, delay_aware: bool = True) -> None:
         self.config = config
-        self.store = InputStore({"ur5": ur5.n_joints}, list(config.trackers))
+        self.store = InputStore(config, {"ur5": ur5})
         if not delay_aware:
             safety = config.safety.model_copy(update={"unsafe_ignore_delay_for_tests": True})
             config = config.model_copy(update={"safety": safety})
@@ -44,6 +52,7 @@ class Cell:
         self.last_joint_stamp_ns: int | None = None
         self.override_seq = -1
         self.human_seq = dict.fromkeys(config.trackers, 0)
+        self.human_stamp_ns = dict.fromkeys(config.trackers, 0)
 
     def joint(self, now_ns: int, age_ms: float = 4, new_override: bool = True, q=Q, qd_nominal=QD_NOMINAL) -> None:
         newest = now_ns - int(age_ms * MS)
@@ -51,7 +60,7 @@ class Cell:
         echoed = self.override_seq
         if new_override:  # sent 12 ms before the newest state, which is the first to echo it
             self.override_seq += 1
-            self.store.on_override_sent("ur5", self.override_seq, newest - LATENCY_MS * MS)
+            self.store.on_override_sent("ur5", self.override_seq, 1.0, at(newest - LATENCY_MS * MS))
         while stamp <= newest:
             if stamp == newest:
                 echoed = self.override_seq
@@ -68,28 +77,31 @@ class Cell:
                 "override_seq": echoed,
                 "mode": "running",
             }
-            self.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), now_ns)
+            self.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), at(now_ns))
             self.last_joint_stamp_ns = stamp
             stamp += CYCLE_MS * MS
 
     def humans(self, now_ns: int, capsules: list[dict], age_ms: float = 30, trackers=("front", "side")) -> None:
         for tracker in trackers:
             self.human_seq[tracker] += 1
+            # a genuine tracker's stamps only go forward: the newest capture, or just after the previous one
+            self.human_stamp_ns[tracker] = max(now_ns - int(age_ms * MS), self.human_stamp_ns[tracker] + 1)
             raw = {
                 "schema": "hrc.humans/1",
                 "tracker": tracker,
                 "seq": self.human_seq[tracker],
-                "stamp_ns": now_ns - int(age_ms * MS),
+                "stamp_ns": self.human_stamp_ns[tracker],
                 "humans": [{"id": "h1", "capsules": capsules}] if capsules else [],
             }
-            self.store.on_humans(keys.tracker_humans("demo", tracker), json.dumps(raw).encode(), now_ns)
+            self.store.on_humans(keys.tracker_humans("demo", tracker), json.dumps(raw).encode(), at(now_ns))
 
     def feed(self, now_ns: int, capsules: list[dict], human_age_ms: float = 30, joint_age_ms: float = 4) -> None:
         self.joint(now_ns, joint_age_ms)
         self.humans(now_ns, capsules, human_age_ms)
 
-    def step(self, now_ns: int) -> RobotDecision:
-        return self.core.step(self.store.snapshot(), now_ns, PERIOD_S)["ur5"]
+    def step(self, now_ns: int, wall_step_ns: int = 0) -> RobotDecision:
+        now = at(now_ns, wall_step_ns)
+        return self.core.step(self.store.snapshot(now), now, PERIOD_S)["ur5"]
 
 
 @pytest.fixture
@@ -236,7 +248,7 @@ def test_stale_joint_state(cell: Cell) -> None:
 
 def test_invalid_joint_state_latch(cell: Cell) -> None:
     cell.feed(NOW, [FAR_TORSO])
-    cell.store.on_joint_state(keys.robot_state("demo", "ur5"), b'{"schema": "hrc.joint_state/1", "q": [NaN]}', NOW)
+    cell.store.on_joint_state(keys.robot_state("demo", "ur5"), b'{"schema": "hrc.joint_state/1", "q": [NaN]}', at(NOW))
     d = cell.step(NOW)
     assert_stopped(d, "joint_state_invalid")
     assert codes(d) == {"joint_state_invalid"}
@@ -245,7 +257,7 @@ def test_invalid_joint_state_latch(cell: Cell) -> None:
 
 def test_invalid_tracker_latch(cell: Cell) -> None:
     cell.feed(NOW, [FAR_TORSO])
-    cell.store.on_humans(keys.tracker_humans("demo", "side"), b"not json", NOW)
+    cell.store.on_humans(keys.tracker_humans("demo", "side"), b"not json", at(NOW))
     d = cell.step(NOW)
     assert_stopped(d, "tracker_invalid")
     assert codes(d) == {"tracker_invalid"}
@@ -273,11 +285,14 @@ def test_override_path_stale(cell: Cell) -> None:
 def test_fault_clears_and_robot_recovers(cell: Cell) -> None:
     cell.feed(NOW, [FAR_TORSO])
     assert cell.step(NOW).zone is Zone.AUTONOMOUS
-    cell.store.on_humans(keys.tracker_humans("demo", "front"), b"{", NOW)
+    cell.store.on_humans(keys.tracker_humans("demo", "front"), b"{", at(NOW))
     assert_stopped(cell.step(NOW), "tracker_invalid")
     t1 = NOW + 20 * MS
     cell.feed(t1, [FAR_TORSO])
-    d = cell.step(t1)
+    assert_stopped(cell.step(t1), "tracker_invalid")  # valid data again, but within the hold
+    t2 = NOW + HOLD_MS * MS
+    cell.feed(t2, [FAR_TORSO])
+    d = cell.step(t2)
     assert d.faults == ()
     assert (d.zone, d.delta) == (Zone.AUTONOMOUS, 1.0)
 
@@ -395,3 +410,77 @@ def test_adaptive_thresholds_hold_the_peak_programmed_speed(cell_config: CellCon
     assert reduce_m(cell, NOW, fast) == pytest.approx(reference_fast)
     assert reduce_m(cell, NOW + 1_000 * MS, slow) == pytest.approx(reference_fast)  # held
     assert reduce_m(cell, NOW + 3_100 * MS, slow) == pytest.approx(reference_slow)  # released after 2 s
+
+
+# -- hostile and broken input (issue 9) -----------------------------------------------------------
+
+def _tool_point(ur5: RobotModel) -> np.ndarray:
+    """tool0 of the UR5 at Q, in the world frame [m]."""
+    data = ur5.model.createData()
+    pin.framesForwardKinematics(ur5.model, data, np.array(Q))
+    return ur5.R_world_base @ data.oMf[ur5.model.getFrameId("tool0")].translation + ur5.p_world_base
+
+
+def test_a_kilometre_long_capsule_next_to_the_tool_stops_the_robot(cell: Cell, ur5: RobotModel) -> None:
+    """Issue 9, hole 1: a capsule of absurd length whose axis passes a hand's width from the tool."""
+    tool = _tool_point(ur5)
+    for half_length_m in (1e3, 1e5, 1e8):
+        a = (tool + [-half_length_m, 0.1, 0.0]).tolist()
+        b = (tool + [half_length_m, 0.1, 0.0]).tolist()
+        cell.feed(NOW, [{"name": "forearm_r", "a": a, "b": b, "radius": 0.03}])
+        d = cell.step(NOW)
+        assert_stopped(d, "tracker_implausible")
+
+
+def test_a_person_who_loses_their_capsules_does_not_become_nobody(cell: Cell, ur5: RobotModel) -> None:
+    """Issue 9, hole 2: a person at the tool, then the same person listed with an empty capsule list."""
+    tool = _tool_point(ur5).tolist()
+    cell.feed(NOW, [{"name": "hand_r", "a": tool, "b": tool, "radius": 0.05}])
+    assert cell.step(NOW).delta == 0.0  # at the tool: safety exception
+    t1 = NOW + 30 * MS
+    raw = {
+        "schema": "hrc.humans/1",
+        "tracker": "front",
+        "seq": 100,
+        "stamp_ns": t1 - 30 * MS + 1,
+        "humans": [{"id": "h1", "capsules": []}],
+    }
+    cell.store.on_humans(keys.tracker_humans("demo", "front"), json.dumps(raw).encode(), at(t1))
+    cell.joint(t1)
+    d = cell.step(t1)
+    assert_stopped(d, "tracker_invalid")
+    assert d.min_distance_m is not None  # the person is still where they were last seen
+    assert d.min_distance_m < 0.1
+
+
+def test_a_wall_clock_step_on_the_gateway_host_stops_every_robot(cell: Cell) -> None:
+    """Issue 9, hole 3: a step backwards used to freeze the view (negative ages clamped to 0)."""
+    cell.feed(NOW, [FAR_TORSO])
+    assert cell.step(NOW).delta == 1.0
+    t1 = NOW + 4 * MS
+    d = cell.step(t1, wall_step_ns=-5_000 * MS)
+    assert_stopped(d, "clock_step")
+    # the stored samples keep ageing on the monotonic clock, whatever the wall clock says
+    t2 = NOW + 300 * MS
+    d = cell.step(t2, wall_step_ns=-5_000 * MS)
+    assert {"clock_step", "joint_state_stale", "tracker_stale"} <= codes(d)
+
+
+def test_a_forged_nominal_velocity_of_zero_while_moving_stops_the_robot(cell: Cell) -> None:
+    """Issue 9, hole 5: qd_nominal = 0 but qd moves the robot: the state is inconsistent, not slow."""
+    cell.feed(NOW, [NEAR_HAND])
+    stamp = cell.last_joint_stamp_ns + CYCLE_MS * MS
+    raw = {
+        "schema": "hrc.joint_state/1",
+        "robot": "ur5",
+        "seq": cell.joint_seq + 1,
+        "stamp_ns": stamp,
+        "q": Q,
+        "qd": QD_NOMINAL,
+        "qd_nominal": [0.0] * 6,
+        "override": 1.0,
+        "override_seq": cell.override_seq,
+        "mode": "running",
+    }
+    cell.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), at(stamp + MS))
+    assert_stopped(cell.step(stamp + MS), "joint_state_inconsistent")

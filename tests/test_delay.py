@@ -11,6 +11,11 @@ T0 = 1_790_000_000_000_000_000  # [ns since epoch]
 MS = 1_000_000  # [ns]
 
 
+def mono(wall_ns: int) -> int:
+    """The gateway's monotonic clock at wall time ``wall_ns`` (its own origin) [ns]."""
+    return wall_ns - T0 + 7 * MS
+
+
 def test_total_sums_the_parts() -> None:
     budget = DelayBudget(
         t_reaction_s=0.04,
@@ -34,43 +39,43 @@ def test_every_part_counts_once() -> None:
 def test_latency_is_first_echo_stamp_minus_send_time() -> None:
     path = OverridePath()
     assert path.latency_s() is None
-    assert path.acked_sent_ns is None
-    path.on_sent(1, T0)
+    assert path.acked_sent_mono_ns is None
+    path.on_sent(1, T0, mono(T0))
     path.on_state(override_seq=0, stamp_ns=T0 + 4 * MS)  # not yet applied: nothing learned
     assert path.latency_s() is None
     path.on_state(override_seq=1, stamp_ns=T0 + 12 * MS)  # first state reporting seq 1
     assert path.latency_s() == pytest.approx(0.012)
-    assert path.acked_sent_ns == T0
+    assert path.acked_sent_mono_ns == mono(T0)
     path.on_state(override_seq=1, stamp_ns=T0 + 16 * MS)  # later states with the same seq do not count
     assert path.latency_s() == pytest.approx(0.012)
 
 
 def test_latency_is_the_largest_in_the_window() -> None:
     path = OverridePath(window_s=1.0)
-    path.on_sent(1, T0)
+    path.on_sent(1, T0, mono(T0))
     path.on_state(1, T0 + 30 * MS)  # 30 ms
-    path.on_sent(2, T0 + 100 * MS)
+    path.on_sent(2, T0 + 100 * MS, mono(T0 + 100 * MS))
     path.on_state(2, T0 + 110 * MS)  # 10 ms
     assert path.latency_s() == pytest.approx(0.030)
-    assert path.acked_sent_ns == T0 + 100 * MS
+    assert path.acked_sent_mono_ns == mono(T0 + 100 * MS)
 
 
 def test_unknown_seq_is_ignored() -> None:
     path = OverridePath()
-    path.on_sent(5, T0)
+    path.on_sent(5, T0, mono(T0))
     path.on_state(override_seq=99, stamp_ns=T0 + 10 * MS)
     path.on_state(override_seq=-1, stamp_ns=T0 + 14 * MS)
     assert path.latency_s() is None
-    assert path.acked_sent_ns is None
+    assert path.acked_sent_mono_ns is None
     path.on_state(override_seq=5, stamp_ns=T0 + 20 * MS)
     assert path.latency_s() == pytest.approx(0.020)
 
 
 def test_window_forgets_old_samples() -> None:
     path = OverridePath(window_s=1.0)
-    path.on_sent(1, T0)
+    path.on_sent(1, T0, mono(T0))
     path.on_state(1, T0 + 50 * MS)  # 50 ms, at t = 0.05 s
-    path.on_sent(2, T0 + 2000 * MS)
+    path.on_sent(2, T0 + 2000 * MS, mono(T0 + 2000 * MS))
     path.on_state(2, T0 + 2010 * MS)  # 10 ms, at t = 2.01 s: the 50 ms sample is older than 1 s
     assert path.latency_s() == pytest.approx(0.010)
 
@@ -78,7 +83,7 @@ def test_window_forgets_old_samples() -> None:
 def test_send_history_is_bounded() -> None:
     path = OverridePath(history=2)
     for seq in (1, 2, 3):
-        path.on_sent(seq, T0 + seq * MS)
+        path.on_sent(seq, T0 + seq * MS, mono(T0 + seq * MS))
     path.on_state(1, T0 + 10 * MS)  # seq 1 was evicted: unknown
     assert path.latency_s() is None
     path.on_state(3, T0 + 11 * MS)
@@ -88,7 +93,7 @@ def test_send_history_is_bounded() -> None:
 def test_latency_never_negative() -> None:
     # a controller clock behind the gateway's: the state stamp precedes the send time
     path = OverridePath()
-    path.on_sent(1, T0 + 10 * MS)
+    path.on_sent(1, T0 + 10 * MS, mono(T0 + 10 * MS))
     path.on_state(1, T0)
     assert path.latency_s() == 0.0
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import signal
 import statistics
 import subprocess
@@ -14,10 +13,12 @@ from typing import Any
 
 import pytest
 import zenoh
-from cellrun import REPO_ROOT, collapse, is_subsequence, record, running_cell, stop_program
 
+from bench.procs import collapse, is_subsequence, record, running_cell, stop_program
 from hrc_common import keys
+from hrc_common.config import REPO_ROOT
 from hrc_common.messages import JointState, parse_message
+from hrc_common.status_models import EffectiveConfig, GatewayStatus
 from hrc_common.zenoh_session import session_config
 
 pytestmark = pytest.mark.e2e
@@ -224,14 +225,16 @@ def test_gateway_refuses_an_unsafe_config_with_one_line(tmp_path: Path) -> None:
 def test_status_is_also_published_on_zenoh(tmp_path: Path) -> None:
     with running_cell(tmp_path, scenario="standing_inside") as cell:
         cell.wait_until(lambda s: not s["faults"], 20.0, "a fault-free cell")
-        docs: list[dict[str, Any]] = []
+        payloads: list[bytes] = []
         with zenoh.open(session_config(connect=[cell.gateway_endpoint])) as session:
-            session.declare_subscriber(
-                keys.gateway_status("demo"), lambda s: docs.append(json.loads(s.payload.to_bytes()))
-            )
+            session.declare_subscriber(keys.gateway_status("demo"), lambda s: payloads.append(s.payload.to_bytes()))
             time.sleep(1.0)
-        assert len(docs) >= 10  # 25 Hz
-        assert docs[-1]["robots"]["ur5"]["zone"] in {"guarded_distance", "reduced_speed", "safety_exception"}
-        config = cell.get("/api/v1/config").json()
-        assert len(config["config_sha256"]) == 64
-        assert config["robots"]["ur5"]["urdf"].endswith("ur5_robot.urdf")
+        assert len(payloads) >= 10  # 25 Hz
+        docs = [GatewayStatus.model_validate_json(p) for p in payloads]  # every one is the contract's document
+        assert docs[-1].robots["ur5"].zone in {"guarded_distance", "reduced_speed", "safety_exception"}
+        assert docs[-1].loop.cycles > docs[0].loop.cycles
+        served = GatewayStatus.model_validate_json(cell.get("/api/v1/status").content)
+        assert served.stamp_ns >= docs[0].stamp_ns
+        config = EffectiveConfig.model_validate_json(cell.get("/api/v1/config").content)
+        assert len(config.config_sha256) == 64
+        assert config.robots["ur5"].urdf.endswith("ur5_robot.urdf")

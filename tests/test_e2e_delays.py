@@ -41,9 +41,10 @@ from typing import Any
 import httpx
 import pytest
 import zenoh
-from cellrun import REPO_ROOT, free_port, start_program
 
+from bench.procs import free_port, start_program
 from hrc_common import keys
+from hrc_common.config import REPO_ROOT, UNSAFE_ENV_VAR
 from hrc_common.zenoh_session import session_config
 
 pytestmark = pytest.mark.e2e
@@ -342,7 +343,11 @@ def test_delay_beyond_the_budget_stops_the_robot(tmp_path: Path, link: str) -> N
 
 
 @pytest.mark.parametrize("ignore_delay", [False, True], ids=["delay-aware", "delay-ignored"])
-def test_teeth_a_gateway_that_ignores_the_delay_fails_the_audit(tmp_path: Path, ignore_delay: bool) -> None:
+def test_teeth_a_gateway_that_ignores_the_delay_fails_the_audit(
+    tmp_path: Path, ignore_delay: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    if ignore_delay:  # every program loads the cell file; the test-only setting is refused without this in their env
+        monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_ignore_delay_for_tests")
     config = write_cell(tmp_path, max_data_age_s=TEETH_MAX_AGE_S, ignore_delay=ignore_delay)
     run = run_delayed(tmp_path, "tracker", TEETH_DELAY_S, config)
     r = run.robot

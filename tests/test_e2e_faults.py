@@ -15,8 +15,8 @@ from typing import Any
 
 import pytest
 import zenoh
-from cellrun import Cell, running_cell, stop_program
 
+from bench.procs import Cell, running_cell, stop_program
 from hrc_common import keys
 from hrc_common.messages import Capsule, Human, Humans, JointState, parse_message, to_payload
 from hrc_common.zenoh_session import session_config

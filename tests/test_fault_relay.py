@@ -19,10 +19,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from cellrun import REPO_ROOT, free_port, start_program, stop_program
 
+from bench.procs import free_port, start_program, stop_program
 from faultinject.delay_line import DelayLine
 from faultinject.rules import FaultRule, RuleError, draw_fate, first_match, parse_rule
+from hrc_common.config import REPO_ROOT
 from hrc_common.zenoh_session import session_config
 
 # -- rules and fates (pure) --------------------------------------------------------------------------

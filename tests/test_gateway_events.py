@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from bench._procs import with_retries
+from bench.procs import with_retries
 from bench.reaction import RunSettings, run_once
 from gateway.status import loop_status
 from hrc_common.config import load_cell_config
@@ -59,7 +59,7 @@ def test_loop_block_counts_ticks_and_event_cycles_apart() -> None:
     rate = RateLoop(0.004)
     rate.tick_cycles, rate.event_cycles, rate.missed_cycles = 10, 3, 1
     block = loop_status(rate, 0.0005, True, [4, 7, 9])
-    assert block["rate_hz"] == 250.0
-    assert (block["cycles"], block["tick_cycles"], block["event_cycles"], block["missed_cycles"]) == (13, 10, 3, 1)
-    assert block["event_seqs"] == [4, 7, 9]
-    assert block["event_driven"] is True
+    assert block.rate_hz == 250.0
+    assert (block.cycles, block.tick_cycles, block.event_cycles, block.missed_cycles) == (13, 10, 3, 1)
+    assert block.event_seqs == [4, 7, 9]
+    assert block.event_driven is True

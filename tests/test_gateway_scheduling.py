@@ -8,9 +8,9 @@ import threading
 import time
 
 import pytest
-from cellrun import free_port
 from pydantic import ValidationError
 
+from bench.procs import free_port
 from gateway import main as gateway_main
 from gateway.http_server import NICENESS_INCREMENT, HttpServerProcess
 from hrc_common.config import GatewayConfig

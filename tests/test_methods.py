@@ -17,13 +17,18 @@ from gateway import iso15066
 from gateway.kinematics import LinkKinematics, link_kinematics
 from gateway.methods import (
     REDUCED_DELTA,
+    MethodInput,
     ReplanMonitor,
+    StopOnly,
     ThreeZones,
+    build_method,
+    finite_or_zero,
     point_surface_distance_m,
     three_zones_override,
 )
+from gateway.metric import build_rows
 from hrc_common.config import SAFETY_METHODS, ConfigError, SafetyConfig
-from hrc_common.humans import HumanCapsules
+from hrc_common.humans import HumanCapsules, merge_humans
 from hrc_common.robot_model import RobotModel
 
 SAFETY = SafetyConfig()
@@ -364,3 +369,141 @@ def test_unknown_method_lists_the_allowed_names() -> None:
 def test_method_parameters_are_validated(fields: dict[str, float], message: str) -> None:
     with pytest.raises(ValidationError, match=message):
         SafetyConfig(**fields)  # type: ignore[arg-type]
+
+
+# -- fail closed: a nan or inf in a decision gives δ = 0 for every method ------------------------------------
+
+
+def test_iso_override_with_a_nan_row_is_zero() -> None:
+    links = one_link((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))  # sideways: every bound inf, δ = 1
+    rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), point_human(2, 0, 0), SAFETY, 0.1)
+    assert iso15066.override(rows, math.inf) == 1.0
+    bound = rows.bound.copy()
+    bound[0, 0, 1] = math.nan  # min(1.0, nan) is 1.0 in Python: the hole this closes
+    assert iso15066.override(rows._replace(bound=bound), math.inf) == 0.0
+    for field in ("separation_m", "v_toward_mps", "v_h_mps"):
+        for bad in (math.nan, math.inf):
+            data = getattr(rows, field).copy()
+            data.flat[0] = bad
+            assert iso15066.override(rows._replace(**{field: data}), math.inf) == 0.0, (field, bad)
+    assert iso15066.override(rows, math.nan) == 0.0
+
+
+def test_iso_rows_from_a_nan_input_give_zero() -> None:
+    """A nan delay reaches the bound of an approaching point; a nan human reaches the separation. (A nan delay
+    with nothing approaching leaves no trace in the rows: the method's input guard catches it, tested below.)"""
+    toward = one_link((0, 0, 0), (0.1, 0, 0), (0.1, 0, 0), (0.1, 0, 0))  # slow, 1.85 m away: δ = 1 with numbers
+    t_b = np.array([0.5])
+    assert iso15066.override(iso15066.build_rows(toward, t_b / 10, t_b, point_human(2, 0, 0), SAFETY, 0.1), 9.0) == 1
+    rows = iso15066.build_rows(toward, t_b / 10, t_b, point_human(2, 0, 0), SAFETY, math.nan)
+    assert iso15066.override(rows, math.inf) == 0.0
+    sideways = one_link((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))
+    rows = iso15066.build_rows(sideways, t_b / 10, t_b, point_human(2, math.nan, 0), SAFETY, 0.1)
+    assert iso15066.override(rows, math.inf) == 0.0
+
+
+@pytest.mark.parametrize(
+    ("qd", "limit", "previous", "period"),
+    [
+        ([math.nan, 0.0, 0.0], [3.15] * 3, 1.0, 0.004),  # a nan joint counted as "not moving" gave +inf
+        ([math.inf, 0.0, 0.0], [3.15] * 3, 1.0, 0.004),
+        ([0.1, 0.0, 0.0], [math.nan, 3.15, 3.15], 1.0, 0.004),
+        ([0.1, 0.0, 0.0], [3.15] * 3, math.nan, 0.004),
+        ([0.1, 0.0, 0.0], [3.15] * 3, 1.0, math.inf),
+    ],
+)
+def test_joint_limit_bound_with_a_non_finite_input_is_zero(
+    qd: list[float], limit: list[float], previous: float, period: float
+) -> None:
+    assert iso15066.joint_limit_bound(np.array([0.1, 0.0, 0.0]), np.full(3, 3.15), 10.0, 1.0, 0.004) > 1.0
+    assert iso15066.joint_limit_bound(np.array(qd), np.array(limit), 10.0, previous, period) == 0.0
+
+
+def test_three_zones_nan_distance_stops() -> None:
+    assert three_zones_override(math.nan, 1.0, 1.8) == 0.0  # was 1.0: both comparisons with nan are False
+
+
+def test_finite_or_zero() -> None:
+    assert finite_or_zero(0.3) == 0.3
+    assert finite_or_zero(-0.1) == 0.0
+    assert finite_or_zero(1.7) == 1.0
+    for bad in (math.nan, math.inf, -math.inf):
+        assert finite_or_zero(bad) == 0.0
+
+
+FAR_HUMAN = HumanCapsules(
+    np.array([[4.0, 3.0, 0.2]]), np.array([[4.0, 3.0, 1.6]]), np.array([0.2]), ("far",), ("torso",)
+)
+"""A person 5 m from the robot's base: every method allows full speed."""
+Q_MOVING = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
+QD_MOVING = np.array([0.6, -0.4, 0.5, 0.3, -0.2, 0.4])
+
+
+def decision(ur5: RobotModel, **bad: object) -> MethodInput:
+    """A decision of the UR5 built the way the gateway builds it (rows from the same q, q̇ and humans),
+    with the given fields replaced before the rows are built (q_rad, qd_nominal_radps, humans, t_delay_s)."""
+    q = np.asarray(bad.get("q_rad", Q_MOVING), dtype=float)
+    qd = np.asarray(bad.get("qd_nominal_radps", QD_MOVING), dtype=float)
+    humans = bad.get("humans", FAR_HUMAN)
+    assert isinstance(humans, HumanCapsules)
+    t_delay = float(bad.get("t_delay_s", 0.12))  # type: ignore[arg-type]
+    links = link_kinematics(ur5, ur5.model.createData(), q, qd)
+    t_b = float(ur5.braking_time_s.max())
+    rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, t_b, humans, SAFETY, t_delay)
+    clearance = SAFETY.clearance_static_m + SAFETY.human_speed_mps * (t_b + t_delay)
+    previous = float(bad.get("previous_delta", 1.0))  # type: ignore[arg-type]
+    return MethodInput(ur5, ur5.model.createData(), q, links, rows, humans, qd, t_delay, clearance, previous, 0.004)
+
+
+def _with_nan(values: np.ndarray, index: int) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    out.flat[index] = math.nan
+    return out
+
+
+NON_FINITE_INPUTS: dict[str, dict[str, object]] = {
+    "t_delay nan": {"t_delay_s": math.nan},
+    "t_delay inf": {"t_delay_s": math.inf},
+    "q nan": {"q_rad": _with_nan(Q_MOVING, 2)},
+    "q inf": {"q_rad": np.where(np.arange(6) == 4, math.inf, Q_MOVING)},
+    "qd nan": {"qd_nominal_radps": _with_nan(QD_MOVING, 5)},
+    "previous δ nan": {"previous_delta": math.nan},
+    "human end point nan": {
+        "humans": FAR_HUMAN._replace(h_b_world=_with_nan(FAR_HUMAN.h_b_world, 1)),
+    },
+    "second human inf": {"humans": merge_humans([FAR_HUMAN, FAR_HUMAN._replace(h_a_world=np.full((1, 3), math.inf))])},
+}
+
+
+@pytest.mark.parametrize("method", SAFETY_METHODS)
+@pytest.mark.parametrize("case", NON_FINITE_INPUTS, ids=list(NON_FINITE_INPUTS))
+def test_every_method_gives_zero_on_a_non_finite_input(ur5: RobotModel, method: str, case: str) -> None:
+    chosen = build_method(SafetyConfig(method=method), {"ur5": ur5})  # type: ignore[arg-type]
+    assert chosen.bound(decision(ur5)) == 1.0  # the same decision with numbers: full speed
+    with np.errstate(invalid="ignore", over="ignore"):
+        assert chosen.bound(decision(ur5, **NON_FINITE_INPUTS[case])) == 0.0
+
+
+@pytest.mark.parametrize("method", SAFETY_METHODS)
+def test_every_method_gives_zero_on_a_nan_row(ur5: RobotModel, method: str) -> None:
+    """A nan in the eq. (15) rows the methods read (bounds, surface distances): δ = 0, never 1."""
+    chosen = build_method(SafetyConfig(method=method), {"ur5": ur5})  # type: ignore[arg-type]
+    x = decision(ur5)
+    rows = x.rows._replace(
+        bound=_with_nan(x.rows.bound, 3),
+        min_bound=math.nan,
+        surface_distance_m=_with_nan(x.rows.surface_distance_m, 2),
+    )
+    humans = x.humans._replace(h_a_world=_with_nan(x.humans.h_a_world, 0))  # the capsule the rows were built from
+    assert chosen.bound(x) == 1.0
+    assert chosen.bound(x._replace(rows=rows, humans=humans)) == 0.0
+
+
+def test_stop_only_nan_distance_or_limit_stops(ur5: RobotModel) -> None:
+    stop_only = StopOnly(SAFETY)
+    x = decision(ur5)
+    assert stop_only.bound(x) == 1.0
+    nan_row = x._replace(rows=x.rows._replace(surface_distance_m=_with_nan(x.rows.surface_distance_m, 0)))
+    assert stop_only.bound(nan_row) == 0.0  # was 1.0: nan <= limit is False
+    inf_rows = x._replace(rows=x.rows._replace(surface_distance_m=np.full_like(x.rows.surface_distance_m, math.inf)))
+    assert stop_only.bound(inf_rows) == 0.0

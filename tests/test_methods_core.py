@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from test_config import _replace, write_cell
-from test_core import FAR_TORSO, MS, NEAR_HAND, NOW, PERIOD_S, QD_NOMINAL, Cell, Q
+from test_core import FAR_TORSO, MS, NEAR_HAND, NOW, PERIOD_S, QD_NOMINAL, Cell, Q, at
 
 from gateway import iso15066
 from gateway.core import SafetyCore
@@ -160,7 +160,7 @@ def test_every_method_gives_zero_on_a_fault(cell_config: CellConfig, ur5: RobotM
     else:
         cell.feed(now, [FAR_TORSO])
         bad = b'{"schema": "hrc.joint_state/1", "robot": "ur5"}'
-        cell.store.on_joint_state(keys.robot_state("demo", "ur5"), bad, now)
+        cell.store.on_joint_state(keys.robot_state("demo", "ur5"), bad, at(now))
     d = cell.step(now)
     assert code in {f.code for f in d.faults}
     assert d.delta == 0.0
@@ -299,6 +299,6 @@ def test_replan_request_in_the_status(
         d = cell.step(now)
         assert d.faults == ()
         assert d.delta < 0.9
-        flags.append(robot_status(d, 1)["replan_request"])
+        flags.append(robot_status(d, 1).replan_request)
     # 0.1 s at 4 ms a cycle: raised from the 26th decision below the threshold on (first at t = 0)
     assert flags == [False] * 25 + [True] * 15

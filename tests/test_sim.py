@@ -35,8 +35,23 @@ def test_fixed_delay_delivers_in_order_exactly_on_time() -> None:
     assert link.next_arrival_ns() is None
 
 
+def test_in_order_link_delays_with_jitter_but_never_reorders() -> None:
+    link = _link(LinkFault(delay_s=0.01, jitter_s=0.02, duplication=0.1), seed=3)
+    n = 2000
+    for i in range(n):
+        link.send(i, i * 1_000_000)
+    out = link.deliver(100 * NS_PER_S)
+    items = [item for _, item in out]
+    assert all(a <= b for a, b in itertools.pairwise(items))  # duplicates next to their original, no overtaking
+    assert link.counters.duplicated > 0
+    delays = [t - i * 1_000_000 for t, i in out]
+    assert min(delays) >= 10_000_000
+    assert max(delays) <= 30_000_000
+    assert len(set(delays)) > 100  # jittered
+
+
 def test_loss_duplication_and_reordering_from_jitter() -> None:
-    link = _link(LinkFault(delay_s=0.01, jitter_s=0.02, loss=0.2, duplication=0.1), seed=3)
+    link = _link(LinkFault(delay_s=0.01, jitter_s=0.02, loss=0.2, duplication=0.1, in_order=False), seed=3)
     n = 5000
     for i in range(n):
         link.send(i, i * 1_000_000)
@@ -49,7 +64,7 @@ def test_loss_duplication_and_reordering_from_jitter() -> None:
     delays = [t - i * 1_000_000 for t, i in out]
     assert min(delays) >= 10_000_000
     assert max(delays) <= 30_000_000
-    again = _link(LinkFault(delay_s=0.01, jitter_s=0.02, loss=0.2, duplication=0.1), seed=3)
+    again = _link(LinkFault(delay_s=0.01, jitter_s=0.02, loss=0.2, duplication=0.1, in_order=False), seed=3)
     for i in range(n):
         again.send(i, i * 1_000_000)
     assert again.deliver(100 * NS_PER_S) == out

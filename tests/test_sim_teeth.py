@@ -25,7 +25,7 @@ import pytest
 
 import gateway.methods
 from gateway.metric import ConstraintRows
-from hrc_common.config import CellConfig
+from hrc_common.config import UNSAFE_ENV_VAR, CellConfig
 from hrc_common.robot_model import RobotModel, load_robot_model
 from sim.cell import RunResult, simulate
 from sim.links import LinkFault, LinkFaults
@@ -107,8 +107,9 @@ IGNORE_DELAY_TEETH = [
 
 @pytest.mark.parametrize(("teeth", "tight_cell"), IGNORE_DELAY_TEETH, ids=[t.name for t, _ in IGNORE_DELAY_TEETH])
 def test_ignoring_the_delay_violates_where_the_real_gateway_does_not(
-    cell_config: CellConfig, teeth: Teeth, tight_cell: bool
+    cell_config: CellConfig, teeth: Teeth, tight_cell: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_ignore_delay_for_tests")  # the test-only setting is refused without
     unsafe = run(*cell(cell_config, tight=tight_cell, ignore_delay=True), teeth)
     assert unsafe.t_delay_max_s == 0.0
     assert unsafe.audit.violations > 10, unsafe.to_dict()["audit"]

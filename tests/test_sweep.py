@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from hrc_common.config import CellConfig
+from hrc_common.config import UNSAFE_ENV_VAR, CellConfig
 from hrc_common.robot_model import load_robot_model
 from sim.sweep import CaseResult, CellVariant, cli, format_table, run_case, summarize
 
@@ -91,8 +91,9 @@ def test_command_writes_the_table_and_json(tmp_path: Path, capsys: pytest.Captur
     assert [c["index"] for c in doc["cases"]] == [0, 1]
 
 
-def test_cell_variant(cell_config: CellConfig) -> None:
+def test_cell_variant(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) -> None:
     assert CellVariant().apply(cell_config) == cell_config
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_ignore_delay_for_tests")  # the test-only setting is refused without
     tight = CellVariant(unsafe_ignore_delay=True, tight_braking=True, human_speed_mps=2.2).apply(cell_config)
     controller_t_b = cell_config.robots["ur5"].controller.braking_time_s
     assert tight.robots["ur5"].model.braking_time_s == [controller_t_b] * 6

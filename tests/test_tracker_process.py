@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from cellrun import REPO_ROOT, free_port, start_program, stop_program
 
+from bench.procs import free_port, start_program, stop_program
 from hrc_common import keys
-from hrc_common.config import load_cell_config
+from hrc_common.config import REPO_ROOT, load_cell_config
 from hrc_common.messages import Humans, parse_message
 from hrc_common.zenoh_session import session_config
 from tracker_emu.scenario import available_scenarios

@@ -1,0 +1,121 @@
+"""The gateway as one step object: messages in, ``cycle(now)`` → overrides out.
+
+    payload ──on_joint_state / on_humans──▶ InputStore (judged, newest kept)
+    cycle(now) ──▶ snapshot ──▶ SafetyCore.step ──▶ one decision and one Override message per robot
+
+The process (``gateway/main.py``) feeds it from Zenoh and publishes what ``cycle`` returns; the simulated cell
+(``sim/cell.py``) feeds it from simulated links on a simulated clock. Both run this very object, so the sweep
+proves the program, not a copy of its loop. No I/O and no clock inside: every time is passed in.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+from gateway.core import RobotDecision, SafetyCore
+from gateway.inputs import InputSnapshot, InputStore
+from hrc_common import keys
+from hrc_common.clocks import Clocks
+from hrc_common.config import CellConfig
+from hrc_common.messages import Override
+from hrc_common.robot_model import RobotModel
+
+
+class GatewayCycle(NamedTuple):
+    """What one cycle decided.
+
+    Attributes:
+        seq: the seq of this cycle's overrides.
+        decisions: per robot, the decision (what the status shows).
+        overrides: per robot, the message to publish on ``hrc/<cell>/robot/<robot>/override``.
+        inputs: the snapshot the decisions were made from.
+    """
+
+    seq: int
+    decisions: dict[str, RobotDecision]
+    overrides: dict[str, Override]
+    inputs: InputSnapshot
+
+
+class GatewayNode:
+    """The gateway's state and step: the input store, the safety core, and the override sequence.
+
+    Args:
+        config: the cell.
+        robots: the models of ``config.robots``.
+        on_tracker_change: called on the caller's thread when a tracker message changed what the next cycle
+            sees (to wake an event-driven loop); must not block.
+
+    Raises:
+        ConfigError: as :class:`SafetyCore`.
+    """
+
+    def __init__(
+        self,
+        config: CellConfig,
+        robots: Mapping[str, RobotModel],
+        on_tracker_change: Callable[[], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.robots = dict(robots)
+        self.core = SafetyCore(config, self.robots)
+        self.inputs = InputStore(config, self.robots, on_tracker_change)
+        self.seq = 0
+
+    # -- inputs (any thread) ----------------------------------------------------------------------
+
+    def on_joint_state(self, key: str, payload: bytes, received: Clocks) -> None:
+        """A payload on ``hrc/<cell>/robot/<robot>/state`` arrived at ``received``."""
+        self.inputs.on_joint_state(key, payload, received)
+
+    def on_humans(self, key: str, payload: bytes, received: Clocks) -> None:
+        """A payload on ``hrc/<cell>/tracker/<tracker>/humans`` arrived at ``received``."""
+        self.inputs.on_humans(key, payload, received)
+
+    def on_message(self, key: str, payload: bytes, received: Clocks) -> None:
+        """A payload on either input key (routed by the key)."""
+        if keys.name_from_key(key, "tracker") is not None:
+            self.on_humans(key, payload, received)
+        else:
+            self.on_joint_state(key, payload, received)
+
+    def on_internal_error(self, key: str, received: Clocks) -> None:
+        """Handling a message on ``key`` raised: count it and fault the topic (δ = 0 for what it concerns)."""
+        kind = "tracker" if keys.name_from_key(key, "tracker") is not None else "robot"
+        self.inputs.count_rejection(f"{kind}/{keys.name_from_key(key, kind) or '?'}", "internal_error", received)
+
+    # -- the loop -----------------------------------------------------------------------------------
+
+    def cycle(self, now: Clocks, period_s: float) -> GatewayCycle:
+        """Decide for every robot at ``now`` and stamp the overrides with ``now.wall_ns``.
+
+        Args:
+            now: the decision time on both clocks.
+            period_s: at most the time until the next decision (the loop's period plus its lateness) [s].
+        """
+        snapshot = self.inputs.snapshot(now)
+        decisions = self.core.step(snapshot, now, period_s)
+        self.seq += 1
+        overrides = {}
+        for name, decision in decisions.items():
+            overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
+            self.inputs.on_override_sent(name, self.seq, decision.delta, now)
+        return GatewayCycle(self.seq, decisions, overrides, snapshot)
+
+    def stop_overrides(self, now: Clocks) -> dict[str, Override]:
+        """δ = 0 for every robot: the last word on shutdown (their watchdogs would stop them anyway)."""
+        self.seq += 1
+        return {name: Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=0.0) for name in self.robots}
+
+
+def humans_summary(inputs: InputSnapshot) -> list[dict[str, Any]]:
+    """The status's ``humans``: each human seen, by tracker, with its capsule count."""
+    humans: list[dict[str, Any]] = []
+    for tracker, frame in inputs.humans.items():
+        if frame is None:
+            continue
+        for human_id, count in Counter(frame.capsules.human_ids).items():
+            humans.append({"id": human_id, "tracker": tracker, "capsules": count})
+    return humans

@@ -72,6 +72,7 @@ class CycleAudit(NamedTuple):
 
 
 _NO_HUMANS = CycleAudit(False, math.inf, False, None, None, None, None)
+"""The verdict of a cycle with no pair to judge (no human capsule)."""
 
 
 class _PairJudge:
@@ -138,11 +139,11 @@ def audit_links(
         human_speed_mps: approach speed K of the human [m/s].
         moving_eps_mps: speed below which the robot counts as standing still [m/s].
     """
-    if humans.n_capsules == 0:
+    if humans.n_capsules == 0 or len(link_names) == 0:
         return _NO_HUMANS
     v_a, v_b = links.v_a_world, links.v_b_world
     end_speed_mps = np.sqrt(np.maximum(np.einsum("lj,lj->l", v_a, v_a), np.einsum("lj,lj->l", v_b, v_b)))  # (L,)
-    speed_mps = float(end_speed_mps.max()) if end_speed_mps.size else 0.0
+    speed_mps = float(end_speed_mps.max())
     t_stop_s = max(0.0, delta_applied) * controller_braking_time_s
 
     pairs = CapsulePairs(

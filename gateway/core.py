@@ -176,9 +176,7 @@ class SafetyCore:
     def step(self, inputs: InputSnapshot, now: Clocks, gateway_period_s: float) -> dict[str, RobotDecision]:
         """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s]."""
         humans = self._humans_view(inputs, now.mono_ns)
-        return {
-            name: self._decide(state, inputs, now, humans, gateway_period_s) for name, state in self.states.items()
-        }
+        return {name: self._decide(state, inputs, now, humans, gateway_period_s) for name, state in self.states.items()}
 
     def _humans_view(self, inputs: InputSnapshot, now_mono_ns: int) -> HumansView:
         max_age_s = self.config.safety.max_data_age_s
@@ -239,7 +237,9 @@ class SafetyCore:
         clearance = decision_clearance_m(self.config.safety, t_brake_max_s, delay.total_s)
         delta_bound, min_distance, closest, speed_mps = 0.0, None, None, 0.0
         if joint is not None:
-            delta_bound, min_distance, closest, speed_mps = self._bound(state, joint, humans, delay.total_s, clearance, period_s)
+            delta_bound, min_distance, closest, speed_mps = self._bound(
+                state, joint, humans, delay.total_s, clearance, period_s
+            )
             delta_bound = delta_bound if delta_bound == delta_bound else 0.0  # nan never moves a robot
         thresholds = zone_thresholds(
             self.config.zones, clearance, t_brake_max_s + delay.total_s, state.speed_hold.push(now.mono_ns, speed_mps)

@@ -101,7 +101,10 @@ def _fresh_status(board: StatusBoard) -> PublishedStatus:
 
 
 _NOT_RUNNING: dict[int | str, dict[str, Any]] = {
-    503: {"model": ErrorResponse, "description": "The safety loop has published no status (yet, or for 1 s)."}
+    503: {
+        "model": ErrorResponse,
+        "description": f"The safety loop has published no status (yet, or for {STATUS_STALE_AFTER_S:g} s).",
+    }
 }
 
 status_router = APIRouter(prefix="/api/v1", tags=["status"])

@@ -242,7 +242,8 @@ class InputStore:
         self._override_tolerance = streams.override_tolerance
         self._on_tracker_change = on_tracker_change or _nothing
         self._lock = threading.Lock()
-        window_ns = round(2 * config.safety.max_data_age_s * NS_PER_S)  # a command and its echo each within the age limit
+        # a command and the joint state that shows it applied are each at most max_data_age_s on their way
+        window_ns = round(2 * config.safety.max_data_age_s * NS_PER_S)
         self._robots = {name: _robot_entry(robot, window_ns) for name, robot in robots.items()}
         self._frames: dict[str, HumanFrame | None] = dict.fromkeys(sorted(config.trackers))
         self._streams = {f"robot/{name}": _Stream("joint_state") for name in robots}

@@ -63,6 +63,7 @@ import numpy.typing as npt
 
 from gateway.geometry import segment_distances
 from gateway.kinematics import LinkKinematics
+from gateway.metric import human_speed_mps
 from hrc_common.config import SafetyConfig
 from hrc_common.humans import HumanCapsules
 
@@ -226,7 +227,7 @@ def build_rows(
     targets[:, :, 1] = ends[1]
     targets[:, :, 2] = h_a[None, :, :] + seg.t_capsule[..., None] * (h_b - h_a)[None, :, :]
     v_toward = _speed_toward(velocities, points, targets)  # (L, H, 3)
-    v_h = np.where(surface < safety.close_speed_below_m, safety.human_speed_close_mps, safety.human_speed_mps)
+    v_h = human_speed_mps(safety, surface)
     margin = safety.clearance_static_m + safety.iso15066_human_uncertainty_m + safety.iso15066_robot_uncertainty_m
     bound = delta_max(v_toward, surface[..., None], v_h[..., None], t_delay_s, t_brake_link_s[:, None, None], margin)
     return Iso15066Rows(surface, v_toward, v_h, bound)

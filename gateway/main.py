@@ -156,9 +156,7 @@ def _declare_outputs(session: zenoh.Session, config: CellConfig, http: HttpServe
     return _Outputs(overrides, session.declare_publisher(keys.gateway_status(config.cell)), http)
 
 
-def _loop(
-    config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent, wake: threading.Event | None
-) -> int:
+def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent, wake: threading.Event | None) -> int:
     """Cycle until ``stop`` is set; returns the exit code (1 if the HTTP server died)."""
     gateway = config.gateway
     period_s = 1.0 / gateway.rate_hz

@@ -42,7 +42,7 @@ import pinocchio as pin
 from gateway import iso15066
 from gateway.delay import NS_PER_S
 from gateway.kinematics import LinkKinematics
-from gateway.metric import ConstraintRows, override_from_rows
+from gateway.metric import ConstraintRows, human_speed_at_mps, override_from_rows
 from hrc_common.config import ConfigError, SafetyConfig
 from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
@@ -219,8 +219,7 @@ def stop_only_distance_m(safety: SafetyConfig, t_delay_s: float, t_brake_s: floa
     v = safety.stop_only_robot_speed_mps
     robot_m = v * (t_delay_s + 0.5 * t_brake_s) + safety.clearance_static_m
     far = safety.human_speed_mps * (t_delay_s + t_brake_s) + robot_m
-    close = far < safety.close_speed_below_m  # ISO 13855: the larger K below its close range
-    return (safety.human_speed_close_mps if close else safety.human_speed_mps) * (t_delay_s + t_brake_s) + robot_m
+    return human_speed_at_mps(safety, far) * (t_delay_s + t_brake_s) + robot_m
 
 
 class StopOnly:

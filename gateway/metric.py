@@ -51,23 +51,30 @@ class ConstraintRows(NamedTuple):
     min_bound: float
 
 
+def human_speed_mps(safety: SafetyConfig, separation_m: FloatArray) -> FloatArray:
+    """K of ISO 13855 at each separation: ``human_speed_close_mps`` below ``close_speed_below_m``, else
+    ``human_speed_mps`` [m/s]. The one statement of the close-speed rule for the numpy code (the compiled rows in
+    ``gateway.kernels`` inline the same comparison)."""
+    return np.where(separation_m < safety.close_speed_below_m, safety.human_speed_close_mps, safety.human_speed_mps)
+
+
+def human_speed_at_mps(safety: SafetyConfig, separation_m: float) -> float:
+    """:func:`human_speed_mps` for one separation, in plain floats (a numpy call on a 0-d array costs ~4 µs)."""
+    return safety.human_speed_close_mps if separation_m < safety.close_speed_below_m else safety.human_speed_mps
+
+
 def clearance_m(safety: SafetyConfig, separation_m: FloatArray, t_brake_max_s: float, t_delay_s: float) -> FloatArray:
-    """Δ = c + K (max_i t_b,i + t_delay), eq. (11)–(12); K = human_speed_close_mps below close_speed_below_m."""
-    speed_mps = np.where(
-        separation_m < safety.close_speed_below_m, safety.human_speed_close_mps, safety.human_speed_mps
-    )
-    return safety.clearance_static_m + speed_mps * (t_brake_max_s + t_delay_s)
+    """Δ = c + K (max_i t_b,i + t_delay), eq. (11)–(12), with K of :func:`human_speed_mps`."""
+    return safety.clearance_static_m + human_speed_mps(safety, separation_m) * (t_brake_max_s + t_delay_s)
 
 
 def decision_clearance_m(safety: SafetyConfig, t_brake_max_s: float, t_delay_s: float) -> float:
     """The decision's Δ (eq. (11)–(12)): at the walking speed K, or at the close speed where that Δ falls below
     ``close_speed_below_m`` (ISO 13855): :func:`clearance_m` at the separation :func:`clearance_m` gives at
-    infinity, in plain floats (a numpy call on a 0-d array costs ~4 µs)."""
+    infinity."""
     travel_s = t_brake_max_s + t_delay_s
     far_m = safety.clearance_static_m + safety.human_speed_mps * travel_s
-    if far_m < safety.close_speed_below_m:
-        return safety.clearance_static_m + safety.human_speed_close_mps * travel_s
-    return far_m
+    return safety.clearance_static_m + human_speed_at_mps(safety, far_m) * travel_s
 
 
 def build_rows(

@@ -306,7 +306,7 @@ def run_sweep(
     return summarize(results, time.perf_counter() - started_s), results
 
 
-def cli(argv: list[str] | None = None) -> None:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hrc-sweep", description="Randomized sweep of the simulated cell, audited")
     parser.add_argument("--scenarios", type=int, default=1000, help="number of generated cases (default 1000)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the sweep (default 0)")
@@ -332,32 +332,25 @@ def cli(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--human-speed-mps", type=float, default=None, help="K of the gateway and the auditor [m/s]")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
-    args = parser.parse_args(argv)
-    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
-        parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
-    variant = CellVariant(args.unsafe_ignore_delay, args.tight_braking, args.human_speed_mps)
-    try:
-        variant.apply(load_cell_config(args.config))
-    except (ConfigError, ValidationError) as exc:
-        reason = " ".join(str(exc).split())
-        print(f"hrc-sweep: invalid configuration: {reason}", file=sys.stderr)
-        sys.exit(2)
+    return parser
 
+
+def _progress_printer(total: int, quiet: bool) -> Callable[[int, CaseResult], None]:
     def progress(done: int, result: CaseResult) -> None:
-        if args.quiet:
+        if quiet:
             return
         flag = "  VIOLATION" if result.violations else ""
-        margin = _fmt(result.smallest_margin_m)
         print(
-            f"[{done}/{args.scenarios}] case {result.index}: margin {margin} m, mean δ {result.mean_delta:.2f}, "
-            f"{result.duration_s / result.wall_s:.1f}x{flag}",
+            f"[{done}/{total}] case {result.index}: margin {_fmt(result.smallest_margin_m)} m, "
+            f"mean δ {result.mean_delta:.2f}, {result.duration_s / result.wall_s:.1f}x{flag}",
             file=sys.stderr,
             flush=True,
         )
 
-    summary, results = run_sweep(
-        args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress
-    )
+    return progress
+
+
+def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummary, results: list[CaseResult]) -> None:
     if args.unsafe_ignore_delay:
         print("UNSAFE: gateway ran with unsafe_ignore_delay_for_tests = true (t_delay = 0)")
     if args.tight_braking:
@@ -365,8 +358,7 @@ def cli(argv: list[str] | None = None) -> None:
     if args.human_speed_mps is not None:
         print(f"human speed K = {args.human_speed_mps} m/s")
     print(format_table(summary, args.workers))
-    violating = [r for r in results if r.violations]
-    for r in violating[:20]:
+    for r in [r for r in results if r.violations][:20]:
         print(
             f"violation: case {r.index} seed {r.seed}: {r.violations} cycles, first at {r.first_violation_t_s} s, "
             f"margin {_fmt(r.smallest_margin_m)} m; {json.dumps(r.params)}"
@@ -379,6 +371,25 @@ def cli(argv: list[str] | None = None) -> None:
             "cases": [asdict(r) for r in results],
         }
         Path(args.json).write_text(json.dumps(doc, indent=1))
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
+        parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
+    variant = CellVariant(args.unsafe_ignore_delay, args.tight_braking, args.human_speed_mps)
+    try:
+        variant.apply(load_cell_config(args.config))
+    except (ConfigError, ValidationError) as exc:
+        reason = " ".join(str(exc).split())
+        print(f"hrc-sweep: invalid configuration: {reason}", file=sys.stderr)
+        sys.exit(2)
+    progress = _progress_printer(args.scenarios, args.quiet)
+    summary, results = run_sweep(
+        args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress
+    )
+    _report(args, variant, summary, results)
     sys.exit(1 if summary.violations else 0)
 
 

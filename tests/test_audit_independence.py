@@ -55,7 +55,7 @@ def test_no_module_of_the_auditor_imports_the_gateway() -> None:
     for path in modules:
         gateway_imports = {m for m in _imported_modules(path) if m == "gateway" or m.startswith("gateway.")}
         assert not gateway_imports, f"{path.name} imports {gateway_imports}"
-    # The AST check sees through the audit package's own imports; this one also through the other packages it uses.
+    # The AST check covers the audit modules themselves; this one also what the packages they use import in turn.
     probe = (
         "import sys, audit, audit.checks, audit.main\n"
         "print(audit.__file__)\n"
@@ -168,6 +168,25 @@ def test_coal_distance_agrees_with_sampled_points(kind: str) -> None:
         assert pairs.lower_bounds_m()[0, 0] <= max(0.0, got.surface_m)
 
 
+def test_coal_placements_are_rotations_taking_z_to_the_axis() -> None:
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(200, 3))
+    axis = rng.normal(size=(200, 3)) * rng.uniform(0.0, 0.5, (200, 1))
+    axis[:4] = [[0, 0, 1], [0, 0, -1], [0, 0, -1e-3], [1e-9, 0, -1]]  # along ±z: where a naive basis divides by ~0
+    axis[4] = 0.0  # a sphere
+    capsules = CapsuleSet(a, a + axis, np.full(200, 0.1))
+    for k in range(200):
+        shape, placement = capsules.shape(k)
+        rotation = placement.getRotation()
+        np.testing.assert_allclose(rotation.T @ rotation, np.eye(3), atol=1e-12)
+        assert np.linalg.det(rotation) == pytest.approx(1.0)
+        length = float(np.linalg.norm(axis[k]))
+        assert shape.halfLength == pytest.approx(length / 2)
+        if length > 0.0:
+            np.testing.assert_allclose(rotation[:, 2], axis[k] / length, atol=1e-12)
+        np.testing.assert_allclose(placement.getTranslation(), a[k] + axis[k] / 2, atol=1e-15)
+
+
 def _distance_to_segment(p: Any, a: Any, b: Any) -> float:
     d = b - a
     length2 = float(d @ d)
@@ -186,9 +205,11 @@ def _random_humans(rng: np.random.Generator, n: int, centre: Any, spread_m: floa
     return HumanCapsules(a, b, rng.uniform(0.03, 0.15, n), tuple(f"h{k // 13}" for k in range(n)), ("c",) * n)
 
 
-def _every_pair(links: LinkMotion, robot: RobotModel, delta: float, humans: HumanCapsules) -> tuple[float, float, int]:
-    """Reference: every pair with coal, the margin of safety-math.md §9 written out; (margin, distance, flat index
-    of the first pair of smallest margin)."""
+def _every_pair(
+    links: LinkMotion, robot: RobotModel, delta: float, humans: HumanCapsules
+) -> tuple[float, float, int, float]:
+    """Reference: every pair with coal, the margin of safety-math.md §9 written out; (smallest margin, smallest
+    distance, flat index of the first pair of smallest margin, that pair's distance)."""
     pairs = CapsulePairs(
         CapsuleSet(links.p_a_world, links.p_b_world, robot.link_radius_m),
         CapsuleSet(humans.h_a_world, humans.h_b_world, humans.radius_m),
@@ -205,22 +226,23 @@ def _every_pair(links: LinkMotion, robot: RobotModel, delta: float, humans: Huma
             margins.append(d - (v_toward * t_stop / 2 + K * t_stop))
             distances.append(d)
     worst = int(np.argmin(margins))
-    return margins[worst], min(distances), worst
+    return margins[worst], min(distances), worst, distances[worst]
 
 
 def test_pruned_pairs_give_the_verdict_of_every_pair(ur5: RobotModel) -> None:
     rng = np.random.default_rng(11)
     data = ur5.model.createData()
-    violations = 0
-    for case in range(150):
+    violations = closest_is_not_worst = 0
+    for case in range(200):
         q = rng.uniform(-np.pi, np.pi, ur5.n_joints)
-        qd = rng.uniform(-1.5, 1.5, ur5.n_joints)
+        qd = rng.uniform(-3.0, 3.0, ur5.n_joints)
         delta = float(rng.choice([0.0, 0.3, 1.0]))
         links = link_motion(ur5, data, q, delta * qd)
+        centre = ur5.p_world_base + rng.normal(size=3) * 0.4
         spread = [0.1, 0.3, 1.0][case % 3]  # from tangled up with the arm to across the cell
-        humans = _random_humans(rng, 13 * (1 + case % 3), ur5.p_world_base + np.array([0.3, 0.0, 0.2]), spread)
+        humans = _random_humans(rng, 13 * (1 + case % 3), centre, spread)
         got = audit_links(links, ur5.link_radius_m, ur5.link_names, delta, T_B, humans, K)
-        margin, distance, worst = _every_pair(links, ur5, delta, humans)
+        margin, distance, worst, worst_distance = _every_pair(links, ur5, delta, humans)
         assert got.margin_m == pytest.approx(margin, abs=1e-12)  # the reference rounds its own way
         assert got.min_distance_m == distance
         assert (got.worst_link, got.worst_capsule) == (
@@ -229,7 +251,9 @@ def test_pruned_pairs_give_the_verdict_of_every_pair(ur5: RobotModel) -> None:
         )
         assert got.violation == (margin < 0.0 or (distance <= 0.0 and got.speed_mps > 0.01))
         violations += got.violation
-    assert 10 < violations < 140  # both verdicts were exercised
+        closest_is_not_worst += distance < worst_distance  # the closest pair is not the one of smallest margin
+    assert 10 < violations < 190  # both verdicts were exercised
+    assert closest_is_not_worst > 5  # and the smallest distance needed pairs of its own
 
 
 def test_lower_bounds_hold_on_random_sets() -> None:

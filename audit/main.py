@@ -48,7 +48,7 @@ from hrc_common.messages import Humans, JointState, MessageError, parse_message
 from hrc_common.robot_model import RobotModel, load_robot_model
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
 from hrc_common.status_models import GatewayStatus
-from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
+from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 PROG = "hrc-audit"
 log = logging.getLogger(PROG)
@@ -428,10 +428,12 @@ def run_audit(
     connect: Sequence[str],
     stop: threading.Event,
     duration_s: float | None = None,
+    *,
+    zenoh_options: SessionOptions,
 ) -> dict[str, Any]:
     """Audit the cell until ``stop`` is set or ``duration_s`` has passed. Returns the report."""
     cell = config.cell
-    with zenoh.open(session_config(listen, connect)) as session:
+    with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         start_s, start_ns = time.monotonic(), time.time_ns()
         auditor = TruthAuditor(config, robots, start_ns)
         subscribers = [
@@ -497,6 +499,8 @@ def main(
     stop: threading.Event,
     duration_s: float | None = None,
     json_path: Path | None = None,
+    *,
+    zenoh_options: SessionOptions,
 ) -> int:
     """Load the robots, audit, print the summary, write the JSON. Returns the exit code.
 
@@ -504,7 +508,7 @@ def main(
         ConfigError: a robot model cannot be loaded.
     """
     robots = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
-    report = run_audit(config, robots, listen, connect, stop, duration_s)
+    report = run_audit(config, robots, listen, connect, stop, duration_s, zenoh_options=zenoh_options)
     if json_path is not None:
         json_path.write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
     sys.stdout.write(format_report(report))
@@ -539,6 +543,7 @@ def cli(argv: list[str] | None = None) -> None:
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)
+            zenoh_options = options_from_args(args, "observer-audit", config)  # reads only (access control)
             code = main(
                 config,
                 args.zenoh_listen,
@@ -546,6 +551,7 @@ def cli(argv: list[str] | None = None) -> None:
                 stop,
                 args.duration_s,
                 Path(args.json) if args.json else None,
+                zenoh_options=zenoh_options,
             )
         except ConfigError as exc:
             sys.stderr.write(f"{PROG}: invalid configuration: {' '.join(str(exc).split())}\n")

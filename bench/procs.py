@@ -37,7 +37,7 @@ from hrc_common import keys
 from hrc_common.config import REPO_ROOT, CellConfig, ConfigError, load_cell_config
 from hrc_common.errors import HrcError
 from hrc_common.status_models import GatewayStatus, RobotStatusResponse
-from hrc_common.zenoh_session import session_config
+from hrc_common.zenoh_session import PLAIN_TCP_ENV_VAR, session_config
 
 T = TypeVar("T")
 
@@ -181,7 +181,7 @@ def start_program(module: str, args: Sequence[str], log_path: Path) -> Program:
             stdout=log,
             stderr=subprocess.STDOUT,
             cwd=REPO_ROOT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env={**os.environ, "PYTHONUNBUFFERED": "1", PLAIN_TCP_ENV_VAR: "1"},  # loopback tcp/ (development)
         )
 
 

@@ -65,8 +65,9 @@ PING_KEY = "bench/oneway/ping"
 TARGET_PUBLISHED_P99_MS = 1.0
 K_PLUS_2 = "not reflected before sample k + 2 was sent"
 
-NEAR_CAPSULE = {"name": "enclosing", "a": [0.0, 0.0, 0.0], "b": [0.0, 0.0, 2.0], "radius": 1.5}
-"""Encloses the whole UR5 of the default cell (base at 0.8 m, reach 0.85 m): surface distance 0, δ = 0."""
+NEAR_CAPSULE = {"name": "torso", "a": [0.0, 0.0, 0.8], "b": [0.0, 0.0, 1.8], "radius": 0.35}
+"""A plausible body part (1 m, radius 0.35 m: the largest the default cell accepts) through the UR5's base and
+shoulder (base at 0.8 m): surface distance 0, δ = 0."""
 FAR_CAPSULE = {"name": "torso", "a": [6.0, 6.0, 0.8], "b": [6.0, 6.0, 1.6], "radius": 0.2}  # inside the world volume
 """42 m away: autonomous, δ = 1."""
 

@@ -47,19 +47,22 @@ def _free_port() -> int:
 
 
 def subscriber(endpoint: str, security: str, pki_dir: Path, out: Path) -> None:
-    """Record one-way latencies [ns] until SIGINT; write them to ``out``."""
+    """Record one-way latencies [ns] until the ``done`` sample (or SIGINT); write them to ``out``."""
     latencies: list[int] = []
+    with stop_on_signals() as stop:
 
-    def on_sample(sample: zenoh.Sample) -> None:
-        received_ns = time.time_ns()
-        latencies.append(received_ns - int(json.loads(sample.payload.to_bytes())["stamp_ns"]))
+        def on_sample(sample: zenoh.Sample) -> None:
+            received_ns = time.time_ns()
+            ping = json.loads(sample.payload.to_bytes())
+            if ping.get("done"):
+                stop.set()
+            else:
+                latencies.append(received_ns - int(ping["stamp_ns"]))
 
-    with (
-        stop_on_signals() as stop,
-        zenoh.open(session_config([endpoint], [], _options(security, pki_dir, "controller-ur5"))) as session,
-    ):
-        session.declare_subscriber(KEY, on_sample)
-        stop.wait()
+        options = _options(security, pki_dir, "controller-ur5")
+        with zenoh.open(session_config([endpoint], [], options)) as session:
+            session.declare_subscriber(KEY, on_sample)
+            stop.wait()
     out.write_text(json.dumps(latencies))
 
 
@@ -75,7 +78,7 @@ def measure(security: str, pki_dir: Path, work: Path, samples: int, warmup: int,
         with zenoh.open(session_config([], [endpoint], options)) as session:
             publisher = session.declare_publisher(KEY, express=True)
             deadline = time.monotonic() + 10.0
-            while not publisher.matching_status.matching:
+            while not publisher.matching_status.matching:  # type: ignore[attr-defined]  # zenoh stub: an object
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"{security}: the subscriber process did not appear")
                 time.sleep(0.01)
@@ -85,10 +88,12 @@ def measure(security: str, pki_dir: Path, work: Path, samples: int, warmup: int,
                 publisher.put(json.dumps({"seq": seq, "stamp_ns": time.time_ns()}).encode())
                 next_s += period_s
                 threading.Event().wait(max(0.0, next_s - time.monotonic()))
-            time.sleep(0.2)  # let the last samples land before stopping the subscriber
+            publisher.put(json.dumps({"done": True}).encode())  # after every sample: same publisher, in order
+            proc.wait(10.0)
     finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(10.0)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(10.0)
     latencies = json.loads(out.read_text())
     return np.asarray(latencies[warmup:], dtype=float) / 1e3
 

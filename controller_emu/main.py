@@ -36,7 +36,7 @@ from hrc_common.service import (
     configure_logging,
     stop_on_signals,
 )
-from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
+from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 PROG = "hrc-controller-emu"
 
@@ -155,14 +155,14 @@ def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Eve
     return rate
 
 
-def _open_session(listen: Sequence[str], connect: Sequence[str]) -> zenoh.Session:
+def _open_session(listen: Sequence[str], connect: Sequence[str], options: SessionOptions) -> zenoh.Session:
     """Open the Zenoh session.
 
     Raises:
         ConfigError: an endpoint is malformed or cannot be listened on (e.g. the port is in use).
     """
     try:
-        return zenoh.open(session_config(listen, connect))
+        return zenoh.open(session_config(listen, connect, options))
     except zenoh.ZError as exc:
         # Zenoh appends the Rust source location (" at /path/file.rs:N."): not useful to a user.
         reason = str(exc).split(" at /", 1)[0]
@@ -196,6 +196,8 @@ def run_controller(
     listen: Sequence[str],
     connect: Sequence[str],
     stop: threading.Event,
+    *,
+    zenoh_options: SessionOptions,
 ) -> ControllerState:
     """Run the controller loop until ``stop`` is set. Returns the final state.
 
@@ -204,7 +206,7 @@ def run_controller(
     """
     node = ControllerNode(robot, trajectory, config)
     override_key = keys.robot_override(cell, robot)
-    with _open_session(listen, connect) as session:
+    with _open_session(listen, connect, zenoh_options) as session:
         subscriber = session.declare_subscriber(override_key, _callback(node))
         publishers = _declare_publishers(session, cell, robot)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
@@ -240,6 +242,8 @@ def main(
     listen: Sequence[str],
     connect: Sequence[str],
     stop: threading.Event,
+    *,
+    zenoh_options: SessionOptions,
 ) -> int:
     """Load the robot and its program, then run the controller until ``stop`` is set.
 
@@ -248,6 +252,7 @@ def main(
         robot: the robot to emulate; None for the cell's only robot.
         listen, connect: Zenoh endpoints; with neither, connect to :data:`DEFAULT_ENDPOINT`.
         stop: set to end the loop (SIGINT, SIGTERM, or a test).
+        zenoh_options: mutual TLS and access control (``zenoh_session.options_from_args``).
 
     Returns:
         The process exit code (0).
@@ -263,7 +268,9 @@ def main(
     trajectory = load_trajectory(robot_config.program, model)
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
-    run_controller(config.cell, name, trajectory, robot_config.controller, listen, connect, stop)
+    run_controller(
+        config.cell, name, trajectory, robot_config.controller, listen, connect, stop, zenoh_options=zenoh_options
+    )
     return 0
 
 
@@ -277,7 +284,8 @@ def cli(argv: list[str] | None = None) -> None:
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)
-            code = main(config, args.robot, args.zenoh_listen, args.zenoh_connect, stop)
+            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
+            code = main(config, args.robot, args.zenoh_listen, args.zenoh_connect, stop, zenoh_options=zenoh_options)
         except ConfigError as exc:
             reason = " ".join(str(exc).split())
             sys.stderr.write(f"{PROG}: invalid configuration: {reason}\n")

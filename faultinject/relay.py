@@ -39,9 +39,10 @@ import zenoh
 
 from faultinject.delay_line import DelayLine
 from faultinject.rules import DIRECTIONS, Direction, FaultRule, RuleError, draw_fate, first_match, parse_rule
+from hrc_common.config import ConfigError, load_cell_config
 from hrc_common.errors import HrcError
-from hrc_common.service import configure_logging, stop_on_signals
-from hrc_common.zenoh_session import session_config
+from hrc_common.service import add_security_arguments, configure_logging, stop_on_signals
+from hrc_common.zenoh_session import PLAIN_TCP_LOOPBACK, SessionOptions, options_from_args, session_config
 
 PROG = "hrc-fault-relay"
 DEFAULT_FORWARD = "hrc/**"
@@ -69,6 +70,7 @@ class RelayConfig:
         partition_after_s, partition_for_s: a partition of both directions from this long after start,
             for this long [s]; None: no scheduled partition.
         control_key: key expression of run-time control messages (never forwarded).
+        zenoh_options: both sides' mutual TLS (as ``relay``, a forwarder) and access control.
     """
 
     a_listen: tuple[str, ...] = ()
@@ -81,6 +83,7 @@ class RelayConfig:
     partition_after_s: float | None = None
     partition_for_s: float = 0.0
     control_key: str = DEFAULT_CONTROL_KEY
+    zenoh_options: SessionOptions = PLAIN_TCP_LOOPBACK
 
 
 @dataclass
@@ -156,9 +159,9 @@ class _Message(NamedTuple):
     express: bool
 
 
-def _open(listen: Sequence[str], connect: Sequence[str], side: str) -> zenoh.Session:
+def _open(listen: Sequence[str], connect: Sequence[str], side: str, options: SessionOptions) -> zenoh.Session:
     try:
-        return zenoh.open(session_config(listen, connect))
+        return zenoh.open(session_config(listen, connect, options))
     except zenoh.ZError as exc:
         reason = str(exc).split(" at /", 1)[0]
         raise RelayError(
@@ -333,8 +336,8 @@ def run_relay(config: RelayConfig, stop: threading.Event) -> RelayStats:
     stats = RelayStats()
     partitions = Partitions()
     with (
-        _open(config.a_listen, config.a_connect, "A") as session_a,
-        _open(config.b_listen, config.b_connect, "B") as session_b,
+        _open(config.a_listen, config.a_connect, "A", config.zenoh_options) as session_a,
+        _open(config.b_listen, config.b_connect, "B", config.zenoh_options) as session_b,
     ):
         start_s = time.monotonic()
         if config.partition_after_s is not None and config.partition_for_s > 0.0:
@@ -456,6 +459,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--stats-json", default=None, metavar="PATH", help="write the statistics here at exit")
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    parser.add_argument("--config", default=None, metavar="PATH", help="cell (its access control); default cell.toml")
+    add_security_arguments(parser)
     return parser
 
 
@@ -480,6 +485,13 @@ def config_from_args(args: argparse.Namespace) -> RelayConfig:
         raise RelayError(
             f"--partition-after-s {after} --partition-for-s {duration}; allowed: T >= 0 with D > 0 (seconds)"
         )
+    endpoints = [*args.a_listen, *args.a_connect, *args.b_listen, *args.b_connect]
+    try:  # mutual TLS as ``relay`` and the cell's access control, unless --insecure-plain-tcp on loopback
+        options = options_from_args(
+            args, "relay", load_cell_config(args.config), endpoints, [*args.a_listen, *args.b_listen]
+        )
+    except ConfigError as exc:
+        raise RelayError(str(exc)) from None
     return RelayConfig(
         a_listen=tuple(args.a_listen),
         a_connect=tuple(args.a_connect),
@@ -491,6 +503,7 @@ def config_from_args(args: argparse.Namespace) -> RelayConfig:
         partition_after_s=after,
         partition_for_s=duration if after is not None else 0.0,
         control_key=args.control_key,
+        zenoh_options=options if endpoints else PLAIN_TCP_LOOPBACK,
     )
 
 

@@ -37,7 +37,7 @@ from hrc_common.service import (
     configure_logging,
     stop_on_signals,
 )
-from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
+from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 log = logging.getLogger("hrc-gateway")
 
@@ -201,13 +201,15 @@ def run_gateway(
     http_port: int,
     stop: StopEvent,
     wake: threading.Event | None = None,
+    *,
+    zenoh_options: SessionOptions,
 ) -> int:
     """Run the gateway until ``stop`` is set. Returns the process exit code.
 
     The loop decides at every tick of ``gateway.rate_hz`` and, given ``wake`` (set by the node when a tracker
     frame arrives, see :class:`GatewayNode`), also at once between ticks (an event cycle, see :class:`RateLoop`).
     """
-    with zenoh.open(session_config(listen, connect)) as session:
+    with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
         subscribers = [session.declare_subscriber(k, _callback(node)) for k in (states_key, humans_key)]
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
@@ -255,6 +257,7 @@ def cli(argv: list[str] | None = None) -> None:
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)
+            zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
             wake = stop.wake_event() if config.gateway.event_driven else None
             node = build_node(config, wake)
         except ConfigError as exc:
@@ -263,7 +266,9 @@ def cli(argv: list[str] | None = None) -> None:
         listen = args.zenoh_listen or ([] if args.zenoh_connect else [DEFAULT_ENDPOINT])
         http_host = args.http_host or config.gateway.http_host
         http_port = args.http_port if args.http_port is not None else config.gateway.http_port
-        code = run_gateway(config, node, listen, args.zenoh_connect, http_host, http_port, stop, wake)
+        code = run_gateway(
+            config, node, listen, args.zenoh_connect, http_host, http_port, stop, wake, zenoh_options=zenoh_options
+        )
     sys.exit(code)
 
 

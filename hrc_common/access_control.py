@@ -9,8 +9,10 @@ other end presented in mutual TLS (roles and CNs: :mod:`hrc_common.pki`):
   open inside the cell, an observer is a member with no put right.
 - Puts and liveliness tokens are accepted only from the CNs that :func:`grants` lists for the key. A message
   that is not allowed is dropped by the receiving session before any subscriber or route sees it.
-- A router or relay forwards on its own link, under its own CN. It is granted every put of the cell, and
-  filters with this same policy what it lets in: a forwarded message was checked at the first hop.
+- A session that routes for others sends their messages on its own link, under its own CN: the router and
+  the relay, and the gateway (a Zenoh peer routes for the clients connected to it, e.g. an auditor or an
+  observer). Each is granted every put of the cell, and filters with this same policy what it lets in: a
+  forwarded message was checked at the first hop. (The gateway commands the robot anyway.)
 
 Not covered: deletes, queries and queryables (none in the contract) are denied to everyone.
 """
@@ -27,8 +29,9 @@ from hrc_common.config import CellConfig, ConfigError
 
 READ_KEY_EXPR = "hrc/**"
 """What any member of the cell may subscribe to, and is sent."""
-FORWARDERS = ("router", "relay")
-"""CNs of the roles that forward other programs' messages (:mod:`hrc_common.router`, ``hrc-fault-relay``)."""
+FORWARDERS = ("gateway", "router", "relay")
+"""CNs that forward other programs' messages: the gateway (to its Zenoh clients), :mod:`hrc_common.router`,
+``hrc-fault-relay``."""
 TRACKER_EMULATOR = "tracker-emu"
 AUDITOR = "observer-audit"
 

@@ -55,8 +55,9 @@ def add_security_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--insecure-plain-tcp",
         action="store_true",
-        help="DEVELOPMENT ONLY: allow tcp/ endpoints on loopback, without authentication, encryption or access "
-        "control (anyone on this machine can command the robot); refused on any other address",
+        help="DEVELOPMENT ONLY (also HRC_INSECURE_PLAIN_TCP=1): allow tcp/ endpoints on loopback, without "
+        "authentication, encryption or access control (anyone on this machine can command the robot); refused on "
+        "any other address",
     )
 
 

@@ -8,8 +8,8 @@ Every program of the cell runs with mutual TLS and the cell's access control (:m
 by default: :func:`options_from_args` builds its :class:`SessionOptions` from its command line
 (:func:`hrc_common.service.add_zenoh_arguments`), and :func:`session_config` turns them into a Zenoh
 configuration. Plain TCP, without authentication, encryption or access control, is for development only:
-it needs ``--insecure-plain-tcp`` (or ``HRC_ALLOW_UNSAFE=insecure_plain_tcp``) in a program, and is refused
-on any address but loopback, everywhere.
+it needs ``--insecure-plain-tcp`` (or ``HRC_INSECURE_PLAIN_TCP=1`` in the environment, for test harnesses) in a
+program, and is refused on any address but loopback, everywhere.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import argparse
 import ipaddress
 import json
 import logging
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,14 +27,14 @@ from typing import Any, Literal
 import zenoh
 
 from hrc_common.access_control import CellPolicy, zenoh_access_control
-from hrc_common.config import CellConfig, ConfigError, unsafe_allowed
+from hrc_common.config import CellConfig, ConfigError
 from hrc_common.pki import LOOPBACK_HOSTS, CellPki, Identity, certificate_info, default_pki_dir
 
 log = logging.getLogger("hrc.zenoh")
 
 DEFAULT_ENDPOINT = "tls/127.0.0.1:7447"
-PLAIN_TCP_SETTING = "insecure_plain_tcp"
-"""Name of the development setting that allows plain TCP, in ``HRC_ALLOW_UNSAFE`` (as ``--insecure-plain-tcp``)."""
+PLAIN_TCP_ENV_VAR = "HRC_INSECURE_PLAIN_TCP"
+"""Environment variable that, set to ``1``, allows plain TCP on loopback as ``--insecure-plain-tcp`` does."""
 LEASE_MS = 1000
 """A frozen peer is seen gone after about a second instead of ten (field notes)."""
 
@@ -108,6 +109,8 @@ def check_endpoints(endpoints: Sequence[str], options: SessionOptions) -> None:
     """
     for endpoint in endpoints:
         protocol = endpoint_protocol(endpoint)
+        if not protocol:
+            continue  # not an endpoint at all: Zenoh refuses it when the session opens, with its own reason
         if options.tls is not None:
             if protocol != "tls":
                 raise SecurityError(
@@ -174,7 +177,14 @@ def mutual_tls(
     """
     pki = CellPki(pki_dir)
     extra_hosts = [h for h in dict.fromkeys(hosts) if h and h not in LOOPBACK_HOSTS and not _unspecified(h)]
+    had_ca = pki.ca_certificate.exists()
     identity, issued = pki.identity(common_name, extra_hosts, create=create)
+    if issued and not had_ca:
+        log.warning(
+            "created a new cell CA in %s: only programs with certificates of this CA can join; on a cell spread "
+            "over hosts, copy ca.crt and this program's certificate from the CA's host instead (README, Security)",
+            pki_dir,
+        )
     if issued:
         log.info("issued a certificate for %r in %s (CA %s)", common_name, pki_dir, pki.ca_certificate)
     unnamed = [h for h in extra_hosts if h not in certificate_info(identity.certificate).hosts]
@@ -197,8 +207,8 @@ def _unspecified(host: str) -> bool:
 
 
 def plain_tcp_allowed(args: argparse.Namespace) -> bool:
-    """``--insecure-plain-tcp`` given, or ``HRC_ALLOW_UNSAFE`` names ``insecure_plain_tcp``."""
-    return bool(getattr(args, "insecure_plain_tcp", False)) or unsafe_allowed(PLAIN_TCP_SETTING)
+    """``--insecure-plain-tcp`` given, or ``HRC_INSECURE_PLAIN_TCP=1`` in the environment."""
+    return bool(getattr(args, "insecure_plain_tcp", False)) or os.environ.get(PLAIN_TCP_ENV_VAR) == "1"
 
 
 def options_from_args(
@@ -229,10 +239,10 @@ def options_from_args(
     mode: Mode = getattr(args, "zenoh_mode", "peer")
     if endpoints is None:
         endpoints = [*getattr(args, "zenoh_listen", []), *getattr(args, "zenoh_connect", [])]
-    plain = [e for e in endpoints if endpoint_protocol(e) != "tls"]
+    plain = [e for e in endpoints if endpoint_protocol(e) not in ("tls", "")]
     if plain:
         options = SessionOptions(mode)
-        if len(plain) < len(endpoints):
+        if any(endpoint_protocol(e) == "tls" for e in endpoints):
             raise SecurityError(f"TLS and non-TLS endpoints mixed ({', '.join(endpoints)}); allowed: one kind")
         if not plain_tcp_allowed(args):
             raise SecurityError(
@@ -240,9 +250,14 @@ def options_from_args(
                 "allowed: tls/ endpoints (the default), or tcp/ on loopback with --insecure-plain-tcp (development)"
             )
         check_endpoints(endpoints, options)
-        log.warning(
-            "INSECURE (--insecure-plain-tcp): plain TCP on %s: no authentication, no encryption, no access control; "
-            "any local process can command the robot. Development only; refused off loopback.",
+        # Loud for the flag; a test harness that sets the environment variable keeps its programs' stderr to the
+        # one-line reasons its tests read (it is still loopback only).
+        level = logging.WARNING if getattr(args, "insecure_plain_tcp", False) else logging.DEBUG
+        log.log(
+            level,
+            "INSECURE (--insecure-plain-tcp or %s=1): plain TCP on %s: no authentication, no encryption, no access "
+            "control; any local process can command the robot. Development only; refused off loopback.",
+            PLAIN_TCP_ENV_VAR,
             ", ".join(endpoints),
         )
         return options

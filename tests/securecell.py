@@ -28,8 +28,8 @@ from typing import Any
 import zenoh
 
 from hrc_common import keys
-from hrc_common.config import UNSAFE_ENV_VAR
 from hrc_common.messages import JointState, Override, parse_message, to_payload
+from hrc_common.zenoh_session import PLAIN_TCP_ENV_VAR
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 FORGED_SEQ_START = 10**9
@@ -46,8 +46,8 @@ def free_port() -> int:
 
 
 def secure_env() -> dict[str, str]:
-    """This environment without ``HRC_ALLOW_UNSAFE`` (which may allow plain TCP for the other tests)."""
-    return {k: v for k, v in os.environ.items() if k != UNSAFE_ENV_VAR} | {"PYTHONUNBUFFERED": "1"}
+    """This environment without ``HRC_INSECURE_PLAIN_TCP`` (which allows plain TCP for the other tests)."""
+    return {k: v for k, v in os.environ.items() if k != PLAIN_TCP_ENV_VAR} | {"PYTHONUNBUFFERED": "1"}
 
 
 def start(command: Sequence[str], log_path: Path, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
@@ -72,6 +72,13 @@ def stop(proc: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int | None:
         proc.kill()
         proc.wait()
         return None
+
+
+def listening(endpoint: str) -> bool:
+    """Whether something accepts TCP connections at the loopback endpoint (``tls/127.0.0.1:PORT``)."""
+    port = int(endpoint.rsplit(":", 1)[1])
+    with socket.socket() as s:
+        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str, logs: Sequence[Path] = ()) -> None:

@@ -31,7 +31,7 @@ UR10_OVERRIDE = "hrc/demo/robot/ur10/override"
 EVERY_KEY = (OVERRIDE, UR10_OVERRIDE, STATE, TRUTH_STATE, EMU_STATS, FRONT, SIDE, TRUTH_HUMANS, STATUS)
 
 ALLOWED = {
-    "gateway": {OVERRIDE, UR10_OVERRIDE, STATUS},
+    "gateway": set(EVERY_KEY),  # its own, and what it routes to its clients (checked on its ingress)
     "controller-ur5": {STATE, TRUTH_STATE, EMU_STATS},
     "tracker-front": {FRONT},
     "tracker-emu": {FRONT, SIDE, TRUTH_HUMANS},
@@ -67,7 +67,8 @@ def test_other_cells_and_unknown_names_get_nothing() -> None:
 def test_relay_control_key_only_for_forwarders() -> None:
     key = control_key("demo")
     assert may_put(POLICY, "relay", key)
-    assert not may_put(POLICY, "gateway", key)
+    assert not may_put(POLICY, "controller-ur5", key)
+    assert not may_put(POLICY, "tracker-emu", key)
 
 
 def test_tracker_named_emu_is_refused() -> None:

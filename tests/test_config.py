@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cell_files import Edit, replace_once, write_cell
 from pydantic import ValidationError
 
 from hrc_common.config import (
@@ -47,30 +46,7 @@ UR5_JOINTS = [
     "wrist_3_joint",
 ]
 
-Edit = Callable[[str], str]
-
-
-def _replace(old: str, new: str) -> Edit:
-    def edit(text: str) -> str:
-        assert old in text, f"{old!r} not in the file: the test is out of date"
-        return text.replace(old, new, 1)
-
-    return edit
-
-
-def write_cell(tmp_path: Path, cell: Edit | None = None, robot: Edit | None = None) -> Path:
-    """Copies of configs/cell.toml, robots/ur5.toml and the program under tmp_path, edited; the cell's
-    ``model =`` points at the edited robot copy."""
-    (tmp_path / "robots").mkdir(exist_ok=True)
-    (tmp_path / "programs").mkdir(exist_ok=True)
-    shutil.copy(CONFIGS / "programs" / "ur5_pick_place.toml", tmp_path / "programs" / "ur5_pick_place.toml")
-    robot_text = (CONFIGS / "robots" / "ur5.toml").read_text()
-    (tmp_path / "robots" / "ur5_edited.toml").write_text(robot(robot_text) if robot else robot_text)
-    cell_text = (CONFIGS / "cell.toml").read_text()
-    cell_text = _replace('model = "robots/ur5.toml"', 'model = "robots/ur5_edited.toml"')(cell_text)
-    path = tmp_path / "cell.toml"
-    path.write_text(cell(cell_text) if cell else cell_text)
-    return path
+_replace = replace_once  # the edits below read as before
 
 
 def load_all(path: Path) -> None:

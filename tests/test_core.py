@@ -8,100 +8,15 @@ from collections import Counter
 import numpy as np
 import pinocchio as pin
 import pytest
+from known_cases import CYCLE_MS, FAR_TORSO, MS, NEAR_HAND, NOW, QD_NOMINAL, Cell, Q, at
 
-from gateway.core import RobotDecision, SafetyCore
-from gateway.inputs import InputStore
+from gateway.core import RobotDecision
 from gateway.zones import Zone
 from hrc_common import keys
-from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
 from hrc_common.robot_model import RobotModel
 
-NOW = 1_790_000_000_000_000_000
-MS = 1_000_000
-PERIOD_S = 0.004
-Q = [0.3, -1.2, 1.4, -0.5, 1.2, 0.0]
-QD_NOMINAL = [0.6, -0.4, 0.5, 0.3, 0.2, 0.1]
-CYCLE_MS = 4
-MONO0 = 3_000_000_000  # the gateway's monotonic clock at NOW [ns]
 HOLD_MS = 500  # streams.fault_hold_s of the default cell
-LATENCY_MS = 12
-
-FAR_TORSO = {"name": "torso", "a": [4.0, 4.0, 0.8], "b": [4.0, 4.0, 1.6], "radius": 0.2}  # ≈ 5 m from the robot
-# A hand 1.8 m ahead of tool0 along its programmed velocity at (Q, QD_NOMINAL): 0 < δ < 1 at the default delays.
-NEAR_HAND = {"name": "hand_r", "a": [-0.88, 1.39, 1.08], "b": [-0.88, 1.39, 1.08], "radius": 0.05}
-
-
-def at(t_ns: int, wall_step_ns: int = 0) -> Clocks:
-    """The gateway's clocks at wall time ``t_ns``, its wall clock stepped by ``wall_step_ns``."""
-    return Clocks(t_ns + wall_step_ns, MONO0 + t_ns - NOW)
-
-
-class Cell:
-    """An InputStore and a SafetyCore fed like the real gateway: controller states every 4 ms up to a given age,
-    the newest echoing an override sent 12 ms before it; tracker frames with a given age."""
-
-    def __init__(self, config: CellConfig, ur5: RobotModel, delay_aware: bool = True) -> None:
-        self.config = config
-        self.store = InputStore(config, {"ur5": ur5})
-        if not delay_aware:
-            safety = config.safety.model_copy(update={"unsafe_ignore_delay_for_tests": True})
-            config = config.model_copy(update={"safety": safety})
-        self.core = SafetyCore(config, {"ur5": ur5})
-        self.joint_seq = 0
-        self.last_joint_stamp_ns: int | None = None
-        self.override_seq = -1
-        self.human_seq = dict.fromkeys(config.trackers, 0)
-        self.human_stamp_ns = dict.fromkeys(config.trackers, 0)
-
-    def joint(self, now_ns: int, age_ms: float = 4, new_override: bool = True, q=Q, qd_nominal=QD_NOMINAL) -> None:
-        newest = now_ns - int(age_ms * MS)
-        stamp = newest - CYCLE_MS * MS if self.last_joint_stamp_ns is None else self.last_joint_stamp_ns + CYCLE_MS * MS
-        echoed = self.override_seq
-        if new_override:  # sent 12 ms before the newest state, which is the first to echo it
-            self.override_seq += 1
-            self.store.on_override_sent("ur5", self.override_seq, 1.0, at(newest - LATENCY_MS * MS))
-        while stamp <= newest:
-            if stamp == newest:
-                echoed = self.override_seq
-            self.joint_seq += 1
-            raw = {
-                "schema": "hrc.joint_state/1",
-                "robot": "ur5",
-                "seq": self.joint_seq,
-                "stamp_ns": stamp,
-                "q": list(q),
-                "qd": [0.0] * 6,
-                "qd_nominal": list(qd_nominal),
-                "override": 1.0,
-                "override_seq": echoed,
-                "mode": "running",
-            }
-            self.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), at(now_ns))
-            self.last_joint_stamp_ns = stamp
-            stamp += CYCLE_MS * MS
-
-    def humans(self, now_ns: int, capsules: list[dict], age_ms: float = 30, trackers=("front", "side")) -> None:
-        for tracker in trackers:
-            self.human_seq[tracker] += 1
-            # a genuine tracker's stamps only go forward: the newest capture, or just after the previous one
-            self.human_stamp_ns[tracker] = max(now_ns - int(age_ms * MS), self.human_stamp_ns[tracker] + 1)
-            raw = {
-                "schema": "hrc.humans/1",
-                "tracker": tracker,
-                "seq": self.human_seq[tracker],
-                "stamp_ns": self.human_stamp_ns[tracker],
-                "humans": [{"id": "h1", "capsules": capsules}] if capsules else [],
-            }
-            self.store.on_humans(keys.tracker_humans("demo", tracker), json.dumps(raw).encode(), at(now_ns))
-
-    def feed(self, now_ns: int, capsules: list[dict], human_age_ms: float = 30, joint_age_ms: float = 4) -> None:
-        self.joint(now_ns, joint_age_ms)
-        self.humans(now_ns, capsules, human_age_ms)
-
-    def step(self, now_ns: int, wall_step_ns: int = 0) -> RobotDecision:
-        now = at(now_ns, wall_step_ns)
-        return self.core.step(self.store.snapshot(now), now, PERIOD_S)["ur5"]
 
 
 @pytest.fixture
@@ -413,6 +328,7 @@ def test_adaptive_thresholds_hold_the_peak_programmed_speed(cell_config: CellCon
 
 
 # -- hostile and broken input (issue 9) -----------------------------------------------------------
+
 
 def _tool_point(ur5: RobotModel) -> np.ndarray:
     """tool0 of the UR5 at Q, in the world frame [m]."""

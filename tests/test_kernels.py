@@ -10,6 +10,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 import pytest
+from known_cases import FAR_TORSO, NEAR_HAND, NOW, Cell
 
 from gateway import geometry, kernels, metric
 from gateway.core import SafetyCore
@@ -314,8 +315,6 @@ def test_rows_of_degenerate_links_and_no_capsules(ur5: RobotModel) -> None:
 
 def test_the_loop_never_compiles(cell_config: CellConfig, ur5: RobotModel) -> None:
     """Building the core compiles every kernel the loop calls; stepping it with real input adds no signature."""
-    from test_core import FAR_TORSO, NEAR_HAND, NOW, Cell
-
     cell = Cell(cell_config, ur5)
     compiled = {name: len(getattr(kernels, name).signatures) for name in ("_cycle", "_columns")}
     assert all(compiled.values())

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from test_config import _replace, write_cell
-from test_core import FAR_TORSO, MS, NEAR_HAND, NOW, PERIOD_S, QD_NOMINAL, Cell, Q, at
+from cell_files import replace_once, write_cell
+from known_cases import FAR_TORSO, FRESH_T_DELAY_S, MS, NEAR_HAND, NOW, PERIOD_S, QD_NOMINAL, Cell, Q, at
 
 from gateway import iso15066
 from gateway.core import SafetyCore
@@ -21,10 +21,6 @@ from hrc_common import keys
 from hrc_common.config import SAFETY_METHODS, CellConfig, ConfigError, load_cell_config
 from hrc_common.humans import HumanCapsules, merge_humans
 from hrc_common.robot_model import RobotModel, load_robot_model
-
-# t_delay of the Cell helper with fresh data: reaction 0.040 + human 0.030 + joint 0.004 + path 0.012
-# + controller cycle 0.004 + gateway period 0.004
-T_DELAY_S = 0.094
 
 
 def with_safety(config: CellConfig, **fields: object) -> CellConfig:
@@ -57,7 +53,7 @@ def hand_beyond_tool(ur5: RobotModel, distance_m: float) -> dict[str, object]:
 
 @pytest.mark.parametrize("method", SAFETY_METHODS)
 def test_method_selected_from_toml(tmp_path: Path, method: str, ur5: RobotModel) -> None:
-    path = write_cell(tmp_path, cell=_replace('method = "zanchettin2016"', f'method = "{method}"'))
+    path = write_cell(tmp_path, cell=replace_once('method = "zanchettin2016"', f'method = "{method}"'))
     config = load_cell_config(path)
     assert config.safety.method == method
     core = SafetyCore(config, {"ur5": load_robot_model("ur5", config.robots["ur5"])})
@@ -76,7 +72,7 @@ def test_method_parameters_from_toml(tmp_path: Path) -> None:
         "replan_delta_below = 0.3\n"
         "replan_after_s = 2.0\n"
     )
-    config = load_cell_config(write_cell(tmp_path, cell=_replace('method = "zanchettin2016"\n', extra)))
+    config = load_cell_config(write_cell(tmp_path, cell=replace_once('method = "zanchettin2016"\n', extra)))
     s = config.safety
     assert (s.method, s.three_zones_tool_frame, s.three_zones_stop_below_m, s.three_zones_slow_below_m) == (
         "three_zones",
@@ -98,7 +94,7 @@ def test_default_method_and_parameters(cell_config: CellConfig) -> None:
 
 
 def test_invalid_method_refuses_to_load_listing_the_methods(tmp_path: Path) -> None:
-    path = write_cell(tmp_path, cell=_replace('method = "zanchettin2016"', 'method = "iso10218"'))
+    path = write_cell(tmp_path, cell=replace_once('method = "zanchettin2016"', 'method = "iso10218"'))
     with pytest.raises(ConfigError) as info:
         load_cell_config(path)
     message = str(info.value)
@@ -109,7 +105,7 @@ def test_invalid_method_refuses_to_load_listing_the_methods(tmp_path: Path) -> N
 
 def test_three_zones_slow_not_beyond_stop_refuses_to_load(tmp_path: Path) -> None:
     extra = 'method = "three_zones"\nthree_zones_stop_below_m = 1.5\nthree_zones_slow_below_m = 1.0\n'
-    path = write_cell(tmp_path, cell=_replace('method = "zanchettin2016"\n', extra))
+    path = write_cell(tmp_path, cell=replace_once('method = "zanchettin2016"\n', extra))
     with pytest.raises(ConfigError, match="allowed: slow > stop"):
         load_cell_config(path)
 
@@ -201,7 +197,7 @@ def test_zanchettin2016_is_the_default_and_unchanged(ur5: RobotModel, cell_confi
         np.array([NEAR_HAND["a"]]), np.array([NEAR_HAND["b"]]), np.array([0.05]), ("h",), ("hand_r",)
     )
     doubled = merge_humans([capsule, capsule])  # the hand as both trackers see it
-    rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, doubled, cell_config.safety, T_DELAY_S)
+    rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, doubled, cell_config.safety, FRESH_T_DELAY_S)
     assert 0.0 < d.delta_bound < 1.0
     assert d.delta_bound == pytest.approx(override_from_rows(rows))
     assert d.delta == d.delta_bound
@@ -229,7 +225,9 @@ def test_iso15066_near_hand_known_bound(cell_config: CellConfig, ur5: RobotModel
     cell.feed(NOW, [{"name": "hand_r", "a": p_hand.tolist(), "b": p_hand.tolist(), "radius": 0.05}])
     d = cell.step(NOW)
     humans = HumanCapsules(p_hand[None, :], p_hand[None, :], np.array([0.05]), ("h",), ("x",))
-    rows = iso15066.build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, humans, cell.config.safety, T_DELAY_S)
+    rows = iso15066.build_rows(
+        links, ur5.link_radius_m, ur5.t_brake_link_s, humans, cell.config.safety, FRESH_T_DELAY_S
+    )
     expected = float(rows.bound.min())
     assert 0.0 < expected < 1.0
     assert d.delta_bound == pytest.approx(expected)
@@ -237,7 +235,7 @@ def test_iso15066_near_hand_known_bound(cell_config: CellConfig, ur5: RobotModel
     i, j, k = np.unravel_index(int(np.argmin(rows.bound)), rows.bound.shape)
     v = rows.v_toward_mps[i, j, k]
     s_p = iso15066.protective_distance_m(
-        d.delta_bound * v, 1.6, T_DELAY_S, v / ur5.t_brake_link_s[i], cell_config.safety.clearance_static_m
+        d.delta_bound * v, 1.6, FRESH_T_DELAY_S, v / ur5.t_brake_link_s[i], cell_config.safety.clearance_static_m
     )
     assert float(s_p) == pytest.approx(rows.separation_m[i, j])
 
@@ -266,7 +264,7 @@ def test_stop_only_at_the_protective_separation_distance(cell_config: CellConfig
     cell.feed(now, [])
     assert cell.step(now).delta_bound == 1.0  # nobody
     # S_p = K (T_r + t_b) + v (T_r + t_b / 2) + c with v = stop_only_robot_speed_mps = 1.5 m/s, t_b = 0.53 s
-    s_p = 1.6 * (T_DELAY_S + 0.53) + 1.5 * (T_DELAY_S + 0.265) + 0.05
+    s_p = 1.6 * (FRESH_T_DELAY_S + 0.53) + 1.5 * (FRESH_T_DELAY_S + 0.265) + 0.05
     assert s_p == pytest.approx(1.5869)
     tool_radius_m = 0.07
     for offset_m, expected in ((0.3, 1.0), (0.01, 1.0), (-0.01, 0.0), (-0.5, 0.0)):

@@ -10,6 +10,20 @@ import math
 
 import numpy as np
 import pytest
+from known_cases import (
+    CLEARANCE_M,
+    HAND_AHEAD,
+    HORIZON_S,
+    LINK_RADIUS_M,
+    LINK_T_BRAKE_S,
+    LINK_UP,
+    SAFETY,
+    T_BRAKE_MAX_S,
+    T_DELAY_S,
+    human_capsules,
+    moving_links,
+    point_hands,
+)
 
 from gateway import kernels, metric
 from gateway.kinematics import LinkKinematics, link_kinematics
@@ -23,15 +37,6 @@ from hrc_common.config import SafetyConfig
 from hrc_common.humans import NO_HUMANS, HumanCapsules
 from hrc_common.robot_model import RobotModel
 
-SAFETY = SafetyConfig()  # K = 1.6 m/s, c = 0.05 m, ISO 13855 close-speed switch off
-T_BRAKE_LINK = 0.3  # t_b,→i [s]
-T_BRAKE_MAX = 0.5  # max_i t_b,i [s]
-T_DELAY = 0.1  # [s]
-# Δ = c + K (t_b,max + t_delay) = 0.05 + 1.6 · 0.6 = 1.01 m;  T = t_b,→i + t_delay = 0.4 s
-DELTA_CLEARANCE = 1.01
-HORIZON = 0.4
-
-
 # Every test of the rows runs on both implementations: the numpy reference and the compiled rows of the loop.
 IMPLEMENTATIONS = {"numpy": metric.build_rows, "compiled": kernels.build_rows}
 
@@ -41,57 +46,38 @@ def build_rows(request: pytest.FixtureRequest):
     return IMPLEMENTATIONS[request.param]
 
 
-def _links(p_a, p_b, v_a, v_b) -> LinkKinematics:
-    return LinkKinematics(*(np.atleast_2d(np.asarray(x, dtype=float)) for x in (p_a, p_b, v_a, v_b)))
-
-
-def _humans(a, b, radius) -> HumanCapsules:
-    a = np.atleast_2d(np.asarray(a, dtype=float))
-    b = np.atleast_2d(np.asarray(b, dtype=float))
-    n = len(a)
-    return HumanCapsules(
-        a, b, np.broadcast_to(np.asarray(radius, float), (n,)).copy(), tuple(f"h{i}" for i in range(n)), ("c",) * n
-    )
-
-
-def _point_hands(points, radius=0.05) -> HumanCapsules:
-    return _humans(points, points, radius)
-
-
-# A 0.4 m link on the x axis, radius 0.05 m, translating along +y at 2 m/s.
-LINK_UP = _links((0, 0, 0), (0.4, 0, 0), (0, 2, 0), (0, 2, 0))
-LINK_RADIUS = np.array([0.05])
-LINK_T_BRAKE = np.array([T_BRAKE_LINK])
-
-
 def _rows(
-    build_rows, links=LINK_UP, humans=None, safety=SAFETY, t_delay=T_DELAY, radius=LINK_RADIUS, t_brake=LINK_T_BRAKE
+    build_rows,
+    links=LINK_UP,
+    humans=None,
+    safety=SAFETY,
+    t_delay=T_DELAY_S,
+    radius=LINK_RADIUS_M,
+    t_brake=LINK_T_BRAKE_S,
 ):
-    return build_rows(links, radius, t_brake, T_BRAKE_MAX, humans, safety, t_delay)
+    return build_rows(links, radius, t_brake, T_BRAKE_MAX_S, humans, safety, t_delay)
 
 
 # -- known answers --------------------------------------------------------------------------------
 
 
 def test_clearance_known_answer() -> None:
-    assert pytest.approx(0.05 + 1.6 * (0.5 + 0.1)) == DELTA_CLEARANCE
-    got = clearance_m(SAFETY, np.array([0.1, 3.0]), T_BRAKE_MAX, T_DELAY)
-    np.testing.assert_allclose(got, [DELTA_CLEARANCE, DELTA_CLEARANCE])
+    assert pytest.approx(0.05 + 1.6 * (0.5 + 0.1)) == CLEARANCE_M
+    got = clearance_m(SAFETY, np.array([0.1, 3.0]), T_BRAKE_MAX_S, T_DELAY_S)
+    np.testing.assert_allclose(got, [CLEARANCE_M, CLEARANCE_M])
 
 
 def test_single_link_moving_straight_at_a_point_hand(build_rows) -> None:
-    # hand at (0.2, 2, 0), radius 0.05: centre-line distance 2.0, surface d = 2.0 − 0.05 − 0.05 = 1.9
-    # f = (1.9 − 1.01)² = 0.89² = 0.7921
-    # e = (h − r)ᵀ v = 2.0 · 2 = 4.0 for both link ends (h − r_a = (0.2, 2, 0), h − r_b = (−0.2, 2, 0))
-    # δ = f / (T e) = 0.7921 / (0.4 · 4.0) = 0.4950625
-    rows = _rows(build_rows, humans=_point_hands([(0.2, 2.0, 0.0)]))
-    assert rows.surface_distance_m[0, 0] == pytest.approx(1.9)
-    assert rows.clearance_m[0, 0] == pytest.approx(1.01)
-    assert rows.f_m2[0, 0] == pytest.approx(0.7921)
-    np.testing.assert_allclose(rows.e_m2ps[0, 0], [[4.0, 4.0], [4.0, 4.0]])
-    np.testing.assert_allclose(rows.horizon_s, [0.4])
-    np.testing.assert_allclose(rows.bound[0, 0], np.full((2, 2), 0.4950625))
-    assert override_from_rows(rows) == pytest.approx(0.4950625)
+    # known_cases.HAND_AHEAD: d = 1.9, f = 0.7921, e = 4.0 for every row, δ = 0.7921 / (0.4 · 4.0) = 0.4950625
+    case = HAND_AHEAD
+    rows = _rows(build_rows, humans=case.humans)
+    assert rows.surface_distance_m[0, 0] == pytest.approx(case.distance_m)
+    assert rows.clearance_m[0, 0] == pytest.approx(CLEARANCE_M)
+    assert rows.f_m2[0, 0] == pytest.approx(case.f_m2)
+    np.testing.assert_allclose(rows.e_m2ps[0, 0], np.full((2, 2), case.e_m2ps))
+    np.testing.assert_allclose(rows.horizon_s, [HORIZON_S])
+    np.testing.assert_allclose(rows.bound[0, 0], np.full((2, 2), case.delta))
+    assert override_from_rows(rows) == pytest.approx(case.delta)
 
 
 def test_rotating_link_and_capsule_hand_corners(build_rows) -> None:
@@ -100,8 +86,8 @@ def test_rotating_link_and_capsule_hand_corners(build_rows) -> None:
     # radius 0.1: centre-line distance 1.5 (r_b to h_a), d = 1.5 − 0.05 − 0.1 = 1.35, f = (1.35 − 1.01)² = 0.1156
     # e: end a → 0 (not moving); end b → (0, 1.5, 0)·(0, 2, 0) = 3.0 and (0, 1.8, 0)·(0, 2, 0) = 3.6
     # δ = 0.1156 / (0.4 · 3.6) = 0.080277…
-    links = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 0), (0, 2, 0))
-    rows = _rows(build_rows, links=links, humans=_humans([(0.4, 1.5, 0)], [(0.4, 1.8, 0)], 0.1))
+    links = moving_links((0, 0, 0), (0.4, 0, 0), (0, 0, 0), (0, 2, 0))
+    rows = _rows(build_rows, links=links, humans=human_capsules([(0.4, 1.5, 0)], [(0.4, 1.8, 0)], 0.1))
     assert rows.surface_distance_m[0, 0] == pytest.approx(1.35)
     assert rows.f_m2[0, 0] == pytest.approx(0.1156)
     np.testing.assert_allclose(rows.e_m2ps[0, 0], [[0.0, 0.0], [3.0, 3.6]], atol=1e-12)
@@ -113,11 +99,11 @@ def test_rotating_link_and_capsule_hand_corners(build_rows) -> None:
 def test_horizon_uses_each_links_braking_time(build_rows) -> None:
     # Two copies of the link, t_b,→i = 0.3 and 0.6 s: bounds 0.7921 / (0.4 · 4) and 0.7921 / (0.7 · 4).
     # Δ uses t_b,max = 0.5 for both, so f is the same.
-    links = _links(*(np.repeat(np.atleast_2d(x), 2, axis=0) for x in LINK_UP))
+    links = moving_links(*(np.repeat(np.atleast_2d(x), 2, axis=0) for x in LINK_UP))
     rows = _rows(
         build_rows,
         links=links,
-        humans=_point_hands([(0.2, 2.0, 0.0)]),
+        humans=HAND_AHEAD.humans,
         radius=np.array([0.05, 0.05]),
         t_brake=np.array([0.3, 0.6]),
     )
@@ -129,12 +115,12 @@ def test_horizon_uses_each_links_braking_time(build_rows) -> None:
 def test_nearer_human_decides(build_rows) -> None:
     """δ is the MINIMUM of the bounds; paper 1's "max" would let the farther human decide."""
     # farther: (0.2, 2.3, 0): d = 2.2, f = 1.19² = 1.4161, e = 2.3 · 2 = 4.6, bound = 1.4161 / 1.84 = 0.76962…
-    # nearer: (0.2, 2.0, 0): bound 0.4950625 (see above)
-    rows = _rows(build_rows, humans=_point_hands([(0.2, 2.3, 0.0), (0.2, 2.0, 0.0)]))
+    # nearer: HAND_AHEAD at (0.2, 2.0, 0): bound 0.4950625
+    rows = _rows(build_rows, humans=point_hands([(0.2, 2.3, 0.0), (0.2, 2.0, 0.0)]))
     np.testing.assert_allclose(rows.bound[0, 0], np.full((2, 2), 1.4161 / 1.84))
-    np.testing.assert_allclose(rows.bound[0, 1], np.full((2, 2), 0.4950625))
+    np.testing.assert_allclose(rows.bound[0, 1], np.full((2, 2), HAND_AHEAD.delta))
     delta = override_from_rows(rows)
-    assert delta == pytest.approx(0.4950625)
+    assert delta == pytest.approx(HAND_AHEAD.delta)
     assert delta != pytest.approx(1.4161 / 1.84)  # what a max-of-bounds implementation would return
 
 
@@ -142,7 +128,7 @@ def test_clamp_then_square(build_rows) -> None:
     # hand at (0.2, 0.8, 0): d = 0.7 < Δ = 1.01 while approaching (e = 1.6 > 0).
     # Right: f = max(0, 0.7 − 1.01)² = 0 → δ = 0.
     # Squaring first would give f = 0.31² = 0.0961 and δ = 0.0961 / (0.4 · 1.6) = 0.15.
-    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.8, 0.0)]))
+    rows = _rows(build_rows, humans=point_hands([(0.2, 0.8, 0.0)]))
     assert rows.surface_distance_m[0, 0] == pytest.approx(0.7)
     assert rows.f_m2[0, 0] == 0.0
     np.testing.assert_allclose(rows.e_m2ps[0, 0], np.full((2, 2), 1.6))
@@ -151,7 +137,7 @@ def test_clamp_then_square(build_rows) -> None:
 
 def test_touching_while_approaching_gives_zero(build_rows) -> None:
     # centre-line distance 0.05 < sum of radii 0.1: d = 0 (clamped), f = 0, e = 0.05 · 2 = 0.1 > 0 → δ = 0
-    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.05, 0.0)]))
+    rows = _rows(build_rows, humans=point_hands([(0.2, 0.05, 0.0)]))
     assert rows.surface_distance_m[0, 0] == 0.0
     assert rows.f_m2[0, 0] == 0.0
     assert override_from_rows(rows) == 0.0
@@ -159,8 +145,8 @@ def test_touching_while_approaching_gives_zero(build_rows) -> None:
 
 def test_retreating_link_is_not_slowed_even_when_close(build_rows) -> None:
     # same hand at 0.7 m (inside Δ), link moving at −y: e = 0.8 · (−2) = −1.6 ≤ 0 for every row → no bound
-    retreating = _links((0, 0, 0), (0.4, 0, 0), (0, -2, 0), (0, -2, 0))
-    rows = _rows(build_rows, links=retreating, humans=_point_hands([(0.2, 0.8, 0.0)]))
+    retreating = moving_links((0, 0, 0), (0.4, 0, 0), (0, -2, 0), (0, -2, 0))
+    rows = _rows(build_rows, links=retreating, humans=point_hands([(0.2, 0.8, 0.0)]))
     assert rows.f_m2[0, 0] == 0.0
     assert (rows.e_m2ps < 0).all()
     assert np.isinf(rows.bound).all()
@@ -169,8 +155,8 @@ def test_retreating_link_is_not_slowed_even_when_close(build_rows) -> None:
 
 def test_sideways_link_is_not_bounded(build_rows) -> None:
     # link moving along z, hand in the x–y plane: e = (h − r)ᵀ v = 0 for every row
-    sideways = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 2), (0, 0, 2))
-    rows = _rows(build_rows, links=sideways, humans=_point_hands([(0.2, 0.8, 0.0)]))
+    sideways = moving_links((0, 0, 0), (0.4, 0, 0), (0, 0, 2), (0, 0, 2))
+    rows = _rows(build_rows, links=sideways, humans=point_hands([(0.2, 0.8, 0.0)]))
     np.testing.assert_allclose(rows.e_m2ps, 0.0, atol=1e-15)
     assert override_from_rows(rows) == 1.0
 
@@ -178,8 +164,8 @@ def test_sideways_link_is_not_bounded(build_rows) -> None:
 def test_axial_translation_is_bounded_by_the_leading_end(build_rows) -> None:
     # link sliding along +x at 1 m/s, hand above its middle at 2 m: e_a = 0.2 · 1 = 0.2 > 0, e_b = −0.2 ≤ 0
     # δ = 0.7921 / (0.4 · 0.2) = 9.9 → clipped to 1; with 10 m/s: 0.7921 / (0.4 · 2) = 0.990125
-    sliding = _links((0, 0, 0), (0.4, 0, 0), (10, 0, 0), (10, 0, 0))
-    rows = _rows(build_rows, links=sliding, humans=_point_hands([(0.2, 2.0, 0.0)]))
+    sliding = moving_links((0, 0, 0), (0.4, 0, 0), (10, 0, 0), (10, 0, 0))
+    rows = _rows(build_rows, links=sliding, humans=point_hands([(0.2, 2.0, 0.0)]))
     np.testing.assert_allclose(rows.e_m2ps[0, 0], [[2.0, 2.0], [-2.0, -2.0]])
     assert override_from_rows(rows) == pytest.approx(0.990125)
 
@@ -201,7 +187,7 @@ def test_iso13855_close_speed_switch_raises_the_clearance_below_the_threshold(bu
         assert decision_clearance_m(safety, 0.5, 0.1) == float(clearance_m(safety, far, 0.5, 0.1)[0])
     fast = SafetyConfig(close_speed_below_m=0.5)  # Δ at K = 0.05 + 1.6 · 0.15 = 0.29 m < 0.5 m: K close applies
     assert decision_clearance_m(fast, 0.05, 0.1) == pytest.approx(0.05 + 2.0 * 0.15)
-    rows = _rows(build_rows, humans=_point_hands([(0.2, 0.4, 0.0), (0.2, 2.0, 0.0)]), safety=iso)
+    rows = _rows(build_rows, humans=point_hands([(0.2, 0.4, 0.0), (0.2, 2.0, 0.0)]), safety=iso)
     # the first hand is at d = 0.3 m, the second at 1.9 m
     np.testing.assert_allclose(rows.clearance_m[0], [1.25, 1.01])
     assert override_from_rows(rows) == 0.0
@@ -212,9 +198,9 @@ def test_iso13855_switch_changes_delta_below_the_threshold(build_rows) -> None:
     # hand at d = 0.4: K = 1.6 → Δ = 0.21, f = 0.19² = 0.0361; K = 2.0 → Δ = 0.25, f = 0.15² = 0.0225.
     # e = 0.5 · 2 = 1.0 (centre-line 0.5), T = 0.3 + 0.05 = 0.35: δ = 0.0361 / 0.35 and 0.0225 / 0.35.
     iso = SafetyConfig(close_speed_below_m=0.5)
-    humans = _point_hands([(0.2, 0.5, 0.0)])
-    off = build_rows(LINK_UP, LINK_RADIUS, LINK_T_BRAKE, 0.05, humans, SAFETY, 0.05)
-    on = build_rows(LINK_UP, LINK_RADIUS, LINK_T_BRAKE, 0.05, humans, iso, 0.05)
+    humans = point_hands([(0.2, 0.5, 0.0)])
+    off = build_rows(LINK_UP, LINK_RADIUS_M, LINK_T_BRAKE_S, 0.05, humans, SAFETY, 0.05)
+    on = build_rows(LINK_UP, LINK_RADIUS_M, LINK_T_BRAKE_S, 0.05, humans, iso, 0.05)
     assert override_from_rows(off) == pytest.approx(0.0361 / 0.35)
     assert override_from_rows(on) == pytest.approx(0.0225 / 0.35)
 
@@ -229,10 +215,10 @@ def test_closer_can_legitimately_raise_delta_for_a_spinning_sliding_link(build_r
     y = 2.9: δ = 1.89² / 5.4 = 0.661500; y = 2.4 (closer): δ = 1.39² / 2.4 = 0.805042 — larger.
     The bound f / (T e) depends on (h − r)ᵀ v, which shrinks faster than f here.
     """
-    links = _links((0, 0, 0), (4, 0, 0), (-10, 10, 0), (-10, -10, 0))
+    links = moving_links((0, 0, 0), (4, 0, 0), (-10, 10, 0), (-10, -10, 0))
     deltas = []
     for y in (2.9, 2.4):
-        rows = build_rows(links, np.zeros(1), np.array([0.5]), 0.5, _point_hands([(2, y, 0)], 0.0), SAFETY, 0.1)
+        rows = build_rows(links, np.zeros(1), np.array([0.5]), 0.5, point_hands([(2, y, 0)], 0.0), SAFETY, 0.1)
         deltas.append(override_from_rows(rows))
     assert deltas[0] == pytest.approx(1.89**2 / 5.4)
     assert deltas[1] == pytest.approx(1.39**2 / 2.4)
@@ -419,7 +405,7 @@ def test_delta_does_not_rise_when_a_human_comes_closer_to_a_point_like_link(buil
         end = int(rng.integers(2))
         r = (links.p_a_world, links.p_b_world)[end][i]
         v = (links.v_a_world, links.v_b_world)[end][i]
-        point_link = _links(r, r, v, v)
+        point_link = moving_links(r, r, v, v)
         radius, t_brake = ur5.link_radius_m[i : i + 1], ur5.t_brake_link_s[i : i + 1]
         t_brake_max = float(ur5.braking_time_s.max())
         lam = rng.uniform(0.2, 1.0, humans.n_capsules)[:, None]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 import subprocess
 import threading
 import time
@@ -19,6 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import httpx
 import pytest
 import zenoh
 from securecell import (
@@ -26,6 +28,7 @@ from securecell import (
     forge_overrides,
     free_port,
     intruder_config,
+    listening,
     module,
     secure_env,
     start,
@@ -38,7 +41,7 @@ from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import provision_cell
 from hrc_common.config import CellConfig, load_cell_config
 from hrc_common.messages import Humans, to_payload
-from hrc_common.pki import CellPki
+from hrc_common.pki import STATE_DIR_ENV_VAR, CellPki
 from hrc_common.zenoh_session import SessionOptions, mutual_tls, session_config
 
 pytestmark = pytest.mark.e2e
@@ -64,11 +67,11 @@ class SecureCell:
     def cell(self) -> str:
         return self.config.cell
 
-    def options(self, common_name: str, mode: str = "client") -> SessionOptions:
-        """A legitimate member's session options (plain in the teeth run)."""
+    def options(self, common_name: str, mode: str = "client", *, enforce: bool = False) -> SessionOptions:
+        """A legitimate member's session options (plain in the teeth run); ``enforce``: the cell's access control."""
         if PLAIN:
             return SessionOptions("client" if mode == "client" else "peer")
-        tls = mutual_tls(self.pki.root, common_name, None)
+        tls = mutual_tls(self.pki.root, common_name, CellPolicy.from_config(self.config) if enforce else None)
         return SessionOptions("client" if mode == "client" else "peer", tls)
 
     def intruder(self, common_name: str | None, endpoint: str) -> zenoh.Config:
@@ -98,6 +101,7 @@ def secure_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SecureCell
     try:
         for (name, command), log in zip(commands.items(), cell.logs, strict=True):
             cell.procs[name] = start(command, log)
+        wait_until(lambda: listening(gw_ep) and listening(ctrl_ep), START_TIMEOUT_S, "the listeners", cell.logs)
         with zenoh.open(session_config([], [gw_ep], cell.options("observer-fixture"))) as session:
             watch = StateWatch(session, cell.cell, ROBOT)
             statuses: list[bytes] = []
@@ -215,6 +219,17 @@ def test_observer_reads_status_but_its_puts_are_denied(secure_cell: SecureCell) 
     assert max(s.override for s in watch.since(started_s)) == 0.0
 
 
+def test_auditor_reads_the_controller_through_the_gateway(secure_cell: SecureCell) -> None:
+    """The auditor's identity with the cell's access control, a Zenoh client of the gateway: the controller's
+    ground truth reaches it, routed by the gateway (which forwards what its own access control let in)."""
+    cell = secure_cell
+    received: list[bytes] = []
+    options = cell.options("observer-audit", enforce=True)
+    with zenoh.open(session_config([], [cell.gateway_endpoint], options)) as auditor:
+        auditor.declare_subscriber(keys.truth_robot_state(cell.cell, ROBOT), lambda s: received.append(b""))
+        wait_until(lambda: len(received) > 10, 10.0, "the controller's truth through the gateway", cell.logs)
+
+
 @pytest.mark.parametrize("who", ["no certificate", "certificate of another CA", "plain TCP"])
 @pytest.mark.parametrize("target", ["gateway", "controller"])
 def test_no_cell_certificate_no_connection(secure_cell: SecureCell, tmp_path: Path, who: str, target: str) -> None:
@@ -266,3 +281,32 @@ def test_router_refuses_plain_tcp_off_loopback(tmp_path: Path) -> None:
     )
     assert result.returncode == 2
     assert "only on loopback" in result.stderr
+
+
+def test_hrc_cell_creates_the_pki_and_runs_over_mutual_tls(tmp_path: Path) -> None:
+    """``./run-cell.sh`` on a fresh clone: ``hrc-cell`` creates the CA and certificates in the state folder without
+    a question and runs the cell over TLS; ``/readyz`` turns 200 once overrides flow to the controller and back."""
+    state = tmp_path / "state"
+    http_port, zenoh_port = free_port(), free_port()
+    log = tmp_path / "hrc-cell.log"
+    command = module("hrc_common.launcher", "--http-port", str(http_port), "--zenoh-port", str(zenoh_port))
+    proc = start(command, log, secure_env() | {STATE_DIR_ENV_VAR: str(state)})
+
+    def ready() -> bool:
+        try:
+            return httpx.get(f"http://127.0.0.1:{http_port}/readyz", timeout=2.0).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_until(ready, START_TIMEOUT_S, "/readyz 200 (inputs fresh, overrides flowing)", [log])
+    finally:
+        code = stop(proc)
+    assert code == 0
+    text = log.read_text()
+    assert f"on tls/127.0.0.1:{zenoh_port}" in text
+    assert "created the cell CA" in text
+    assert "INSECURE" not in text
+    pki = state / "pki"
+    for key in ("ca.key", "gateway.key", "controller-ur5.key", "tracker-emu.key"):
+        assert stat.S_IMODE((pki / key).stat().st_mode) == 0o600

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from securecell import REPO_ROOT, StateWatch, free_port, module, secure_env, start, stop, wait_until
+from securecell import REPO_ROOT, StateWatch, free_port, listening, module, secure_env, start, stop, wait_until
 
 from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import provision_cell
@@ -106,11 +105,6 @@ def lan() -> Iterator[Lan]:
         _remove(tag)
 
 
-def _listening(port: int) -> bool:
-    with socket.socket() as s:
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
 def test_cell_across_namespaces_through_a_router(lan: Lan, tmp_path: Path) -> None:
     config = load_cell_config(None)
     pki = CellPki(tmp_path / "pki")
@@ -132,7 +126,9 @@ def test_cell_across_namespaces_through_a_router(lan: Lan, tmp_path: Path) -> No
         listen = [a for ep in (*router_eps.values(), f"tls/127.0.0.1:{local_port}") for a in ("--listen", ep)]
         router = launch("router", module("hrc_common.router", *listen, *pki_args))
         stack.callback(stop, router)
-        wait_until(lambda: _listening(local_port) or router.poll() is not None, 20.0, "the router", logs)
+        wait_until(
+            lambda: listening(f"tls/127.0.0.1:{local_port}") or router.poll() is not None, 20.0, "the router", logs
+        )
         assert router.poll() is None, (tmp_path / "router.log").read_text()
         programs = {
             "gateway": lan.command("gw", module("gateway.main", *client("gw"), "--http-port", str(free_port()))),

@@ -21,11 +21,12 @@ from securecell import intruder_config
 
 from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import cli as cert_cli
-from hrc_common.config import UNSAFE_ENV_VAR, CellConfig
+from hrc_common.config import CellConfig
 from hrc_common.launcher import program_commands
 from hrc_common.pki import CellPki
 from hrc_common.service import add_zenoh_arguments
 from hrc_common.zenoh_session import (
+    PLAIN_TCP_ENV_VAR,
     PLAIN_TCP_LOOPBACK,
     SecurityError,
     SessionOptions,
@@ -54,7 +55,7 @@ def _args(*argv: str) -> argparse.Namespace:
 
 @pytest.fixture(autouse=True)
 def _no_plain_tcp_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv(UNSAFE_ENV_VAR, raising=False)
+    monkeypatch.delenv(PLAIN_TCP_ENV_VAR, raising=False)
 
 
 # -- endpoints --------------------------------------------------------------------------------------
@@ -131,7 +132,7 @@ def test_plain_tcp_with_the_flag_warns(cell_config: CellConfig, caplog: pytest.L
 
 
 def test_plain_tcp_flag_from_the_environment(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv(UNSAFE_ENV_VAR, "insecure_plain_tcp")
+    monkeypatch.setenv(PLAIN_TCP_ENV_VAR, "1")
     options = options_from_args(_args("--zenoh-connect", "tcp/127.0.0.1:7447"), "tracker-emu", cell_config)
     assert options.tls is None
 

@@ -23,7 +23,7 @@ from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_config
 from hrc_common.messages import to_payload
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
-from hrc_common.zenoh_session import DEFAULT_ENDPOINT, session_config
+from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
 
@@ -85,13 +85,15 @@ def main(
     connect: Sequence[str],
     stop: threading.Event,
     truth_rate_hz: float = DEFAULT_TRUTH_RATE_HZ,
+    *,
+    zenoh_options: SessionOptions,
 ) -> int:
     """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code.
 
     ``truth_rate_hz``: rate of the ground truth on ``hrc/<cell>/truth/humans`` [Hz]; 0 publishes none.
     """
     cell = config.cell
-    with zenoh.open(session_config(listen, connect)) as session:
+    with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         publishers = {
             name: session.declare_publisher(
                 keys.tracker_humans(cell, name), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
@@ -176,6 +178,7 @@ def cli(argv: list[str] | None = None) -> None:
         config = load_cell_config(args.config)
         scenario_name, scenario = select_scenario(config, args.scenario)
         trackers = select_trackers(config, args.tracker)
+        zenoh_options = options_from_args(args, COMPONENT, config)  # mutual TLS + access control by default
     except ConfigError as exc:
         print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)
         sys.exit(2)
@@ -191,6 +194,7 @@ def cli(argv: list[str] | None = None) -> None:
             connect,
             stop,
             truth_rate_hz=args.truth_rate_hz,
+            zenoh_options=zenoh_options,
         )
     sys.exit(code)
 

@@ -250,11 +250,9 @@ def options_from_args(
                 "allowed: tls/ endpoints (the default), or tcp/ on loopback with --insecure-plain-tcp (development)"
             )
         check_endpoints(endpoints, options)
-        # Loud for the flag; a test harness that sets the environment variable keeps its programs' stderr to the
-        # one-line reasons its tests read (it is still loopback only).
-        level = logging.WARNING if getattr(args, "insecure_plain_tcp", False) else logging.DEBUG
-        log.log(
-            level,
+        # Loud whichever way it was asked for: an environment variable left in a service's environment must not
+        # disable authentication silently.
+        log.warning(
             "INSECURE (--insecure-plain-tcp or %s=1): plain TCP on %s: no authentication, no encryption, no access "
             "control; any local process can command the robot. Development only; refused off loopback.",
             PLAIN_TCP_ENV_VAR,

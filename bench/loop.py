@@ -1,7 +1,7 @@
 """Sustained loop: the real gateway at 500 Hz and 250 Hz, with and without HTTP load on its REST API.
 
 Each run starts a whole cell on loopback (gateway with ``gateway.rate_hz`` changed in a temporary copy
-of the cell, controller emulator, tracker emulator playing a looping scenario) and, for ``duration``
+of the cell, one controller emulator per robot, tracker emulator playing a looping scenario) and, for ``duration``
 seconds, records:
 
 - the period of the fixed-rate ticks: differences of the ``stamp_ns`` of consecutive ticks' overrides
@@ -253,17 +253,22 @@ def tick_periods(stamps: list[Stamp], statuses: list[LoopStatus]) -> tuple[np.nd
 
 
 def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
-    robot = next(iter(base.robots))
+    robots = list(base.robots)
+    robot = robots[0]  # the robot whose overrides are recorded (the gateway sends one per robot per cycle)
     gw_port, http_port = free_port(), free_port()
     gw_ep = f"tcp/127.0.0.1:{gw_port}"
     tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps"
     config = with_gateway_rate(base, settings.rate_hz, http_port, settings.event_driven)
     config_path = write_cell_config(config, work_dir / f"cell-{tag}.toml")
-    logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", "controller", "tracker")}
+    controllers = [f"controller-{r}" for r in robots]
+    logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", *controllers, "tracker")}
     cfg = ["--config", str(config_path)]
     specs = [
         ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
-        ("controller_emu.main", [*cfg, "--robot", robot, "--zenoh-connect", gw_ep], logs["controller"]),
+        *(
+            ("controller_emu.main", [*cfg, "--robot", r, "--zenoh-connect", gw_ep], logs[f"controller-{r}"])
+            for r in robots
+        ),
         (
             "tracker_emu.main",
             [*cfg, "--scenario", settings.scenario, "--seed", str(settings.seed), "--zenoh-connect", gw_ep],

@@ -29,6 +29,7 @@ from hrc_common.clocks import read_clocks
 from hrc_common.config import CellConfig, ConfigError, ControllerConfig, load_cell_config
 from hrc_common.messages import to_payload
 from hrc_common.robot_model import load_robot_model
+from hrc_common.sd_notify import LoopNotifier
 from hrc_common.service import (
     RateLoop,
     add_config_argument,
@@ -129,6 +130,12 @@ def _log_progress(node: ControllerNode, missed_cycles: int) -> None:
     )
 
 
+def service_status_line(robot: str, stats: ControllerStats) -> str:
+    """One line for the service manager (``STATUS=``): mode, applied override, program cycles, rejections."""
+    rejected = sum(stats.rejected.values())
+    return f"{robot} {stats.mode} δ={stats.delta_applied:.2f} cycles={stats.cycles_completed} rejected={rejected}"
+
+
 def _publish(output: ControllerOutput, publishers: _Publishers, config: ControllerConfig) -> None:
     payload = to_payload(output.joint_state)
     publishers.state.put(payload)
@@ -142,16 +149,19 @@ def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Eve
     rate = RateLoop(node.config.cycle_s)
     next_stats_s = time.monotonic() + STATS_EVERY_S
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+    service = LoopNotifier.from_environment()  # READY=1 after the first joint state, WATCHDOG=1, STATUS=
     while rate.sleep(stop):
         now = read_clocks()
         _publish(node.cycle(now), publishers, node.config)
         now_s = now.mono_ns / 1e9
+        service.cycle_done(now_s, lambda: service_status_line(node.robot, node.stats()))
         if now_s >= next_stats_s:
             next_stats_s = now_s + STATS_EVERY_S
             publishers.stats.put(_stats_doc(node.robot, node.stats(), rate.missed_cycles))
         if now_s >= next_progress_s:
             next_progress_s = now_s + PROGRESS_EVERY_S
             _log_progress(node, rate.missed_cycles)
+    service.stopping()
     return rate
 
 

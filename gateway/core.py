@@ -19,6 +19,7 @@ import pinocchio as pin
 from gateway.delay import NS_PER_S, DelayBudget, WindowMax
 from gateway.inputs import HumanFrame, InputSnapshot, JointSample, OverridePathEstimate, TopicFault, age_s
 from gateway.kernels import RobotKernels, capsule_columns
+from gateway.link_ends import LinkEnds
 from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.metric import decision_clearance_m
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -53,6 +54,7 @@ class RobotDecision(NamedTuple):
         replan_request: eq. (16) of Pupa et al. 2021: δ has stayed below ``safety.replan_delta_below``
             for ``safety.replan_after_s`` (never while faulted).
         delta_applied: the override the controller reported applying in its newest state, None before one.
+        links: the link segments' end points this decision used (world frame) [m]; None before a joint state.
     """
 
     robot: str
@@ -69,6 +71,7 @@ class RobotDecision(NamedTuple):
     controller_mode: str | None
     replan_request: bool = False
     delta_applied: float | None = None
+    links: LinkEnds | None = None
 
 
 class HumansView(NamedTuple):
@@ -235,14 +238,18 @@ class SafetyCore:
         delay = self._delay(joint_age, path, humans.age_s, period_s)
         t_brake_max_s = state.kernels.t_brake_max_s
         clearance = decision_clearance_m(self.config.safety, t_brake_max_s, delay.total_s)
-        delta_bound, min_distance, closest, speed_mps = 0.0, None, None, 0.0
+        delta_bound, min_distance, closest, speed_mps, links = 0.0, None, None, 0.0, None
         if joint is not None:
-            delta_bound, min_distance, closest, speed_mps = self._bound(
+            delta_bound, min_distance, closest, speed_mps, links = self._bound(
                 state, joint, humans, delay.total_s, clearance, period_s
             )
             delta_bound = delta_bound if delta_bound == delta_bound else 0.0  # nan never moves a robot
         thresholds = zone_thresholds(
-            self.config.zones, clearance, t_brake_max_s + delay.total_s, state.speed_hold.push(now.mono_ns, speed_mps)
+            self.config.zones,
+            clearance,
+            t_brake_max_s + delay.total_s,
+            state.speed_hold.push(now.mono_ns, speed_mps),
+            self._method.protection(t_brake_max_s, delay.total_s),  # each method's own stopping model
         )
         if faults:
             state.zone, delta = Zone.SAFETY_EXCEPTION, 0.0
@@ -265,6 +272,7 @@ class SafetyCore:
             joint.mode if joint else None,
             state.replan.update(now.mono_ns, delta, faulted=bool(faults)),
             joint.override if joint else None,
+            links,
         )
 
     def _bound(
@@ -275,8 +283,8 @@ class SafetyCore:
         t_delay_s: float,
         clearance_m: float,
         period_s: float,
-    ) -> tuple[float, float | None, ClosestPair | None, float]:
-        """The method's δ bound, the closest pair and its distance [m], and the largest link-end speed [m/s]."""
+    ) -> tuple[float, float | None, ClosestPair | None, float, LinkEnds]:
+        """The method's δ bound, the closest pair and its distance [m], the largest link-end speed [m/s], the links."""
         links, speed_mps, rows, (i, j, distance_m) = state.kernels.cycle(
             joint.q_rad, joint.qd_nominal_radps, humans.columns, t_delay_s
         )
@@ -296,7 +304,7 @@ class SafetyCore:
             )
         )
         if i < 0:  # nobody seen
-            return bound, None, None, speed_mps
+            return bound, None, None, speed_mps, LinkEnds(links.p_a_world, links.p_b_world)
         capsules = humans.capsules
         closest = ClosestPair(capsules.human_ids[j], capsules.capsule_names[j], state.robot.link_names[i])
-        return bound, distance_m, closest, speed_mps
+        return bound, distance_m, closest, speed_mps, LinkEnds(links.p_a_world, links.p_b_world)

@@ -1,4 +1,5 @@
-"""The REST API of the gateway (contract, "REST"): status, one robot, effective config, health.
+"""The REST API of the gateway (contract, "REST"): status, one robot, effective config, health, the status stream
+(server-sent events), the event log, Prometheus metrics, and the operator page at ``/``.
 
 The app only reads a :class:`StatusBoard`, which the safety loop fills; the app cannot slow the loop
 down (in the running gateway it lives in its own process, fed through a pipe).
@@ -11,16 +12,24 @@ the gateway produced (``/api/v1/status``, ``/api/v1/config``) or serialises the 
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from importlib import resources
 from typing import Annotated, Any, NamedTuple
 
-from fastapi import APIRouter, Depends, FastAPI, HTTPException, Request, Response
+from fastapi import APIRouter, Depends, FastAPI, HTTPException, Query, Request, Response
+from fastapi.responses import HTMLResponse
+from fastapi.sse import EventSourceResponse, ServerSentEvent
+from prometheus_client import CONTENT_TYPE_LATEST
 
+from gateway.events import EventRing
+from gateway.metrics import GatewayMetrics
 from hrc_common.status_models import (
     EffectiveConfig,
     ErrorResponse,
+    EventsResponse,
     GatewayStatus,
     Health,
     NotReady,
@@ -33,6 +42,10 @@ STATUS_STALE_AFTER_S = 1.0
 """A status older than this means the safety loop is not running: the API says so with 503."""
 
 JSON = "application/json"
+STREAM_POLL_S = 0.01
+"""How often a stream looks for a new status document [s] (the gateway publishes one every 40 ms by default)."""
+EVENTS_LIMIT = 1000
+"""At most this many events in one ``GET /api/v1/events`` answer."""
 
 
 class PublishedStatus(NamedTuple):
@@ -58,6 +71,12 @@ class StatusBoard:
         self._lock = threading.Lock()
         self._doc: PublishedStatus | None = None
         self._received_s = 0.0
+        self.version = 0
+        """Counts the documents published (a stream sends each version once)."""
+        self.closed = False
+        """Set when the gateway's input ended: open streams end, so that shutdown never waits on them."""
+        self.events = EventRing()
+        self.metrics = GatewayMetrics()
 
     def publish(self, status: GatewayStatus, status_json: bytes | None = None) -> None:
         """Make ``status`` the newest document; ``status_json`` is its serialisation, if the caller has it."""
@@ -65,6 +84,8 @@ class StatusBoard:
         with self._lock:
             self._doc = published
             self._received_s = self._clock_s()
+            self.version += 1
+        self.metrics.observe(status)
 
     def publish_json(self, line: bytes | str) -> None:
         """Parse one status document (a JSON line from the gateway) and make it the newest.
@@ -165,6 +186,62 @@ def readyz(board: Board) -> Ready:
     return Ready(ready=True)
 
 
+def _fresh_version(board: StatusBoard) -> tuple[PublishedStatus | None, int]:
+    """The newest document if fresh (else None), and the board's version."""
+    version = board.version
+    doc, age = board.latest()
+    return (doc if age is not None and age <= board.stale_after_s else None), version
+
+
+@status_router.get(
+    "/stream",
+    response_class=EventSourceResponse,
+    summary="The status document at the status rate (server-sent events ``status``)",
+)
+async def stream_status(request: Request) -> AsyncIterator[ServerSentEvent]:
+    """Each new status document once, as an event ``status`` whose data is the document; nothing while the
+    safety loop publishes none (a client sees the silence and shows the data as stale). Ends when the gateway
+    stops."""
+    board: StatusBoard = request.app.state.board
+    sent = -1
+    while not board.closed:
+        doc, version = _fresh_version(board)
+        if doc is not None and version != sent:
+            sent = version
+            yield ServerSentEvent(raw_data=doc.json.decode(), event="status", id=str(version))
+        await asyncio.sleep(STREAM_POLL_S)
+
+
+@status_router.get("/events", summary="The event log after a seq", response_model=EventsResponse)
+def get_events(
+    board: Board,
+    since: Annotated[int, Query(ge=0, description="Only events with a larger seq (0: all that are held).")] = 0,
+    limit: Annotated[int, Query(ge=1, le=EVENTS_LIMIT, description="At most this many events.")] = EVENTS_LIMIT,
+) -> Response:
+    events, last_seq = board.events.since(since, limit)
+    body = EventsResponse.model_construct(events=events, last_seq=last_seq)
+    return Response(body.model_dump_json(), media_type=JSON)
+
+
+@health_router.get(
+    "/metrics",
+    summary="Prometheus metrics (text format)",
+    response_class=Response,
+    responses={200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "The Prometheus text format."}},
+)
+def metrics(board: Board) -> Response:
+    return Response(board.metrics.exposition(), media_type=CONTENT_TYPE_LATEST)
+
+
+page_router = APIRouter(tags=["operator page"])
+OPERATOR_PAGE = resources.files("gateway").joinpath("static/operator.html")
+
+
+@page_router.get("/", summary="The operator page (HTML; live from the stream)", response_class=HTMLResponse)
+def operator_page() -> HTMLResponse:
+    return HTMLResponse(OPERATOR_PAGE.read_bytes())
+
+
 def create_app(board: StatusBoard) -> FastAPI:
     app = FastAPI(
         title="hrc-gateway",
@@ -175,4 +252,5 @@ def create_app(board: StatusBoard) -> FastAPI:
     app.state.board = board
     app.include_router(status_router)
     app.include_router(health_router)
+    app.include_router(page_router)
     return app

@@ -2,8 +2,10 @@
 
 Protocol on standard input, one JSON document per line: the first line is the effective
 configuration (:class:`~hrc_common.status_models.EffectiveConfig`), every further line a status document
-(:class:`~hrc_common.status_models.GatewayStatus`), each validated once on arrival. End of input (the
-gateway exited or was killed) stops the server.
+(:class:`~hrc_common.status_models.GatewayStatus`) or, prefixed with ``E ``, an event of the log
+(:class:`~hrc_common.status_models.Event`), each validated once on arrival. Status documents may be dropped
+when the child is slow (only the newest matters); events never are. End of input (the gateway exited or was
+killed) ends the open streams and stops the server.
 """
 
 from __future__ import annotations
@@ -15,13 +17,18 @@ import os
 import subprocess
 import sys
 import threading
+from collections import deque
+from collections.abc import Iterable
+from pathlib import Path
 from typing import IO
 
 import uvicorn
 from pydantic import ValidationError
 
+from gateway.events import EventFile
 from gateway.http_api import StatusBoard, create_app
-from hrc_common.status_models import EffectiveConfig
+from hrc_common.service import configure_logging
+from hrc_common.status_models import EffectiveConfig, Event
 
 log = logging.getLogger("hrc-gateway.http")
 
@@ -30,7 +37,23 @@ NICENESS_INCREMENT = 10
 scheduler runs the safety loop (and the programs it talks to) first on a busy machine."""
 
 
-def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server) -> None:
+EVENT_PREFIX = b"E "
+"""Marks a line of the pipe as an event of the log."""
+MAX_QUEUED_EVENTS = 10_000
+"""Events waiting for the pipe beyond this are dropped (oldest first): a dead child never grows the gateway."""
+
+
+def _take_event(board: StatusBoard, line: bytes, events_file: EventFile | None) -> None:
+    event = Event.model_validate_json(line[len(EVENT_PREFIX) :])
+    board.events.add(event)
+    if events_file is not None:
+        try:
+            events_file.write(event)
+        except OSError as exc:
+            log.warning("could not write the event log %s: %s", events_file.path, exc)
+
+
+def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server, events_file: EventFile | None = None) -> None:
     """Publish every line on the board until end of input, then stop the server.
 
     A line that is not a status document is skipped (the board keeps the previous one and goes stale, so the
@@ -39,6 +62,9 @@ def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server) -> None:
     previous_valid = True
     for line in lines:
         try:
+            if line.startswith(EVENT_PREFIX):
+                _take_event(board, line, events_file)
+                continue
             board.publish_json(line)
         except ValidationError as exc:
             if previous_valid:
@@ -48,6 +74,7 @@ def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server) -> None:
             previous_valid = False
         else:
             previous_valid = True
+    board.closed = True  # open streams end within STREAM_POLL_S, so the shutdown below never waits on them
     server.should_exit = True
 
 
@@ -55,8 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="HTTP server of hrc-gateway (started by hrc-gateway)")
     parser.add_argument("--http-host", default="127.0.0.1")
     parser.add_argument("--http-port", type=int, default=8080)
+    parser.add_argument("--events-log", type=Path, default=None, help="JSON Lines file of the events (rotated)")
     args = parser.parse_args(argv)
-    logging.basicConfig(level="INFO", format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    configure_logging("INFO")  # journal lines under systemd, timestamps otherwise
     try:
         os.nice(NICENESS_INCREMENT)
     except OSError as exc:  # never a reason not to serve
@@ -74,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         timeout_graceful_shutdown=2,
     )
     server = uvicorn.Server(config)
-    threading.Thread(target=_feed, args=(board, stdin, server), daemon=True).start()
+    events_file = None if args.events_log is None else EventFile(args.events_log)
+    threading.Thread(target=_feed, args=(board, stdin, server, events_file), daemon=True).start()
     server.run()
     return 0 if server.started else 1
 
@@ -86,9 +115,10 @@ class HttpServerProcess:
     the (possibly blocking) pipe write. A slow or dead child only makes the API lag.
     """
 
-    def __init__(self, host: str, port: int, effective_config: EffectiveConfig) -> None:
+    def __init__(self, host: str, port: int, effective_config: EffectiveConfig, events_log: Path | None = None) -> None:
+        extra = [] if events_log is None else ["--events-log", str(events_log)]
         self._proc = subprocess.Popen(
-            [sys.executable, "-m", "gateway.http_server", "--http-host", host, "--http-port", str(port)],
+            [sys.executable, "-m", "gateway.http_server", "--http-host", host, "--http-port", str(port), *extra],
             stdin=subprocess.PIPE,
             start_new_session=True,  # Ctrl-C reaches the gateway only; it ends this child by closing stdin
         )
@@ -97,6 +127,7 @@ class HttpServerProcess:
             self._proc.stdin.write(effective_config.model_dump_json().encode() + b"\n")
             self._proc.stdin.flush()
         self._pending: bytes | None = None
+        self._events: deque[bytes] = deque(maxlen=MAX_QUEUED_EVENTS)
         self._cond = threading.Condition()
         self._closed = False
         self._writer = threading.Thread(target=self._write_loop, name="http-feed", daemon=True)
@@ -108,19 +139,32 @@ class HttpServerProcess:
             self._pending = status_line
             self._cond.notify()
 
+    def offer_events(self, events: Iterable[Event]) -> None:
+        """Hand over events of the log; written before the next status line, in order, never replaced."""
+        lines = [EVENT_PREFIX + e.model_dump_json(exclude_none=True).encode() + b"\n" for e in events]
+        if not lines:
+            return
+        with self._cond:
+            self._events.extend(lines)
+            self._cond.notify()
+
     def _write_loop(self) -> None:
         stdin = self._proc.stdin
         if stdin is None:
             return
         while True:
             with self._cond:
-                while self._pending is None and not self._closed:
+                while self._pending is None and not self._events and not self._closed:
                     self._cond.wait()
-                if self._closed:
-                    break
+                events, self._events = b"".join(self._events), deque(maxlen=MAX_QUEUED_EVENTS)
                 data, self._pending = self._pending, None
-            if data is None:
-                continue
+                closing = self._closed
+            data = events + (data or b"")
+            if closing:  # the last events (the stop) still go out before the pipe closes
+                with contextlib.suppress(OSError, ValueError):
+                    stdin.write(data)
+                    stdin.flush()
+                break
             try:
                 stdin.write(data)
                 stdin.flush()

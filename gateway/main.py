@@ -9,6 +9,7 @@ Only Zenoh, timing, logging and the status live here; every decision is the node
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import os
 import sys
@@ -16,19 +17,22 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from gateway.core import RobotDecision
+from gateway.events import EventLog
 from gateway.http_server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, humans_summary
-from gateway.status import effective_config, loop_status, robot_status, status_document
+from gateway.status import effective_config, human_capsules, loop_status, robot_status, status_document
 from hrc_common import keys
 from hrc_common.clocks import read_clocks
 from hrc_common.config import CellConfig, ConfigError, load_cell_config
 from hrc_common.messages import Override, to_payload
 from hrc_common.robot_model import load_robot_model
+from hrc_common.sd_notify import LoopNotifier
 from hrc_common.service import (
     RateLoop,
     StopEvent,
@@ -96,6 +100,15 @@ def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int) -> No
         )
 
 
+def service_status_line(decisions: dict[str, RobotDecision], missed_cycles: int) -> str:
+    """One line for the service manager (``STATUS=``, shown by ``systemctl status``): zone, δ, faults per robot."""
+    robots = "; ".join(
+        f"{name} {d.zone.value} δ={d.delta:.2f} faults={','.join(f.code for f in d.faults) or 'none'}"
+        for name, d in decisions.items()
+    )
+    return f"{robots}; missed cycles {missed_cycles}"
+
+
 def _use_realtime_scheduling(priority: int) -> None:
     """Run the calling thread (the safety loop) under SCHED_FIFO at ``priority``; warn if the OS refuses.
 
@@ -120,6 +133,7 @@ class _Outputs:
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
     previous: dict[str, RobotDecision] = field(default_factory=dict)
+    events: EventLog = field(default_factory=EventLog)
 
     def publish_overrides(self, messages: dict[str, Override]) -> None:
         for name, message in messages.items():
@@ -130,11 +144,15 @@ class _Outputs:
         doc = status_document(
             config.cell,
             time.time_ns(),
-            {name: robot_status(d, cycle.seq) for name, d in cycle.decisions.items()},
+            {
+                name: robot_status(d, cycle.seq, node.robots[name].link_names, node.robots[name].link_radius_m)
+                for name, d in cycle.decisions.items()
+            },
             humans_summary(cycle.inputs),
             rejected,
             received,
             loop_status(rate, self.compute_max_s, config.gateway.event_driven, self.event_seqs),
+            human_capsules(cycle.inputs),
         )
         line = doc.model_dump_json().encode()
         self.status.put(line)
@@ -163,25 +181,31 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
     status_every = max(1, round(gateway.rate_hz / gateway.status_rate_hz))
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S
     rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
+    service = LoopNotifier.from_environment()  # READY=1, WATCHDOG=1 from this loop, STATUS=, STOPPING=1
     while rate.sleep(stop, wake):
         started_s = time.monotonic()
         # Until the next decision: at most the rest of this period plus the lateness of the next tick,
         # estimated by the last one; an event cycle only comes earlier.
         cycle = node.cycle(read_clocks(), period_s + rate.last_lateness_s)
         out.publish_overrides(cycle.overrides)
+        service.cycle_done(started_s, functools.partial(service_status_line, cycle.decisions, rate.missed_cycles))
+        service.stall_for_tests(stop)  # TEST ONLY (HRC_TEST_STALL_AFTER_CYCLES): a stalled loop stops the pings
         if rate.last_was_event and len(out.event_seqs) < MAX_EVENT_SEQS_PER_STATUS:
             out.event_seqs.append(cycle.seq)
         out.compute_max_s = max(out.compute_max_s, time.monotonic() - started_s)
         _log_changes(out.previous, cycle.decisions)
+        out.http.offer_events(out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions))
         out.previous = cycle.decisions
         if not rate.last_was_event and rate.tick_cycles % status_every == 0:
             out.publish_status(config, cycle, rate, node)
             if out.http.exit_code() is not None:
                 log.error("the HTTP server exited (code %s); is its port in use?", out.http.exit_code())
+                service.stopping()
                 return 1
         if started_s >= next_progress_s:
             next_progress_s = started_s + PROGRESS_EVERY_S
             _log_progress(cycle.decisions, rate.missed_cycles)
+    service.stopping()
     log.info(
         "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles)",
         rate.tick_cycles + rate.event_cycles,
@@ -203,8 +227,11 @@ def run_gateway(
     wake: threading.Event | None = None,
     *,
     zenoh_options: SessionOptions,
+    events_log: Path | None = None,
 ) -> int:
     """Run the gateway until ``stop`` is set. Returns the process exit code.
+
+    ``events_log``: a JSON Lines file of the event log (zone changes, faults, start, stop), rotated by size.
 
     The loop decides at every tick of ``gateway.rate_hz`` and, given ``wake`` (set by the node when a tracker
     frame arrives, see :class:`GatewayNode`), also at once between ticks (an event cycle, see :class:`RateLoop`).
@@ -213,7 +240,9 @@ def run_gateway(
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
         subscribers = [session.declare_subscriber(k, _callback(node)) for k in (states_key, humans_key)]
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
-        out = _declare_outputs(session, config, HttpServerProcess(http_host, http_port, effective_config(config)))
+        effective = effective_config(config)
+        out = _declare_outputs(session, config, HttpServerProcess(http_host, http_port, effective, events_log))
+        out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
             config.cell,
@@ -230,6 +259,7 @@ def run_gateway(
             return _loop(config, node, out, stop, wake)
         finally:
             out.publish_overrides(node.stop_overrides(read_clocks()))  # last word to the controllers: stop
+            out.http.offer_events(out.events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
             out.http.close()
             del token, subscribers  # undeclared when the session closes
 
@@ -251,6 +281,7 @@ def cli(argv: list[str] | None = None) -> None:
     add_config_argument(parser)
     parser.add_argument("--http-host", default=None, help="default: gateway.http_host of the config")
     parser.add_argument("--http-port", type=int, default=None, help="default: gateway.http_port of the config")
+    parser.add_argument("--events-log", type=Path, default=None, help="JSON Lines file of the event log (rotated)")
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
@@ -267,7 +298,16 @@ def cli(argv: list[str] | None = None) -> None:
         http_host = args.http_host or config.gateway.http_host
         http_port = args.http_port if args.http_port is not None else config.gateway.http_port
         code = run_gateway(
-            config, node, listen, args.zenoh_connect, http_host, http_port, stop, wake, zenoh_options=zenoh_options
+            config,
+            node,
+            listen,
+            args.zenoh_connect,
+            http_host,
+            http_port,
+            stop,
+            wake,
+            zenoh_options=zenoh_options,
+            events_log=args.events_log,
         )
     sys.exit(code)
 

@@ -9,6 +9,9 @@ to one δ bound in [0, 1]. Faults, zones and the safety-exception latch are appl
   Pupa et al. 2021 in closed form (:mod:`gateway.iso15066`).
 - ``three_zones`` — Marvel 2013: δ = 0 / 0.5 / 1 from the distance of the tool point to the nearest
   human surface (``three_zones_stop_below_m``, ``three_zones_slow_below_m``), the tool point only.
+- ``zanchettin2016_speed_aware`` — eq. (15) with the stopping time δ t_b of a controller that ramps the
+  override down at a bounded rate (safety-math.md §10): a slowed robot stops sooner, so it may come closer.
+  Its safety exception follows its own stopping model (:meth:`SpeedAware.protection`).
 - ``stop_only`` — δ = 0 while any human surface is within the protective separation distance of any
   link, else 1. The zone is sized as a laser-scanner field would be: ISO/TS 15066 S_p (safety-math.md §7)
   for a robot point moving straight at the human at ``stop_only_robot_speed_mps``, with T_r the measured
@@ -42,7 +45,15 @@ import pinocchio as pin
 from gateway import iso15066
 from gateway.delay import NS_PER_S
 from gateway.kinematics import LinkKinematics
-from gateway.metric import ConstraintRows, human_speed_at_mps, override_from_rows
+from gateway.metric import (
+    ConstraintRows,
+    decision_clearance_m,
+    human_speed_at_mps,
+    override_from_rows,
+    speed_aware_bounds,
+    speed_aware_clearance_m,
+)
+from gateway.zones import Protection
 from hrc_common.config import ConfigError, SafetyConfig
 from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
@@ -84,11 +95,26 @@ class MethodInput(NamedTuple):
 
 
 class OverrideMethod(Protocol):
-    """A method: one decision → one δ bound in [0, 1]."""
+    """A method: one decision → one δ bound in [0, 1], and the safety exception of its stopping model."""
 
     name: str
 
     def bound(self, x: MethodInput) -> float: ...
+
+    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
+        """The protective distance (and δ thresholds) of this decision's safety exception."""
+        ...
+
+
+class SharedClearance:
+    """The safety exception at the paper's Δ = c + K (max t_b + t_delay) (eq. (11)–(12)), for the methods that
+    share it."""
+
+    safety: SafetyConfig
+
+    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
+        """Δ of :func:`gateway.metric.decision_clearance_m`, δ = 0 only on a bound of 0."""
+        return Protection(decision_clearance_m(self.safety, t_brake_max_s, t_delay_s))
 
 
 def inputs_are_finite(x: MethodInput) -> bool:
@@ -108,10 +134,13 @@ def finite_or_zero(delta: float) -> float:
     return min(max(delta, 0.0), 1.0) if math.isfinite(delta) else 0.0
 
 
-class Zanchettin2016:
+class Zanchettin2016(SharedClearance):
     """Eq. (15) with the measured delay: the minimum of the row bounds (safety-math.md §4)."""
 
     name = "zanchettin2016"
+
+    def __init__(self, safety: SafetyConfig) -> None:
+        self.safety = safety
 
     def bound(self, x: MethodInput) -> float:
         if not inputs_are_finite(x):
@@ -119,7 +148,7 @@ class Zanchettin2016:
         return override_from_rows(x.rows)  # already in [0, 1], and 0 for a nan bound
 
 
-class Iso15066:
+class Iso15066(SharedClearance):
     """ISO/TS 15066 SSM with the joint limits: QP (12) of Pupa et al. 2021 in closed form (safety-math.md §7)."""
 
     name = "iso15066"
@@ -165,7 +194,7 @@ def three_zones_override(distance_m: float, stop_below_m: float, slow_below_m: f
     return 0.0
 
 
-class ThreeZones:
+class ThreeZones(SharedClearance):
     """Three discrete zones on the tool point only (Marvel 2013; safety-math.md §8).
 
     The tool point is ``three_zones_tool_frame`` of each robot's URDF, or the ``frame_b`` of its last link.
@@ -222,7 +251,7 @@ def stop_only_distance_m(safety: SafetyConfig, t_delay_s: float, t_brake_s: floa
     return human_speed_at_mps(safety, far) * (t_delay_s + t_brake_s) + robot_m
 
 
-class StopOnly:
+class StopOnly(SharedClearance):
     """δ = 0 while any human is within the protective separation distance of any link, else 1 (§8)."""
 
     name = "stop_only"
@@ -242,6 +271,57 @@ class StopOnly:
         return 1.0 if math.isfinite(nearest_m) and math.isfinite(limit_m) and nearest_m > limit_m else 0.0
 
 
+class SpeedAware:
+    """Eq. (15) with the speed-aware stopping time δ t_b,→i (safety-math.md §10), the paper's own form.
+
+    Per row ``δ (δ t_b,→i + t_delay) e ≤ max(0, d − Δ(δ))²`` with Δ(δ) = c + K (δ t_b,→i + t_delay), and per pair
+    the human-alone bound δ ≤ (d − c − K t_delay) / (K t_b,→i): :func:`gateway.metric.speed_aware_bounds`. K is
+    ISO 13855's close speed below ``speed_aware_close_speed_below_m`` (0.5 m). At δ = 1 the rows are eq. (15)'s
+    with the per-link t_b,→i in Δ.
+
+    It holds only for a controller that ramps the override down at least as fast as 1 → 0 in the planned t_b
+    (``check_braking_time`` refuses a slower one) and follows the commanded override (the door's
+    ``override_not_followed``). Its safety exception is its own: the robot is stopped while the bound is at or
+    below ``speed_aware_stop_below_delta`` or the separation is within Δ at that δ, and resumes beyond that
+    distance plus hysteresis once the bound is above ``speed_aware_resume_above_delta``.
+    """
+
+    name = "zanchettin2016_speed_aware"
+
+    def __init__(self, safety: SafetyConfig) -> None:
+        self.safety = safety
+        self.close_speed_below_m = max(safety.close_speed_below_m, safety.speed_aware_close_speed_below_m)
+
+    def human_speed_pair_mps(self, surface_distance_m: FloatArray) -> FloatArray:
+        """K of every pair: the close speed below ``close_speed_below_m`` (ISO 13855), else the walking speed."""
+        safety = self.safety
+        return np.where(
+            surface_distance_m < self.close_speed_below_m, safety.human_speed_close_mps, safety.human_speed_mps
+        )
+
+    def bound(self, x: MethodInput) -> float:
+        if not inputs_are_finite(x):
+            return 0.0
+        d = x.rows.surface_distance_m
+        bounds = speed_aware_bounds(
+            d,
+            x.rows.e_m2ps,
+            x.robot.t_brake_link_s,
+            x.t_delay_s,
+            self.human_speed_pair_mps(d),
+            self.safety.clearance_static_m,
+        )
+        return finite_or_zero(bounds.min_bound)
+
+    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
+        """Δ(δ) at δ = ``speed_aware_stop_below_delta`` with the largest t_b (every link within it has a human-alone
+        bound at or below that δ), and the method's δ thresholds."""
+        safety = self.safety
+        delta = safety.speed_aware_stop_below_delta
+        protective_m = speed_aware_clearance_m(safety, self.close_speed_below_m, delta, t_brake_max_s, t_delay_s)
+        return Protection(protective_m, delta, safety.speed_aware_resume_above_delta)
+
+
 def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> OverrideMethod:
     """The method named by ``safety.method``, checked against the robots.
 
@@ -254,7 +334,9 @@ def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> Overrid
         return ThreeZones(safety, robots)
     if safety.method == "stop_only":
         return StopOnly(safety)
-    return Zanchettin2016()
+    if safety.method == "zanchettin2016_speed_aware":
+        return SpeedAware(safety)
+    return Zanchettin2016(safety)
 
 
 class ReplanMonitor:

@@ -35,25 +35,49 @@ class ZoneThresholds(NamedTuple):
     resume_m: float
     reduce_m: float
     monitored_m: float
+    stop_below_delta: float = 0.0
+    resume_above_delta: float = 0.0
+
+
+class Protection(NamedTuple):
+    """The safety exception of one method's stopping model (each :class:`gateway.methods.OverrideMethod` says).
+
+    Attributes:
+        protective_m: at or below this separation the robot must stand still [m].
+        stop_below_delta: a bound at or below this also starts a safety exception (0: only a bound of 0 does).
+        resume_above_delta: a safety exception ends only with a bound above this (and beyond ``resume_m``).
+    """
+
+    protective_m: float
+    stop_below_delta: float = 0.0
+    resume_above_delta: float = 0.0
 
 
 def zone_thresholds(
-    config: ZonesConfig, clearance_m: float, horizon_s: float, programmed_speed_mps: float
+    config: ZonesConfig,
+    clearance_m: float,
+    horizon_s: float,
+    programmed_speed_mps: float,
+    protection: Protection | None = None,
 ) -> ZoneThresholds:
-    """Thresholds from the clearance Δ, the horizon T = t_b + t_delay and the link speed.
+    """Thresholds from the clearance Δ, the horizon T = t_b + t_delay, the link speed and the method's protection.
 
     ``reduce_m`` solves (d − Δ)² = T d v, the row of a point at distance d moving straight at the
     human with speed v: d = Δ + Tv/2 + sqrt((Δ + Tv/2)² − Δ²). With ``thresholds = "fixed"`` v is
     ``fixed_speed_mps``; with ``"adaptive"`` it is the current programmed speed ``programmed_speed_mps``.
+    The protective and resume distances come from ``protection`` (the method's stopping model), Δ without one.
     """
+    protection = Protection(clearance_m) if protection is None else protection
     speed = config.fixed_speed_mps if config.thresholds == "fixed" else programmed_speed_mps
     half = clearance_m + 0.5 * horizon_s * speed
     reduce = half + math.sqrt(max(0.0, half * half - clearance_m * clearance_m))
     return ZoneThresholds(
-        protective_m=clearance_m,
-        resume_m=max(config.resume_distance_m, clearance_m + config.hysteresis_m),
+        protective_m=protection.protective_m,
+        resume_m=max(config.resume_distance_m, protection.protective_m + config.hysteresis_m),
         reduce_m=reduce,
         monitored_m=max(config.monitored_distance_min_m, reduce + config.guard_margin_m),
+        stop_below_delta=protection.stop_below_delta,
+        resume_above_delta=protection.resume_above_delta,
     )
 
 
@@ -75,9 +99,11 @@ def next_zone(
     """
     if min_distance_m is None:
         return Zone.AUTONOMOUS
-    if min_distance_m <= thresholds.protective_m or delta_bound <= 0.0:
+    if min_distance_m <= thresholds.protective_m or delta_bound <= thresholds.stop_below_delta or delta_bound <= 0.0:
         return Zone.SAFETY_EXCEPTION
-    if zone is Zone.SAFETY_EXCEPTION and min_distance_m < thresholds.resume_m:
+    if zone is Zone.SAFETY_EXCEPTION and (
+        min_distance_m < thresholds.resume_m or delta_bound <= thresholds.resume_above_delta
+    ):
         return Zone.SAFETY_EXCEPTION
     leave_at_m = thresholds.monitored_m + (config.hysteresis_m if zone is not Zone.AUTONOMOUS else 0.0)
     if min_distance_m > leave_at_m and delta_bound >= 1.0:

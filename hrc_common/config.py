@@ -73,8 +73,8 @@ def example_robot_data_dir() -> Path:
     return Path(pinocchio.__file__).resolve().parents[4] / "share" / "example-robot-data" / "robots"
 
 
-SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only"]
-"""The override methods the gateway can run (safety-math.md §4, §7, §8; ``gateway/methods.py``)."""
+SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware"]
+"""The override methods the gateway can run (safety-math.md §4, §7, §8, §10; ``gateway/methods.py``)."""
 SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
 
 
@@ -142,6 +142,22 @@ class SafetyConfig(_Frozen):
         description="Robot speed the stop-only protective zone is sized for: the largest programmed speed of "
         "any link point, assumed toward the human (S_r and S_s of ISO/TS 15066) [m/s].",
     )
+    # -- method "zanchettin2016_speed_aware" (eq. (15) with the stopping time δ t_b; safety-math.md §10) ---
+    speed_aware_close_speed_below_m: NonNegativeFloat = Field(
+        0.5,
+        description="This method uses human_speed_close_mps below this separation (ISO 13855: 0.5 m), or below "
+        "close_speed_below_m if that is larger [m].",
+    )
+    speed_aware_stop_below_delta: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        0.05,
+        description="This method's safety exception: the robot is stopped (δ = 0) while its bound is at or below "
+        "this, and its protective distance is Δ(δ) = c + K (δ t_b + t_delay) at this δ. At most 0.5.",
+    )
+    speed_aware_resume_above_delta: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        0.1,
+        description="This method's safety exception ends only once its bound is above this (hysteresis on δ; at "
+        "least speed_aware_stop_below_delta). At most 0.5.",
+    )
     # -- replan request, eq. (16) of Pupa et al. 2021 (every method) --------------------------------------
     replan_delta_below: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
         0.2, description="Request a replan when the commanded δ stays below this for replan_after_s; 0 = never."
@@ -173,6 +189,15 @@ class SafetyConfig(_Frozen):
             raise ValueError(
                 f"three_zones_slow_below_m = {self.three_zones_slow_below_m} is not beyond "
                 f"three_zones_stop_below_m = {self.three_zones_stop_below_m}; allowed: slow > stop"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _speed_aware_hysteresis(self) -> SafetyConfig:
+        if self.speed_aware_resume_above_delta < self.speed_aware_stop_below_delta:
+            raise ValueError(
+                f"speed_aware_resume_above_delta = {self.speed_aware_resume_above_delta} is below "
+                f"speed_aware_stop_below_delta = {self.speed_aware_stop_below_delta}; allowed: >= it"
             )
         return self
 

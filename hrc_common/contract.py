@@ -25,6 +25,7 @@ from hrc_common.messages import Humans, JointState, Override
 from hrc_common.status_models import (
     EffectiveConfig,
     ErrorResponse,
+    EventsResponse,
     GatewayStatus,
     Health,
     NotReadyResponse,
@@ -53,6 +54,7 @@ MODELS: Mapping[str, type[BaseModel]] = {
     "ready": Ready,
     "not_ready": NotReadyResponse,
     "error": ErrorResponse,
+    "events": EventsResponse,
 }
 """File name (without :data:`SUFFIX`) → model."""
 

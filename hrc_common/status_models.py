@@ -39,6 +39,8 @@ NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 Count = Annotated[int, Field(ge=0)]
 FaultCode = Annotated[str, Field(pattern=r"^[a-z0-9_]+$", max_length=64)]
+Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+"""A point of the cell's world frame, ``[x, y, z]`` [m]."""
 
 
 class _Strict(BaseModel):
@@ -92,6 +94,21 @@ class ThresholdsStatus(_Strict):
     monitored_m: NonNegative | None = Field(description="The monitored workspace; beyond it: autonomous [m].")
 
 
+class CapsuleStatus(_Strict):
+    """A capsule (a segment swept by a sphere) in the cell's world frame, for drawing the cell."""
+
+    name: str = Field(description="Link name of the robot, or capsule name of a human (e.g. ``hand_r``).")
+    a_m: Point = Field(description="First end point of the segment [m].")
+    b_m: Point = Field(description="Second end point of the segment [m].")
+    radius_m: NonNegative = Field(description="Radius around the segment [m].")
+
+
+class HumanCapsuleStatus(CapsuleStatus):
+    """One capsule of a human in a tracker's newest valid frame."""
+
+    human: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
+
+
 class RobotStatus(_Strict):
     """One robot's decision as the status shows it (``robots.<robot>`` of :class:`GatewayStatus`)."""
 
@@ -124,6 +141,11 @@ class RobotStatus(_Strict):
     replan_request: bool = Field(
         description="Eq. (16) of Pupa et al. 2021: δ has stayed below ``safety.replan_delta_below`` for "
         "``safety.replan_after_s`` (never while faulted)."
+    )
+    links: list[CapsuleStatus] = Field(
+        default_factory=list,
+        description="The link capsules at the joint positions this decision used (world frame); empty before "
+        "the first joint state.",
     )
 
 
@@ -183,6 +205,35 @@ class GatewayStatus(_Strict):
     humans: list[HumanSeen] = Field(description="The humans of every tracker's newest valid frame.")
     inputs: InputCounters
     loop: LoopStatus
+    human_capsules: list[HumanCapsuleStatus] = Field(
+        default_factory=list, description="The capsules of ``humans`` (world frame), for drawing the cell."
+    )
+
+
+EventKind = Literal["start", "stop", "config_loaded", "zone_changed", "fault_raised", "fault_cleared"]
+"""What an :class:`Event` records (contract, "Events")."""
+
+
+class Event(_Strict):
+    """One entry of the gateway's event log (``GET /api/v1/events`` and the JSON Lines file)."""
+
+    seq: Count = Field(description="1, 2, 3, ... in the order the gateway logged them, since it started.")
+    stamp_ns: Count = Field(description="When it was logged [ns since the Unix epoch].")
+    kind: EventKind
+    robot: str | None = Field(default=None, description="The robot it concerns; null for the whole gateway.")
+    message: str = Field(description="For people: what happened, with the reason.")
+    zone: ZoneName | None = Field(default=None, description="``zone_changed``: the zone entered.")
+    previous_zone: ZoneName | None = Field(default=None, description="``zone_changed``: the zone left.")
+    code: FaultCode | None = Field(default=None, description="``fault_raised`` / ``fault_cleared``: its code.")
+    reason: str | None = Field(default=None, description="``fault_raised``: the fault's reason.")
+    config_sha256: str | None = Field(default=None, description="``config_loaded``: hex SHA-256 of the config.")
+
+
+class EventsResponse(_Strict):
+    """``GET /api/v1/events?since=<seq>``: the events after ``since`` that the server still holds, oldest first."""
+
+    events: list[Event]
+    last_seq: Count = Field(description="Seq of the newest event logged (0 before any): the next ``since``.")
 
 
 class RobotStatusResponse(RobotStatus):

@@ -16,3 +16,16 @@ if [ ! -f "$stamp" ]; then
   rm -f .venv/.installed-*
   touch "$stamp"
 fi
+# The operator page's browser test (tests/test_operator_browser.py) drives Debian's chromium with its chromedriver.
+# Installed only when missing, as root, with apt; elsewhere that test skips and says why.
+if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null 2>&1; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing chromium and chromium-driver (for the operator page's browser test)" >&2
+    if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver; } \
+        >/tmp/hrc-bootstrap-apt.log 2>&1; then
+      echo "bootstrap: could not install chromium (see /tmp/hrc-bootstrap-apt.log); the browser test will skip" >&2
+    fi
+  else
+    echo "bootstrap: chromium/chromedriver missing and not root with apt: the browser test will skip" >&2
+  fi
+fi

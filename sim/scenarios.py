@@ -303,3 +303,150 @@ def generate_case(
         beyond_budget=beyond,
         params=params,
     )
+
+
+# -- the collaborative-station suite (issue 10) ---------------------------------------------------------
+
+COLLABORATIVE_KINDS = ("shared_table", "walk_by", "reach_in", "stand_in_path")
+"""Kinds of collaborative case, in turn by case number: a worker at a table shared with the robot (handovers every
+few seconds); the same worker and a second person walking by at 1–3 m; a person who walks up and reaches into the
+robot's path; a person who stands in the robot's path for a while and leaves."""
+COLLABORATIVE_SPEED_MPS = 1.5
+"""Fastest walk of a collaborative case: people at a station walk, within the configured K = 1.6 m/s [m/s]."""
+PICK_BEARING_RAD = math.atan2(-0.35, 0.45)
+"""Bearing of the program's pick point from the base (configs/programs/ur5_pick_place.toml) [rad]."""
+PLACE_BEARING_RAD = math.atan2(0.30, 0.60)
+"""Bearing of the program's place point [rad]."""
+
+
+def _handovers(
+    rng: np.random.Generator, frames: list[Keyframe], t_s: float, end_s: float, xy: tuple[float, float], facing: float
+) -> int:
+    """Append reach-in / hold / withdraw keyframes every 2–5 s from ``t_s`` until ``end_s``; how many."""
+    count = 0
+    while True:
+        wait = float(rng.uniform(2.0, 5.0))
+        reach = float(rng.uniform(0.5, 1.0))
+        reach_time = reach * float(rng.uniform(REACH_S_PER_UNIT, 1.0))
+        hold = float(rng.uniform(0.3, 1.0))
+        if t_s + wait + 2.0 * reach_time + hold + 0.1 >= end_s:
+            return count
+        t_s += wait
+        frames.append(Keyframe(t_s=t_s, xy_m=xy, heading_rad=facing))
+        t_s += reach_time
+        frames.append(Keyframe(t_s=t_s, xy_m=xy, heading_rad=facing, reach=reach))
+        t_s += hold
+        frames.append(Keyframe(t_s=t_s, xy_m=xy, heading_rad=facing, reach=reach))
+        t_s += reach_time
+        frames.append(Keyframe(t_s=t_s, xy_m=xy, heading_rad=facing))
+        count += 1
+
+
+def _table_worker(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript, dict[str, Any]]:
+    """Works across a table from the robot, 1.1–1.4 m from its base (within arm's reach of its tool), and takes or
+    hands over a part every 2–5 s."""
+    bearing = float(rng.uniform(-0.5, 0.5))
+    distance = float(rng.uniform(1.1, 1.4))
+    xy = _at(bearing, distance)
+    facing = _heading_to_origin(*xy)
+    frames = [Keyframe(t_s=0.0, xy_m=xy, heading_rad=facing)]
+    count = _handovers(rng, frames, 0.0, duration_s, xy, facing)
+    frames.append(Keyframe(t_s=duration_s, xy_m=xy, heading_rad=facing))
+    params = {"kind": "shared_table", "bearing_deg": round(math.degrees(bearing), 1), "distance_m": round(distance, 3)}
+    return HumanScript(id=human_id, both_arms=False, keyframes=frames), {**params, "handovers": count}
+
+
+def _walk_by(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript | None, dict[str, Any]]:
+    """Walks past the station on a line 1–3 m from the base, at 0.8–1.5 m/s, behind or beside the robot."""
+    offset = float(rng.uniform(1.0, 3.0))
+    line_bearing = float(rng.choice([math.pi, math.pi / 2, -math.pi / 2])) + float(rng.uniform(-0.3, 0.3))
+    speed = float(rng.uniform(0.8, COLLABORATIVE_SPEED_MPS))
+    t0 = float(rng.uniform(0.0, 0.3 * duration_s))
+    cx, cy = _at(line_bearing, offset)
+    ux, uy = -math.sin(line_bearing), math.cos(line_bearing)
+    start, end = (cx - 4.0 * ux, cy - 4.0 * uy), (cx + 4.0 * ux, cy + 4.0 * uy)
+    frames = [
+        Keyframe(t_s=t0, xy_m=start, heading_rad=math.atan2(uy, ux)),
+        Keyframe(t_s=t0 + 8.0 / speed, xy_m=end, heading_rad=math.atan2(uy, ux)),
+    ]
+    params = {"kind": "walk_by", "offset_m": round(offset, 3), "speed_mps": round(speed, 3), "t_start_s": round(t0, 3)}
+    return _clip_to(human_id, False, frames, duration_s), params
+
+
+def _visit(
+    rng: np.random.Generator, human_id: str, duration_s: float, kind: str
+) -> tuple[HumanScript | None, dict[str, Any]]:
+    """Walks up to the robot's pick or place side and back: ``reach_in`` stops 0.9–1.2 m from the base and reaches
+    into the path twice; ``stand_in_path`` stops 0.6–0.9 m from it and stands 3–8 s."""
+    bearing = float(rng.choice([PICK_BEARING_RAD, PLACE_BEARING_RAD])) + float(rng.uniform(-0.2, 0.2))
+    start_m, speed = 4.0, float(rng.uniform(0.8, COLLABORATIVE_SPEED_MPS))
+    stop_m = float(rng.uniform(0.9, 1.2) if kind == "reach_in" else rng.uniform(0.6, 0.9))
+    x0y0, x1y1 = _at(bearing, start_m), _at(bearing, stop_m)
+    facing = _heading_to_origin(*x0y0)
+    t = float(rng.uniform(0.5, 3.0))
+    frames = [Keyframe(t_s=t, xy_m=x0y0, heading_rad=facing)]
+    t += (start_m - stop_m) / speed
+    frames.append(Keyframe(t_s=t, xy_m=x1y1, heading_rad=facing))
+    stay = float(rng.uniform(3.0, 8.0))
+    if kind == "reach_in":
+        _handovers(rng, frames, t, t + stay, x1y1, facing)
+    frames.append(Keyframe(t_s=t + stay, xy_m=x1y1, heading_rad=facing))
+    frames.append(Keyframe(t_s=t + stay + 0.5, xy_m=x1y1, heading_rad=facing + math.pi))
+    frames.append(Keyframe(t_s=t + stay + 0.5 + (start_m - stop_m) / speed, xy_m=x0y0, heading_rad=facing + math.pi))
+    params = {"kind": kind, "bearing_deg": round(math.degrees(bearing), 1), "stop_m": round(stop_m, 3)}
+    return _clip_to(human_id, False, frames, duration_s), {
+        **params,
+        "speed_mps": round(speed, 3),
+        "stay_s": round(stay, 3),
+    }
+
+
+def _collaborative_people(
+    rng: np.random.Generator, kind: str, duration_s: float
+) -> tuple[list[HumanScript], list[dict[str, Any]]]:
+    if kind in ("shared_table", "walk_by"):
+        worker, params = _table_worker(rng, "h1", duration_s)
+        people: list[tuple[HumanScript | None, dict[str, Any]]] = [(worker, params)]
+        if kind == "walk_by":
+            people.append(_walk_by(rng, "h2", duration_s))
+    else:
+        people = [_visit(rng, "h1", duration_s, kind)]
+    kept = [(s, p) for s, p in people if s is not None]
+    return [s for s, _ in kept], [p for _, p in kept]
+
+
+def generate_collaborative_case(
+    suite_seed: int, index: int, duration_s: float, max_data_age_s: float, watchdog_s: float = 0.1
+) -> SweepCase:
+    """Case ``index`` of the collaborative-station suite ``suite_seed`` (kind :data:`COLLABORATIVE_KINDS` in turn).
+
+    Sensors as in the stress suite; link delays always within the gateway's data age budget (a station's network
+    is not the subject here: the stress suite covers delays beyond it).
+    """
+    rng = np.random.default_rng([suite_seed, index, 10])
+    kind = COLLABORATIVE_KINDS[index % len(COLLABORATIVE_KINDS)]
+    humans, people = _collaborative_people(rng, kind, duration_s)
+    trackers = _trackers(rng)
+    latency = max(t.latency_s for t in trackers.values())
+    round_trip_budget = 0.8 * max_data_age_s
+    override_budget = min(0.8 * watchdog_s, 0.5 * round_trip_budget)
+    links = LinkFaults(
+        tracker_to_gateway=_path_fault(rng, max(0.0, 0.7 * max_data_age_s - latency)),
+        gateway_to_controller=_path_fault(rng, override_budget),
+        controller_to_gateway=_path_fault(rng, round_trip_budget - override_budget),
+    )
+    scenario = Scenario(
+        description=f"collaborative case {index} ({kind}) of suite {suite_seed}",
+        duration_s=duration_s,
+        loop=False,
+        humans=humans,
+    )
+    params: dict[str, Any] = {
+        "kind": kind,
+        "people": people,
+        "trackers": {n: t.model_dump() for n, t in trackers.items()},
+        "links": {path: {k: round(v, 4) for k, v in vars(getattr(links, path)).items()} for path in PATHS},
+        "beyond_budget": None,
+    }
+    seed = int(rng.integers(0, 2**31 - 1))
+    return SweepCase(index, seed, scenario, trackers, links, False, params)

@@ -27,8 +27,7 @@ def test_productivity_benchmark_runs(tmp_path: Path) -> None:
         assert f["simulated_s"] == 1.5
         assert f["counts"] == (f["violations"] == 0)
     assert [t["name"] for t in doc["targets"]] == [
-        "cycles/h zanchettin2016 / three_zones",
-        "cycles/h zanchettin2016 / stop_only",
+        f"cycles/h {m} / {b}" for m in productivity.RATIO_METHODS for b in ("three_zones", "stop_only", "no_human")
     ]
     for target in doc["targets"]:
         assert target["verdict"] in ("PASS", "MISS")

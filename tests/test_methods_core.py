@@ -167,7 +167,8 @@ def test_every_method_gives_zero_on_a_fault(cell_config: CellConfig, ur5: RobotM
 
 @pytest.mark.parametrize("method", SAFETY_METHODS)
 def test_every_method_keeps_the_invariants(cell_config: CellConfig, ur5: RobotModel, method: str) -> None:
-    """Seeded random states and humans: δ ∈ [0, 1], δ ≤ bound, δ = 0 with a fault or a human within Δ."""
+    """Seeded random states and humans: δ ∈ [0, 1], δ ≤ bound, δ = 0 with a fault or a human within the method's
+    protective distance (Δ, or the speed-aware method's Δ at its stop threshold)."""
     rng = np.random.default_rng(4)
     cell = method_cell(cell_config, ur5, method)
     now = NOW
@@ -181,7 +182,7 @@ def test_every_method_keeps_the_invariants(cell_config: CellConfig, ur5: RobotMo
         cell.humans(now, capsules, age_ms=float(rng.uniform(1, 230)))
         d = cell.step(now)
         assert 0.0 <= d.delta <= d.delta_bound <= 1.0
-        if d.faults or (d.min_distance_m is not None and d.min_distance_m <= d.clearance_m):
+        if d.faults or (d.min_distance_m is not None and d.min_distance_m <= d.thresholds.protective_m):
             assert d.delta == 0.0
 
 

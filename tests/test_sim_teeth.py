@@ -139,3 +139,31 @@ def test_max_of_the_bounds_violates_where_the_min_does_not(
     wrong = run(*tight, teeth)
     assert wrong.audit.violations > 10, wrong.to_dict()["audit"]
     assert wrong.audit.smallest_margin_m < 0.0
+
+
+# -- the speed-aware method (safety-math.md §10) --------------------------------------------------------
+
+SPEED_AWARE = "zanchettin2016_speed_aware"
+
+
+def speed_aware(base: CellConfig) -> CellConfig:
+    return base.model_copy(update={"safety": base.safety.model_copy(update={"method": SPEED_AWARE})})
+
+
+SPEED_AWARE_TEETH = [*IGNORE_DELAY_TEETH, *((t, True) for t in MAX_OF_BOUNDS_TEETH)]
+
+
+@pytest.mark.parametrize(("teeth", "tight_cell"), SPEED_AWARE_TEETH, ids=[t.name for t, _ in SPEED_AWARE_TEETH])
+def test_speed_aware_passes_where_its_delay_blind_twin_violates(
+    cell_config: CellConfig, teeth: Teeth, tight_cell: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The speed-aware method stops from δ in δ t_b: it comes closer than eq. (15), so the same delayed scenarios
+    must hold it too (0 violations, margin while moving > 0.1 m), and the delay must matter for it as well."""
+    base = speed_aware(cell_config)
+    real = run(*cell(base, tight=tight_cell, ignore_delay=False), teeth)
+    assert real.audit.violations == 0, real.to_dict()["audit"]
+    assert real.audit.smallest_margin_moving_m > 0.1
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_ignore_delay_for_tests")
+    unsafe = run(*cell(base, tight=tight_cell, ignore_delay=True), teeth)
+    assert unsafe.audit.violations > 10, unsafe.to_dict()["audit"]
+    assert unsafe.audit.smallest_margin_m < 0.0

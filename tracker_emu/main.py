@@ -22,6 +22,7 @@ import zenoh
 from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_config
 from hrc_common.messages import to_payload
+from hrc_common.sd_notify import LoopNotifier
 from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
@@ -118,11 +119,15 @@ def main(
         next_progress_s = emulator.start_s + PROGRESS_EVERY_S
         loop_index = 0
         ended = False
+        service = LoopNotifier.from_environment()  # READY=1 after the first frame, WATCHDOG=1, STATUS=
+        published = False
         while not stop.is_set():
             now_s = time.monotonic()
             now_ns = time.time_ns()
             for name, message in emulator.step(now_s, now_ns):
                 publishers[name].put(to_payload(message))
+                published = True
+            service.cycle_done(now_s, lambda: _progress(emulator, time.monotonic()), ready=published)
             truth_message = truth.step(now_s, now_ns) if truth is not None else None
             if truth_message is not None:
                 truth_pub.put(to_payload(truth_message))
@@ -138,7 +143,9 @@ def main(
             next_s = min(emulator.next_event_s(), next_progress_s)
             if truth is not None:
                 next_s = min(next_s, truth.next_event_s())
+            next_s = min(next_s, now_s + service.ping_every_s)  # inf without a watchdog
             stop.wait(max(0.0, next_s - time.monotonic()))
+        service.stopping()
         del token, publishers, truth_pub  # undeclared when the session closes
     log.info("stopped; %s", _progress(emulator, time.monotonic()))
     return 0

@@ -1,0 +1,142 @@
+"""Sustained loop with many robots: ``bench.loop`` on a cell of N copies of the two-arm cell (a UR5 and a Panda
+facing each other, ``configs/cell_two_arms.toml``) side by side along y, one person per copy walking the
+``two_arms_crossing`` path, every robot with its own controller emulator process.
+
+The default, 4 copies, is 8 robots × 4 people (each person seen by both trackers, so the gateway merges 8
+humans). The cell file and the scenario are written to the output folder; the measurement is ``bench.loop``'s
+(period of the ticks from the first robot's override stamps, missed cycles, HTTP load).
+
+    python -m bench.many_robots [--pairs 4] [--duration 60] [--rates 250] [--http-rates 0,200]
+                                [--json out/bench/many_robots.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from bench import loop
+from bench._report import default_json_path, print_header
+from bench.procs import write_cell_config
+from hrc_common.config import DEFAULT_CELL_PATH, CellConfig, load_cell_config
+from tracker_emu.scenario import Scenario, load_scenario, scenario_path
+
+NAME = "many_robots"
+TWO_ARMS = DEFAULT_CELL_PATH.parent / "cell_two_arms.toml"
+PERSON_PATH = "two_arms_crossing"
+PAIR_SPACING_M = 6.0
+"""Distance along y between neighbouring copies of the two-arm cell [m]: the crossing path reaches 4 m to -y."""
+PERSON_SHIFT_S = 0.5
+"""Each copy's person starts this much later than the previous one's [s]: all are in the cell at once."""
+SCENARIO = f"{NAME}_people"
+
+
+def pair_offsets_m(pairs: int) -> list[float]:
+    """The y offset of each copy, centred on y = 0 [m]."""
+    return [(k - (pairs - 1) / 2) * PAIR_SPACING_M for k in range(pairs)]
+
+
+def many_robot_config(two_arms: CellConfig, pairs: int, scenarios_dir: Path) -> CellConfig:
+    """``pairs`` copies of the two-arm cell's robots (``ur5_k``, ``panda_k``) shifted along y; the world volume
+    widened along y to hold them and their people; the scenarios read from ``scenarios_dir``."""
+    raw = two_arms.model_dump()
+    robots: dict[str, Any] = {}
+    for k, dy in enumerate(pair_offsets_m(pairs), start=1):
+        for name, robot in raw["robots"].items():
+            x, y, z = robot["base_pose_world"]["xyz"]
+            robots[f"{name}_{k}"] = {**robot, "base_pose_world": {**robot["base_pose_world"], "xyz": (x, y + dy, z)}}
+    half_width_m = max(abs(dy) for dy in pair_offsets_m(pairs)) + 7.0
+    plausibility = raw["plausibility"]
+    plausibility["world_min_m"] = (plausibility["world_min_m"][0], -half_width_m, plausibility["world_min_m"][2])
+    plausibility["world_max_m"] = (plausibility["world_max_m"][0], half_width_m, plausibility["world_max_m"][2])
+    raw.update(robots=robots, plausibility=plausibility, scenarios_dir=str(scenarios_dir), default_scenario=SCENARIO)
+    return CellConfig.model_validate(raw)
+
+
+def people_scenario(path: Scenario, pairs: int) -> Scenario:
+    """One person per copy on ``path``'s first person's keyframes, shifted to that copy and in time."""
+    (person,) = path.humans
+    humans = []
+    for k, dy in enumerate(pair_offsets_m(pairs), start=1):
+        keyframes = [
+            kf.model_copy(update={"t_s": kf.t_s + (k - 1) * PERSON_SHIFT_S, "xy_m": (kf.xy_m[0], kf.xy_m[1] + dy)})
+            for kf in person.keyframes
+        ]
+        humans.append(person.model_copy(update={"id": f"p{k}", "keyframes": keyframes}))
+    duration_s = max(path.duration_s, humans[-1].keyframes[-1].t_s + 1.0)
+    scenario = Scenario(
+        description=f"{pairs} people, one per copy of the two-arm cell", duration_s=duration_s, loop=True, humans=humans
+    )
+    return Scenario.model_validate(scenario.model_dump())  # the validators of a scenario file
+
+
+def scenario_toml(scenario: Scenario) -> str:
+    """``scenario`` as a scenario file (``configs/scenarios/*.toml``)."""
+    lines = [f"description = {scenario.description!r}", f"duration_s = {scenario.duration_s!r}", "loop = true"]
+    for human in scenario.humans:
+        lines += ["", "[[humans]]", f"id = {human.id!r}", f"both_arms = {str(human.both_arms).lower()}"]
+        for kf in human.keyframes:
+            lines += [
+                "",
+                "[[humans.keyframes]]",
+                f"t_s = {kf.t_s!r}",
+                f"xy_m = [{kf.xy_m[0]!r}, {kf.xy_m[1]!r}]",
+                f"heading_rad = {kf.heading_rad!r}",
+                f"reach = {kf.reach!r}",
+            ]
+    return "\n".join(lines) + "\n"
+
+
+def write_cell(pairs: int, work_dir: Path) -> Path:
+    """Write the many-robot cell and its scenario under ``work_dir``; return the cell file.
+
+    Raises:
+        BenchError: the written cell does not load back to the same configuration.
+        ConfigError: the written scenario is not valid.
+    """
+    two_arms = load_cell_config(TWO_ARMS)
+    scenarios_dir = work_dir / f"{NAME}-scenarios"
+    scenarios_dir.mkdir(parents=True, exist_ok=True)
+    people = people_scenario(load_scenario(scenario_path(two_arms.scenarios_dir, PERSON_PATH)), pairs)
+    (scenarios_dir / f"{SCENARIO}.toml").write_text(scenario_toml(people))
+    if load_scenario(scenarios_dir / f"{SCENARIO}.toml") != people:
+        raise ValueError("the written scenario does not load back to the same scenario")
+    return write_cell_config(many_robot_config(two_arms, pairs, scenarios_dir), work_dir / f"{NAME}-cell.toml")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.many_robots", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--pairs", type=int, default=4, help="copies of the two-arm cell (robots = 2 × pairs)")
+    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
+    parser.add_argument("--warmup", type=float, default=5.0, help="seconds after start-up before measuring")
+    parser.add_argument("--rates", default="250", help="gateway rates, comma-separated [Hz]")
+    parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
+    parser.add_argument("--load-nice", type=int, default=10, help="as bench.loop's")
+    parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
+    args = parser.parse_args(argv)
+    if not 1 <= args.pairs <= 16:
+        parser.error("--pairs must be 1-16")
+    print_header(f"sustained loop with {2 * args.pairs} robots × {args.pairs} people: period and missed cycles")
+    cell_path = write_cell(args.pairs, args.json.parent)
+    report = loop.run(
+        [float(x) for x in args.rates.split(",") if x.strip()],
+        [float(x) for x in args.http_rates.split(",") if x.strip()],
+        args.duration,
+        args.warmup,
+        SCENARIO,
+        0,
+        cell_path,
+        args.json.parent,
+        load_nice=args.load_nice,
+    )
+    report.benchmark = NAME
+    report.parameters.update(pairs=args.pairs, robots=2 * args.pairs, people=args.pairs)
+    doc = report.finish(args.json)
+    loop.print_report(doc)
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,131 @@
+"""Prometheus metrics of the gateway (``GET /metrics``), computed in the HTTP child from the status documents.
+
+Nothing here runs in the safety loop: the child observes each status document as it arrives (histograms of the
+loop's timing, faults raised) and reads the newest one when scraped (gauges and counters the gateway already
+counts). Names follow Prometheus' conventions: prefix ``hrc_``, base units (seconds, metres), ``_total`` for
+counters, ratios in 0–1.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+
+from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client.registry import Collector
+
+from hrc_common.status_models import GatewayStatus
+
+MS_BUCKETS_S = (0.0005, 0.001, 0.002, 0.003, 0.004, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.05, 0.1)
+"""Histogram buckets for the loop's timing: 0.5 ms to 100 ms [s]."""
+ZONES = ("autonomous", "guarded_distance", "reduced_speed", "safety_exception")
+NS_PER_S = 1e9
+
+
+class _StatusCollector(Collector):
+    """Gauges and counters read from the newest status document at scrape time."""
+
+    def __init__(self, metrics: GatewayMetrics) -> None:
+        self._metrics = metrics
+
+    def collect(self) -> Iterator[Metric]:
+        status = self._metrics.latest
+        if status is None:
+            return
+        yield from _robot_metrics(status)
+        yield from _input_metrics(status)
+        loop = status.loop
+        yield CounterMetricFamily("hrc_loop_cycles", "Decisions taken (ticks and event cycles).", value=loop.cycles)
+        yield CounterMetricFamily("hrc_loop_missed_cycles", "Ticks skipped after an overrun.", value=loop.missed_cycles)
+        yield GaugeMetricFamily("hrc_loop_rate_hz", "Tick rate of the safety loop [Hz].", value=loop.rate_hz)
+
+
+def _robot_metrics(status: GatewayStatus) -> Iterator[Metric]:
+    delta = GaugeMetricFamily("hrc_robot_delta_ratio", "Override δ commanded (0–1).", labels=["robot"])
+    applied = GaugeMetricFamily("hrc_robot_delta_applied_ratio", "Override δ the controller applies.", labels=["robot"])
+    zone = GaugeMetricFamily("hrc_robot_zone", "1 for the robot's zone, 0 for the others.", labels=["robot", "zone"])
+    distance = GaugeMetricFamily("hrc_robot_min_distance_meters", "Smallest robot-human distance.", labels=["robot"])
+    clearance = GaugeMetricFamily("hrc_robot_clearance_meters", "The clearance Δ.", labels=["robot"])
+    t_delay = GaugeMetricFamily("hrc_robot_t_delay_seconds", "The whole delay t_delay.", labels=["robot"])
+    part = GaugeMetricFamily("hrc_robot_delay_part_seconds", "The parts of t_delay.", labels=["robot", "part"])
+    faults = GaugeMetricFamily("hrc_robot_faults_active", "Active faults by code.", labels=["robot", "code"])
+    for name, robot in status.robots.items():
+        delta.add_metric([name], robot.delta)
+        if robot.delta_applied is not None:
+            applied.add_metric([name], robot.delta_applied)
+        for z in ZONES:
+            zone.add_metric([name, z], 1.0 if robot.zone == z else 0.0)
+        if robot.min_distance_m is not None:
+            distance.add_metric([name], robot.min_distance_m)
+        clearance.add_metric([name], robot.clearance_m)
+        t_delay.add_metric([name], robot.t_delay_s)
+        for key, value in robot.delay_budget_s.model_dump().items():
+            part.add_metric([name, key.removesuffix("_s")], value)
+        for fault in robot.faults:
+            faults.add_metric([name, fault.code], 1.0)
+    yield from (delta, applied, zone, distance, clearance, t_delay, part, faults)
+
+
+def _input_metrics(status: GatewayStatus) -> Iterator[Metric]:
+    received = CounterMetricFamily("hrc_inputs_received", "Valid input messages stored.", labels=["topic"])
+    rejected = CounterMetricFamily("hrc_inputs_rejected", "Input messages rejected.", labels=["topic", "reason"])
+    for topic, count in status.inputs.received.items():
+        received.add_metric([topic], count)
+    for topic, reasons in status.inputs.rejected.items():
+        for reason, count in reasons.items():
+            rejected.add_metric([topic, reason], count)
+    yield received
+    yield rejected
+
+
+class GatewayMetrics:
+    """The metrics registry; :meth:`observe` each status document as it arrives (thread-safe)."""
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        self.latest: GatewayStatus | None = None
+        self._lock = threading.Lock()
+        self._previous: GatewayStatus | None = None
+        self.period = Histogram(
+            "hrc_loop_period_seconds",
+            "Mean tick period between two status documents.",
+            buckets=MS_BUCKETS_S,
+            registry=self.registry,
+        )
+        self.compute = Histogram(
+            "hrc_loop_compute_max_seconds",
+            "Longest decision between two status documents.",
+            buckets=MS_BUCKETS_S,
+            registry=self.registry,
+        )
+        self.lateness = Histogram(
+            "hrc_loop_lateness_seconds", "Lateness of the last tick.", buckets=MS_BUCKETS_S, registry=self.registry
+        )
+        self.faults_raised = Counter(
+            "hrc_faults_raised", "Faults raised, by robot and code.", ["robot", "code"], registry=self.registry
+        )
+        self.registry.register(_StatusCollector(self))
+
+    def observe(self, status: GatewayStatus) -> None:
+        """One status document arrived."""
+        with self._lock:
+            previous, self._previous, self.latest = self._previous, status, status
+            self.compute.observe(status.loop.compute_max_s)
+            self.lateness.observe(status.loop.last_lateness_s)
+            if previous is None:
+                return
+            ticks = status.loop.tick_cycles - previous.loop.tick_cycles
+            if ticks > 0 and status.stamp_ns > previous.stamp_ns:
+                self.period.observe((status.stamp_ns - previous.stamp_ns) / NS_PER_S / ticks)
+            for name, robot in status.robots.items():
+                before = previous.robots.get(name)
+                codes = set() if before is None else {f.code for f in before.faults}
+                for fault in robot.faults:
+                    if fault.code not in codes:
+                        self.faults_raised.labels(name, fault.code).inc()
+
+    def exposition(self) -> bytes:
+        """The Prometheus text format."""
+        with self._lock:
+            return generate_latest(self.registry)

@@ -1,0 +1,56 @@
+"""``./run-cell.sh --config configs/cell_two_arms.toml`` (``hrc-cell``): one controller emulator per robot, and the
+status shows both robots running; Ctrl-C stops everything with exit code 0.
+
+Plain TCP on loopback like the other end-to-end tests (the launcher over mutual TLS is tests/test_security_cell.py's).
+"""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import httpx
+import pytest
+
+from bench.procs import StartupError, free_port, log_tail, start_program, stop_program, wait_for
+from hrc_common.config import DEFAULT_CELL_PATH
+from hrc_common.status_models import GatewayStatus
+
+pytestmark = pytest.mark.e2e
+
+CONFIG = DEFAULT_CELL_PATH.parent / "cell_two_arms.toml"
+READY_S = 40.0
+
+
+def _status(http_port: int) -> GatewayStatus | None:
+    try:
+        response = httpx.get(f"http://127.0.0.1:{http_port}/api/v1/status", timeout=2.0)
+    except httpx.HTTPError:
+        return None
+    return GatewayStatus.model_validate_json(response.content) if response.status_code == 200 else None
+
+
+def _both_running(http_port: int) -> bool:
+    status = _status(http_port)
+    return (
+        status is not None
+        and set(status.robots) == {"ur5", "panda"}
+        and all(not r.faults and r.controller_mode == "running" for r in status.robots.values())
+    )
+
+
+def test_hrc_cell_runs_the_two_arm_cell_with_one_controller_per_robot(tmp_path: Path) -> None:
+    http_port, zenoh_port = free_port(), free_port()
+    log = tmp_path / "hrc-cell.log"
+    args = ["--config", str(CONFIG), "--insecure-plain-tcp", "--http-port", str(http_port)]
+    proc = start_program("hrc_common.launcher", [*args, "--zenoh-port", str(zenoh_port)], log)
+    try:
+        wait_for(lambda: _both_running(http_port), READY_S, "both robots running without faults", [proc])
+    except StartupError as exc:
+        stop_program(proc)
+        raise AssertionError(f"{exc}\n{log_tail(log, 30)}") from None
+    assert stop_program(proc, signal.SIGINT) == 0, log_tail(log, 30)
+    text = log.read_text()
+    assert "(gateway, controller-ur5, controller-panda, tracker)" in text
+    assert "controller panda of cell 'twoarms'" in text
+    assert "controller ur5 of cell 'twoarms'" in text

@@ -1,0 +1,292 @@
+"""What the operator sees over HTTP: the page at ``/``, the capsules in the status, the event log, the metrics,
+and the status stream of the real HTTP child (which must end its streams when the gateway stops)."""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import httpx
+import numpy as np
+import pytest
+import status_examples as ex
+from fastapi.testclient import TestClient
+from prometheus_client.parser import text_string_to_metric_families
+
+from bench.procs import free_port, wait_for
+from gateway.core import ClosestPair, RobotDecision
+from gateway.delay import DelayBudget
+from gateway.events import EventLog
+from gateway.http_api import StatusBoard, create_app
+from gateway.http_server import EVENT_PREFIX, _feed
+from gateway.inputs import HumanFrame, InputSnapshot
+from gateway.link_ends import LinkEnds
+from gateway.status import effective_config, human_capsules, robot_status
+from gateway.zones import Zone, ZoneThresholds
+from hrc_common.config import CellConfig
+from hrc_common.humans import HumanCapsules
+from hrc_common.status_models import EventsResponse, Fault, GatewayStatus, LoopStatus
+
+
+@pytest.fixture
+def board(cell_config: CellConfig) -> StatusBoard:
+    return StatusBoard(effective_config(cell_config))
+
+
+@pytest.fixture
+def client(board: StatusBoard) -> TestClient:
+    return TestClient(create_app(board))
+
+
+def decision_with_links() -> RobotDecision:
+    ends_a = np.array([[0.0, 0.0, 0.8], [0.0, 0.1, 1.2]])
+    ends_b = np.array([[0.0, 0.1, 1.2], [0.4, 0.123456789, 1.2]])
+    return RobotDecision(
+        "ur5",
+        Zone.REDUCED_SPEED,
+        0.6,
+        0.6,
+        1.2,
+        ClosestPair("front/h1", "hand_r", "tool"),
+        DelayBudget(0.04, 0.03, 0.004, 0.012, 0.004, 0.004),
+        1.0,
+        ZoneThresholds(1.0, 1.1, 1.9, 2.4),
+        (),
+        {"joint_state": 0.004},
+        "running",
+        False,
+        0.55,
+        LinkEnds(ends_a, ends_b),
+    )
+
+
+def test_the_status_carries_the_link_capsules_of_the_decision() -> None:
+    entry = robot_status(decision_with_links(), 7, ("upper_arm", "tool"), np.array([0.08, 0.07]))
+    assert [(c.name, c.radius_m) for c in entry.links] == [("upper_arm", 0.08), ("tool", 0.07)]
+    assert entry.links[1].a_m == [0.0, 0.1, 1.2]
+    assert entry.links[1].b_m == [0.4, 0.1235, 1.2], "rounded to 0.1 mm"
+    assert robot_status(decision_with_links(), 7).links == [], "no names: no capsules"
+    assert robot_status(decision_with_links()._replace(links=None), 7, ("a", "b"), (0.1, 0.1)).links == []
+
+
+def test_the_status_carries_every_human_capsule() -> None:
+    capsules = HumanCapsules(
+        np.array([[2.0, 0.0, 1.0], [2.0, 0.2, 1.0]]),
+        np.array([[2.0, 0.0, 1.5], [2.3, 0.2, 1.0]]),
+        np.array([0.15, 0.05]),
+        ("front/h1", "front/h1"),
+        ("torso", "hand_r"),
+    )
+    snapshot = InputSnapshot({}, {"front": HumanFrame(1, 1, capsules, 1, 0, 0), "side": None}, {}, {})
+    drawn = human_capsules(snapshot)
+    assert [(c.human, c.name, c.b_m, c.radius_m) for c in drawn] == [
+        ("front/h1", "torso", [2.0, 0.0, 1.5], 0.15),
+        ("front/h1", "hand_r", [2.3, 0.2, 1.0], 0.05),
+    ]
+    doc = ex.gateway_status(ur5=robot_status(decision_with_links(), 7, ("upper_arm", "tool"), (0.08, 0.07)))
+    doc = doc.model_copy(update={"human_capsules": drawn})
+    assert GatewayStatus.model_validate_json(doc.model_dump_json()) == doc, "the document round-trips"
+
+
+def test_the_operator_page_is_served_whole_with_nothing_from_outside(client: TestClient) -> None:
+    response = client.get("/")
+    assert response.status_code == 200
+    assert response.headers["content-type"].startswith("text/html")
+    page = response.text
+    assert "/api/v1/stream" in page
+    assert "/api/v1/events" in page
+    assert "STALE" in page
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", page), "no resource from another host"
+    assert "<script src" not in page, "no script file to fetch: one file works offline"
+
+
+def test_events_are_served_after_a_seq(board: StatusBoard, client: TestClient) -> None:
+    log = EventLog()
+    for event in log.started(1, "demo", "c" * 64) + log.stopped(2, "stop requested"):
+        board.events.add(event)
+    body = EventsResponse.model_validate_json(client.get("/api/v1/events").content)
+    assert [e.kind for e in body.events] == ["start", "config_loaded", "stop"]
+    assert body.last_seq == 3
+    later = EventsResponse.model_validate_json(client.get("/api/v1/events", params={"since": 2}).content)
+    assert [e.seq for e in later.events] == [3]
+    assert client.get("/api/v1/events", params={"since": -1}).status_code == 422
+
+
+def test_the_http_child_takes_event_lines_into_the_log(board: StatusBoard) -> None:
+    events = EventLog().started(1, "demo", "d" * 64)
+    lines = b"".join(EVENT_PREFIX + e.model_dump_json(exclude_none=True).encode() + b"\n" for e in events)
+    status = ex.gateway_status(ur5=ex.robot_status(delta=0.5)).model_dump_json().encode() + b"\n"
+    server = SimpleNamespace(should_exit=False)
+    _feed(board, io.BytesIO(lines + status), server)  # type: ignore[arg-type]
+    assert [e.seq for e in board.events.since(0, 10)[0]] == [1, 2]
+    published, _ = board.latest()
+    assert published is not None
+    assert published.status.robots["ur5"].delta == 0.5
+    assert board.closed, "end of input ends the streams"
+
+
+def metric_samples(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:
+    return {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
+
+
+def loop_after(previous: LoopStatus, ticks: int, compute_s: float) -> LoopStatus:
+    return previous.model_copy(
+        update={
+            "tick_cycles": previous.tick_cycles + ticks,
+            "cycles": previous.cycles + ticks,
+            "compute_max_s": compute_s,
+        }
+    )
+
+
+def test_metrics_parse_and_show_the_status(board: StatusBoard, client: TestClient) -> None:
+    first = ex.gateway_status(ur5=ex.near_robot_status(delta=0.62))
+    stale = Fault(code="tracker_stale", reason="old")
+    second = first.model_copy(
+        update={
+            "stamp_ns": first.stamp_ns + 40_000_000,
+            "loop": loop_after(first.loop, 10, 0.0025),
+            "robots": {"ur5": ex.robot_status(faults=[stale])},
+            "inputs": first.inputs.model_copy(
+                update={"received": {"robot/ur5": 279}, "rejected": {"tracker/front": {"stale": 3}}}
+            ),
+        }
+    )
+    board.publish(first)
+    board.publish(second)
+    response = client.get("/metrics")
+    assert response.status_code == 200
+    assert response.headers["content-type"].startswith("text/plain")
+    samples = metric_samples(response.text)
+    robot = (("robot", "ur5"),)
+    assert samples[("hrc_robot_delta_ratio", robot)] == 0.0
+    assert samples[("hrc_robot_zone", (("robot", "ur5"), ("zone", "safety_exception")))] == 1.0
+    assert samples[("hrc_robot_zone", (("robot", "ur5"), ("zone", "autonomous")))] == 0.0
+    assert samples[("hrc_robot_delay_part_seconds", (("part", "t_reaction"), ("robot", "ur5")))] == 0.04
+    assert samples[("hrc_robot_faults_active", (("code", "tracker_stale"), ("robot", "ur5")))] == 1.0
+    assert samples[("hrc_faults_raised_total", (("code", "tracker_stale"), ("robot", "ur5")))] == 1.0
+    assert samples[("hrc_inputs_received_total", (("topic", "robot/ur5"),))] == 279
+    assert samples[("hrc_inputs_rejected_total", (("reason", "stale"), ("topic", "tracker/front")))] == 3
+    assert samples[("hrc_loop_missed_cycles_total", ())] == second.loop.missed_cycles
+    # One period observed: 40 ms over 10 ticks = 4 ms, in the 4 ms bucket and not in the 3 ms one.
+    assert samples[("hrc_loop_period_seconds_count", ())] == 1
+    assert samples[("hrc_loop_period_seconds_bucket", (("le", "0.004"),))] == 1
+    assert samples[("hrc_loop_period_seconds_bucket", (("le", "0.003"),))] == 0
+    assert samples[("hrc_loop_compute_max_seconds_count", ())] == 2
+    assert samples[("hrc_loop_compute_max_seconds_bucket", (("le", "0.002"),))] == 1, "2.5 ms is above 2 ms"
+
+
+def test_metrics_before_any_status_parse_and_are_empty_of_robots(client: TestClient) -> None:
+    text = client.get("/metrics").text
+    assert not [s for s in metric_samples(text) if s[0].startswith("hrc_robot_")]
+
+
+# -- the real HTTP child ---------------------------------------------------------------------------
+
+
+class Child:
+    """``python -m gateway.http_server`` fed through its standard input, as the gateway feeds it."""
+
+    def __init__(self, cell_config: CellConfig, events_log: Path) -> None:
+        self.port = free_port()
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "gateway.http_server",
+                "--http-port",
+                str(self.port),
+                "--events-log",
+                str(events_log),
+            ],
+            stdin=subprocess.PIPE,
+        )
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.send(effective_config(cell_config).model_dump_json().encode())
+
+    def send(self, line: bytes) -> None:
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(line + b"\n")
+        self.proc.stdin.flush()
+
+    def answers(self) -> bool:
+        try:
+            return httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+
+def read_stream(url: str, wanted: int, got: list[GatewayStatus], opened: threading.Event) -> None:
+    """Read ``status`` events until ``wanted`` documents or the end of the stream."""
+    with httpx.stream("GET", url + "/api/v1/stream", timeout=10.0) as response:
+        opened.set()
+        kind = ""
+        for line in response.iter_lines():
+            if line.startswith("event: "):
+                kind = line.removeprefix("event: ")
+            elif line.startswith("data: ") and kind == "status":
+                got.append(GatewayStatus.model_validate_json(line.removeprefix("data: ")))
+                if len(got) >= wanted:
+                    return
+
+
+@pytest.mark.e2e
+def test_the_stream_delivers_each_status_and_ends_when_the_gateway_stops(
+    cell_config: CellConfig, tmp_path: Path
+) -> None:
+    child = Child(cell_config, tmp_path / "events.jsonl")
+    try:
+        wait_for(child.answers, 20.0, "the HTTP child answers")
+        readers = []
+        results: list[list[GatewayStatus]] = [[] for _ in range(3)]
+        for got in results:
+            opened = threading.Event()
+            reader = threading.Thread(target=read_stream, args=(child.url, 10**6, got, opened), daemon=True)
+            reader.start()
+            assert opened.wait(10.0)
+            readers.append(reader)
+        for event in EventLog().started(time.time_ns(), "demo", "e" * 64):
+            child.send(EVENT_PREFIX + event.model_dump_json(exclude_none=True).encode())
+        for i in range(5):
+            doc = ex.gateway_status(ur5=ex.robot_status(delta=i / 10)).model_copy(update={"stamp_ns": ex.STAMP_NS + i})
+            child.send(doc.model_dump_json().encode())
+            wait_for(lambda n=i + 1: all(len(r) >= n for r in results), 10.0, f"every stream has document {i}")
+        for got in results:
+            assert [d.robots["ur5"].delta for d in got] == [0.0, 0.1, 0.2, 0.3, 0.4], "each document once, in order"
+        events = EventsResponse.model_validate_json(httpx.get(child.url + "/api/v1/events").content).events
+        assert [e.kind for e in events] == ["start", "config_loaded"]
+        lines = (tmp_path / "events.jsonl").read_text().splitlines()
+        assert [json.loads(line)["kind"] for line in lines] == ["start", "config_loaded"]
+        # The gateway stops (its end of the pipe closes) while three streams are open: the child ends them.
+        started_s = time.monotonic()
+        assert child.proc.stdin is not None
+        child.proc.stdin.close()
+        assert child.proc.wait(timeout=5.0) == 0
+        assert time.monotonic() - started_s < 1.5, "open streams did not hold up the shutdown"
+        for reader in readers:
+            reader.join(5.0)
+            assert not reader.is_alive(), "the stream ended"
+    finally:
+        if child.proc.poll() is None:
+            child.proc.kill()
+            child.proc.wait()
+
+
+def test_decisions_with_the_same_link_ends_are_equal_and_with_others_not() -> None:
+    a, b = decision_with_links(), decision_with_links()
+    assert a == b
+    moved = a.links
+    assert moved is not None
+    other = a._replace(links=LinkEnds(moved.p_a_world + 1e-9, moved.p_b_world))
+    assert a != other

@@ -1,0 +1,112 @@
+"""The operator page in a real headless browser (Debian's chromium driven by selenium through chromedriver),
+against the real cell: the zone text and the drawing change when the person of the default scenario walks in,
+and the page says STALE within a second of the gateway being stopped. Saves ``docs/operator-page.png``.
+
+The browser is installed by ``scripts/bootstrap.sh`` (as root with apt); without it this test skips and says why.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bench.procs import running_cell, stop_program, wait_for
+from hrc_common.config import REPO_ROOT
+from hrc_common.status_models import EffectiveConfig, EventsResponse
+
+pytestmark = pytest.mark.e2e
+
+CHROMIUM = shutil.which("chromium")
+CHROMEDRIVER = shutil.which("chromedriver")
+SCREENSHOT = REPO_ROOT / "docs" / "operator-page.png"
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--window-size=1400,1000",
+)
+SCENARIO_LOOP_S = 30.0
+"""The default scenario (walk_in_reach_leave) repeats every 30 s: nobody for 3 s, then the person walks in."""
+
+VIEW_JS = """
+const robot = document.querySelector('.robot[data-robot="ur5"] .zone');
+return {conn: document.getElementById('conn').textContent,
+        zone: robot ? robot.textContent : null,
+        humans: document.querySelectorAll('#top line.human').length,
+        links: document.querySelectorAll('#top line.link').length,
+        closest: document.querySelectorAll('#top line.closest').length};
+"""
+
+
+@pytest.fixture
+def browser() -> Iterator[Any]:
+    if CHROMIUM is None or CHROMEDRIVER is None:
+        pytest.skip("no chromium/chromedriver on this machine (scripts/bootstrap.sh installs them as root with apt)")
+    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install -e .[dev])")
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in FLAGS:
+        options.add_argument(flag)
+    with tempfile.TemporaryDirectory(prefix="hrc-chromium-") as profile:
+        options.add_argument(f"--user-data-dir={profile}")
+        driver = webdriver.Chrome(options=options, service=Service(executable_path=CHROMEDRIVER))
+        try:
+            yield driver
+        finally:
+            driver.quit()
+
+
+def test_the_page_follows_a_person_walking_in_and_says_stale_when_the_gateway_stops(
+    browser: Any, tmp_path: Path
+) -> None:
+    with running_cell(tmp_path) as cell:
+        wait_for(lambda: cell.robot() is not None, 60.0, "the gateway answers", [cell.gateway])
+        browser.get(cell.base_url + "/")
+        seen: list[dict[str, Any]] = []
+
+        def view() -> dict[str, Any]:
+            state: dict[str, Any] = browser.execute_script(VIEW_JS)
+            seen.append(state)
+            return state
+
+        def nobody_then_someone() -> bool:
+            state = view()
+            empty = [i for i, s in enumerate(seen) if s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0]
+            return bool(empty) and state["humans"] > 0 and state["zone"] != seen[empty[0]]["zone"]
+
+        wait_for(nobody_then_someone, 2 * SCENARIO_LOOP_S + 15.0, "the page shows nobody, then the person walking in")
+        before = next(s for s in seen if s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0)
+        after = seen[-1]
+        assert before["zone"] == "autonomous"
+        assert after["zone"] in ("guarded distance", "reduced speed", "safety exception")
+        assert after["closest"] == 1, "the closest pair is drawn once someone is seen"
+        wait_for(lambda: view()["zone"] == "reduced speed", SCENARIO_LOOP_S, "the person comes close")
+        SCREENSHOT.write_bytes(browser.get_screenshot_as_png())
+        events = EventsResponse.model_validate_json(cell.get("/api/v1/events").content).events
+        sha = EffectiveConfig.model_validate_json(cell.get("/api/v1/config").content).config_sha256
+        assert [e.kind for e in events[:2]] == ["start", "config_loaded"]
+        assert events[1].config_sha256 == sha
+        assert {"autonomous", "reduced_speed"} <= {e.zone for e in events if e.kind == "zone_changed"}
+
+        stopped_s = time.monotonic()
+        cell.gateway.send_signal(signal.SIGINT)  # Ctrl-C; watched from the page while the gateway shuts down
+        wait_for(lambda: view()["conn"] == "STALE", 5.0, "the page says STALE")
+        stale_after_s = time.monotonic() - stopped_s
+        assert stop_program(cell.gateway) == 0, "the gateway's shutdown did not hang on the open stream"
+        assert stale_after_s < 1.0, f"STALE shown {stale_after_s:.2f} s after the gateway was told to stop"
+        print(f"STALE shown {stale_after_s:.3f} s after SIGINT to the gateway")
+        assert "stale" in browser.find_element("tag name", "body").get_attribute("class")

@@ -209,6 +209,7 @@ class RunSettings:
     seed: int
     event_driven: bool = True
     load_nice: int = 0
+    controllers_per_process: int = 1
 
 
 def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
@@ -252,6 +253,13 @@ def tick_periods(stamps: list[Stamp], statuses: list[LoopStatus]) -> tuple[np.nd
     return np.array(out, dtype=np.int64), skipped
 
 
+def _controller_spec(robots: list[str], args: list[str], log: Path) -> tuple[str, list[str], Path]:
+    """One controller emulator process for one robot, or a ``bench.controller_host`` for several."""
+    if len(robots) == 1:
+        return "controller_emu.main", [*args, "--robot", robots[0]], log
+    return "bench.controller_host", [*args, "--robots", ",".join(robots)], log
+
+
 def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
     robots = list(base.robots)
     robot = robots[0]  # the robot whose overrides are recorded (the gateway sends one per robot per cycle)
@@ -260,15 +268,14 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
     tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps"
     config = with_gateway_rate(base, settings.rate_hz, http_port, settings.event_driven)
     config_path = write_cell_config(config, work_dir / f"cell-{tag}.toml")
-    controllers = [f"controller-{r}" for r in robots]
+    n = settings.controllers_per_process
+    groups = [robots[k : k + n] for k in range(0, len(robots), n)]
+    controllers = {f"controller-{'-'.join(group)}": group for group in groups}
     logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", *controllers, "tracker")}
     cfg = ["--config", str(config_path)]
     specs = [
         ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
-        *(
-            ("controller_emu.main", [*cfg, "--robot", r, "--zenoh-connect", gw_ep], logs[f"controller-{r}"])
-            for r in robots
-        ),
+        *(_controller_spec(group, [*cfg, "--zenoh-connect", gw_ep], logs[name]) for name, group in controllers.items()),
         (
             "tracker_emu.main",
             [*cfg, "--scenario", settings.scenario, "--seed", str(settings.seed), "--zenoh-connect", gw_ep],
@@ -368,6 +375,7 @@ def run(
     work_dir: Path,
     event_driven: bool = True,
     load_nice: int = 0,
+    controllers_per_process: int = 1,
 ) -> Report:
     base = load_cell_config(config_path)
     report = Report(
@@ -377,6 +385,7 @@ def run(
             "event_driven": event_driven,
             "http_rates_per_s": http_rates,
             "load_nice": load_nice,
+            "controllers_per_process": controllers_per_process,
             "duration_s": duration_s,
             "warmup_s": warmup_s,
             "scenario": scenario,
@@ -389,7 +398,9 @@ def run(
     for rate in rates:
         for http_rate in http_rates:
             print(f"... {rate:g} Hz, {http_rate:g} HTTP requests/s, {duration_s:g} s")
-            settings = RunSettings(rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven, load_nice)
+            settings = RunSettings(
+                rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven, load_nice, controllers_per_process
+            )
             runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz, {http_rate:g} req/s"))
     report.results["runs"] = runs
     loaded = max(http_rates)

@@ -3,11 +3,13 @@ facing each other, ``configs/cell_two_arms.toml``) side by side along y, one per
 ``two_arms_crossing`` path, every robot with its own controller emulator process.
 
 The default, 4 copies, is 8 robots × 4 people (each person seen by both trackers, so the gateway merges 8
-humans). The cell file and the scenario are written to the output folder; the measurement is ``bench.loop``'s
-(period of the ticks from the first robot's override stamps, missed cycles, HTTP load).
+humans). The controller emulators run ``--controllers-per-process`` to a process (``bench.controller_host``; the
+issue allows one emulator process to host several controllers). The cell file and the scenario are written to the
+output folder; the measurement is ``bench.loop``'s (period of the ticks from the first robot's override stamps,
+missed cycles, HTTP load).
 
     python -m bench.many_robots [--pairs 4] [--duration 60] [--rates 250] [--http-rates 0,200]
-                                [--json out/bench/many_robots.json]
+                                [--controllers-per-process 4] [--json out/bench/many_robots.json]
 """
 
 from __future__ import annotations
@@ -113,10 +115,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rates", default="250", help="gateway rates, comma-separated [Hz]")
     parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
     parser.add_argument("--load-nice", type=int, default=10, help="as bench.loop's")
+    parser.add_argument(
+        "--controllers-per-process",
+        type=int,
+        default=4,
+        help="controller emulators hosted by one process (bench.controller_host; 1 = each its own process)",
+    )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
     if not 1 <= args.pairs <= 16:
         parser.error("--pairs must be 1-16")
+    if args.controllers_per_process < 1:
+        parser.error("--controllers-per-process must be >= 1")
     print_header(f"sustained loop with {2 * args.pairs} robots × {args.pairs} people: period and missed cycles")
     cell_path = write_cell(args.pairs, args.json.parent)
     report = loop.run(
@@ -129,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         cell_path,
         args.json.parent,
         load_nice=args.load_nice,
+        controllers_per_process=args.controllers_per_process,
     )
     report.benchmark = NAME
     report.parameters.update(pairs=args.pairs, robots=2 * args.pairs, people=args.pairs)

@@ -42,8 +42,9 @@ STATUS_STALE_AFTER_S = 1.0
 """A status older than this means the safety loop is not running: the API says so with 503."""
 
 JSON = "application/json"
-STREAM_POLL_S = 0.01
-"""How often a stream looks for a new status document [s] (the gateway publishes one every 40 ms by default)."""
+STREAM_RECHECK_S = 0.25
+"""A stream waits for a new document at most this long before it looks again (stale, or the gateway stopped) [s];
+a new document or the stop wakes it at once."""
 EVENTS_LIMIT = 1000
 """At most this many events in one ``GET /api/v1/events`` answer."""
 
@@ -74,7 +75,8 @@ class StatusBoard:
         self.version = 0
         """Counts the documents published (a stream sends each version once)."""
         self.closed = False
-        """Set when the gateway's input ended: open streams end, so that shutdown never waits on them."""
+        """Set by :meth:`close` when the gateway's input ended: open streams end, so shutdown never waits on them."""
+        self._waiters: set[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = set()
         self.events = EventRing()
         self.metrics = GatewayMetrics()
 
@@ -86,6 +88,35 @@ class StatusBoard:
             self._received_s = self._clock_s()
             self.version += 1
         self.metrics.observe(status)
+        self._wake()
+
+    def close(self) -> None:
+        """The gateway's input ended: every open stream ends."""
+        with self._lock:
+            self.closed = True
+        self._wake()
+
+    def _wake(self) -> None:
+        with self._lock:
+            waiters = list(self._waiters)
+        for loop, event in waiters:
+            loop.call_soon_threadsafe(event.set)
+
+    async def changed(self, version: int, timeout_s: float) -> None:
+        """Wait (in the event loop) until a document newer than ``version`` is published or the board closes, at
+        most ``timeout_s``."""
+        waiter = (asyncio.get_running_loop(), asyncio.Event())
+        with self._lock:
+            self._waiters.add(waiter)
+            if self.version != version or self.closed:  # checked after registering: no wake-up is lost
+                waiter[1].set()
+        try:
+            await asyncio.wait_for(waiter[1].wait(), timeout_s)
+        except TimeoutError:
+            pass
+        finally:
+            with self._lock:
+                self._waiters.discard(waiter)
 
     def publish_json(self, line: bytes | str) -> None:
         """Parse one status document (a JSON line from the gateway) and make it the newest.
@@ -209,7 +240,7 @@ async def stream_status(request: Request) -> AsyncIterator[ServerSentEvent]:
         if doc is not None and version != sent:
             sent = version
             yield ServerSentEvent(raw_data=doc.json.decode(), event="status", id=str(version))
-        await asyncio.sleep(STREAM_POLL_S)
+        await board.changed(sent, STREAM_RECHECK_S)
 
 
 @status_router.get("/events", summary="The event log after a seq", response_model=EventsResponse)

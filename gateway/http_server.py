@@ -74,7 +74,7 @@ def _feed(board: StatusBoard, lines: IO[bytes], server: uvicorn.Server, events_f
             previous_valid = False
         else:
             previous_valid = True
-    board.closed = True  # open streams end within STREAM_POLL_S, so the shutdown below never waits on them
+    board.close()  # open streams end at once, so the shutdown below never waits on them
     server.should_exit = True
 
 

@@ -311,7 +311,8 @@ class SpeedAware:
             self.human_speed_pair_mps(d),
             self.safety.clearance_static_m,
         )
-        return finite_or_zero(bounds.min_bound)
+        lowest = bounds.min_bound  # inf when nothing bounds δ (nobody seen): δ = 1; nan: 0
+        return 0.0 if lowest != lowest else min(max(lowest, 0.0), 1.0)
 
     def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
         """Δ(δ) at δ = ``speed_aware_stop_below_delta`` with the largest t_b (every link within it has a human-alone

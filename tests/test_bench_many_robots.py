@@ -1,13 +1,22 @@
-"""bench.many_robots writes a valid cell of N copies of the two-arm cell and a scenario with one person per copy."""
+"""bench.many_robots writes a valid cell of N copies of the two-arm cell and a scenario with one person per copy;
+bench.controller_host runs several controller emulators in one process."""
 
 from __future__ import annotations
 
+import signal
+import threading
 from pathlib import Path
 
 import numpy as np
+import pytest
+import zenoh
 
-from bench.many_robots import SCENARIO, write_cell
+from bench.many_robots import SCENARIO, TWO_ARMS, write_cell
+from bench.procs import free_endpoint, log_tail, start_program, stop_program, wait_for
+from hrc_common import keys
 from hrc_common.config import load_cell_config
+from hrc_common.messages import JointState, parse_message
+from hrc_common.zenoh_session import session_config
 from tracker_emu.scenario import load_scenario, scenario_path
 
 
@@ -23,3 +32,25 @@ def test_eight_robots_and_four_people_fit_the_cell(tmp_path: Path) -> None:
     xy = np.array([kf.xy_m for h in scenario.humans for kf in h.keyframes])
     assert np.all(xy >= np.array(lo[:2]) + 1.0), "a person's floor position is within 1 m of the world's edge"
     assert np.all(xy <= np.array(hi[:2]) - 1.0), "a person's floor position is within 1 m of the world's edge"
+
+
+@pytest.mark.e2e
+def test_one_controller_host_process_runs_several_controllers(tmp_path: Path) -> None:
+    """bench.controller_host: both robots of the two-arm cell publish joint states from one process; SIGINT → 0."""
+    endpoint = free_endpoint()
+    seen: set[str] = set()
+    lock = threading.Lock()
+
+    def on_state(sample: zenoh.Sample) -> None:
+        with lock:
+            seen.add(parse_message(sample.payload.to_bytes(), JointState).robot)
+
+    with zenoh.open(session_config(listen=[endpoint])) as session:
+        session.declare_subscriber(keys.robot_state("twoarms", "*"), on_state)
+        args = ["--config", str(TWO_ARMS), "--robots", "ur5,panda", "--zenoh-connect", endpoint]
+        proc = start_program("bench.controller_host", args, tmp_path / "host.log")
+        try:
+            wait_for(lambda: seen == {"ur5", "panda"}, 30.0, "joint states of both robots", [proc])
+        finally:
+            code = stop_program(proc, signal.SIGINT)
+    assert code == 0, log_tail(tmp_path / "host.log")

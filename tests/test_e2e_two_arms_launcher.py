@@ -1,11 +1,13 @@
-"""``./run-cell.sh --config configs/cell_two_arms.toml`` (``hrc-cell``): one controller emulator per robot, and the
-status shows both robots running; Ctrl-C stops everything with exit code 0.
+"""``./run-cell.sh --config configs/cell_two_arms.toml`` (``hrc-cell``): one controller emulator per robot, the
+status shows both robots running, ``hrc-audit`` (a Zenoh client of the gateway) audits both against the ground
+truth; Ctrl-C stops everything with exit code 0.
 
 Plain TCP on loopback like the other end-to-end tests (the launcher over mutual TLS is tests/test_security_cell.py's).
 """
 
 from __future__ import annotations
 
+import json
 import signal
 from pathlib import Path
 
@@ -20,6 +22,7 @@ pytestmark = pytest.mark.e2e
 
 CONFIG = DEFAULT_CELL_PATH.parent / "cell_two_arms.toml"
 READY_S = 40.0
+AUDIT_S = 6.0
 
 
 def _status(http_port: int) -> GatewayStatus | None:
@@ -49,7 +52,22 @@ def test_hrc_cell_runs_the_two_arm_cell_with_one_controller_per_robot(tmp_path: 
     except StartupError as exc:
         stop_program(proc)
         raise AssertionError(f"{exc}\n{log_tail(log, 30)}") from None
-    assert stop_program(proc, signal.SIGINT) == 0, log_tail(log, 30)
+    audit_json, audit_log = tmp_path / "audit.json", tmp_path / "audit.log"
+    audit_args = ["--config", str(CONFIG), "--zenoh-mode", "client", "--zenoh-connect", f"tcp/127.0.0.1:{zenoh_port}"]
+    audit = start_program(
+        "audit.main", [*audit_args, "--duration-s", str(AUDIT_S), "--json", str(audit_json)], audit_log
+    )
+    try:
+        audit_code = audit.wait(READY_S)
+    finally:
+        stop_program(audit)
+        assert stop_program(proc, signal.SIGINT) == 0, log_tail(log, 30)
+    assert audit_code == 0, log_tail(audit_log, 30)
+    report = json.loads(audit_json.read_text())
+    assert set(report["robots"]) == {"ur5", "panda"}
+    for robot, audited in report["robots"].items():
+        assert audited["cycles"] > 250, (robot, audited)  # 4 ms controller cycles: >= 1 s of each robot audited
+        assert audited["violations"] == 0, (robot, audited)
     text = log.read_text()
     assert "(gateway, controller-ur5, controller-panda, tracker)" in text
     assert "controller panda of cell 'twoarms'" in text

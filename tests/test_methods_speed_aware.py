@@ -15,10 +15,11 @@ import pytest
 from known_cases import HAND_AHEAD, LINK_RADIUS_M, LINK_UP, MS, NOW, QD_NOMINAL, SAFETY, Cell, Q
 
 from gateway.kinematics import link_kinematics
-from gateway.methods import SpeedAware, Zanchettin2016, build_method
+from gateway.methods import MethodInput, SpeedAware, Zanchettin2016, build_method
 from gateway.metric import build_rows, decision_clearance_m, speed_aware_bounds, speed_aware_clearance_m
 from gateway.zones import Protection, Zone, next_zone, zone_thresholds
 from hrc_common.config import CellConfig, SafetyConfig
+from hrc_common.humans import NO_HUMANS
 from hrc_common.robot_model import RobotModel
 
 K = 1.6
@@ -143,6 +144,19 @@ def test_monotone_closer_or_older_never_raises_delta() -> None:
         older = [one_pair(1.2, e, t_b, float(t)) for t in delays]
         for series in (at_fixed_e, straight, older):
             assert all(b <= a + 1e-12 for a, b in itertools.pairwise(series))
+
+
+def test_nobody_seen_is_full_speed(ur5: RobotModel) -> None:
+    """No capsule: nothing bounds δ (inf), so δ = 1, as eq. (15) (an infinite bound is not a nan: not 0)."""
+    q, qd = np.asarray(Q), np.asarray(QD_NOMINAL)
+    links = link_kinematics(ur5, ur5.model.createData(), q, qd)
+    rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, NO_HUMANS, SAFETY, 0.1)
+    assert speed_aware_bounds(
+        rows.surface_distance_m, rows.e_m2ps, ur5.t_brake_link_s, 0.1, rows.f_m2, C
+    ).min_bound == (math.inf)
+    x = MethodInput(ur5, ur5.model.createData(), q, links, rows, NO_HUMANS, qd, 0.1, 1.0, 0.0, 0.004)
+    assert SpeedAware(SAFETY).bound(x) == 1.0
+    assert Zanchettin2016(SAFETY).bound(x) == 1.0
 
 
 def test_close_speed_lowers_the_bound_below_half_a_metre() -> None:

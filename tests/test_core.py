@@ -341,8 +341,8 @@ def test_a_kilometre_long_capsule_next_to_the_tool_stops_the_robot(cell: Cell, u
     """Issue 9, hole 1: a capsule of absurd length whose axis passes a hand's width from the tool."""
     tool = _tool_point(ur5)
     for half_length_m in (1e3, 1e5, 1e8):
-        a = (tool + [-half_length_m, 0.1, 0.0]).tolist()
-        b = (tool + [half_length_m, 0.1, 0.0]).tolist()
+        a = (tool + np.array([-half_length_m, 0.1, 0.0])).tolist()
+        b = (tool + np.array([half_length_m, 0.1, 0.0])).tolist()
         cell.feed(NOW, [{"name": "forearm_r", "a": a, "b": b, "radius": 0.03}])
         d = cell.step(NOW)
         assert_stopped(d, "tracker_implausible")

@@ -13,7 +13,8 @@ from pydantic import ValidationError
 from bench.procs import free_port
 from gateway import main as gateway_main
 from gateway.http_server import NICENESS_INCREMENT, HttpServerProcess
-from hrc_common.config import GatewayConfig
+from gateway.status import effective_config
+from hrc_common.config import CellConfig, GatewayConfig
 
 
 def _may_use_fifo() -> bool:
@@ -60,8 +61,8 @@ def test_realtime_scheduling_applies_to_the_calling_thread_only() -> None:
     assert os.sched_getscheduler(0) == os.SCHED_OTHER  # this (other) thread is unchanged
 
 
-def test_http_child_lowers_its_cpu_priority() -> None:
-    http = HttpServerProcess("127.0.0.1", free_port(), {"cell": "demo"})
+def test_http_child_lowers_its_cpu_priority(cell_config: CellConfig) -> None:
+    http = HttpServerProcess("127.0.0.1", free_port(), effective_config(cell_config))
     try:
         pid = http._proc.pid
         expected = min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICENESS_INCREMENT)

@@ -244,6 +244,7 @@ class InputStore:
         self._lock = threading.Lock()
         # a command and the joint state that shows it applied are each at most max_data_age_s on their way
         window_ns = round(2 * config.safety.max_data_age_s * NS_PER_S)
+        self._command_window_ns = window_ns
         self._robots = {name: _robot_entry(robot, window_ns) for name, robot in robots.items()}
         self._frames: dict[str, HumanFrame | None] = dict.fromkeys(sorted(config.trackers))
         self._streams = {f"robot/{name}": _Stream("joint_state") for name in robots}
@@ -401,8 +402,8 @@ class InputStore:
     ) -> None:
         """(lock held) Fault a controller whose applied override stays above every recent command without
         braking toward it at the rate the gateway plans with (from 1 to 0 within the smallest braking time)."""
-        if previous is None:
-            return
+        if previous is None or sample.transit_ns > self._command_window_ns // 2:
+            return  # a state this late is stale anyway (its own fault); it may show commands beyond the window
         commanded = entry.commanded.max() or 0.0
         braked = previous.override - (sample.stamp_ns - previous.stamp_ns) / NS_PER_S / entry.t_brake_min_s
         if sample.override <= max(commanded, braked) + self._override_tolerance:

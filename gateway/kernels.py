@@ -470,6 +470,22 @@ class Closest(NamedTuple):
     distance_m: float
 
 
+class KernelCycle(NamedTuple):
+    """What :meth:`RobotKernels.cycle` computed for one robot in one cycle.
+
+    Attributes:
+        links: link end points and their velocities at the programmed speed [m, m/s].
+        speed_mps: the largest link-end speed [m/s].
+        rows: the rows of eq. (15).
+        closest: the pair of smallest surface distance, with that distance [m].
+    """
+
+    links: LinkKinematics
+    speed_mps: float
+    rows: ConstraintRows
+    closest: Closest
+
+
 def _row_outputs(n_links: int, n_capsules: int) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Fresh output arrays of :func:`_rows` (fresh every cycle: a method may keep the rows it was given)."""
     return np.empty((3, n_links, n_capsules)), np.empty((2, n_links, n_capsules, 2, 2)), np.empty(n_links)
@@ -581,9 +597,7 @@ class RobotKernels:
             0.0,
         )
 
-    def cycle(
-        self, q_rad: FloatArray, qd_radps: FloatArray, capsules: FloatArray, t_delay_s: float
-    ) -> tuple[LinkKinematics, float, ConstraintRows, Closest]:
+    def cycle(self, q_rad: FloatArray, qd_radps: FloatArray, capsules: FloatArray, t_delay_s: float) -> KernelCycle:
         """:func:`link_kinematics` and :func:`build_rows` of this robot in one compiled call.
 
         Args:
@@ -597,8 +611,7 @@ class RobotKernels:
         first call, in the loop (``tests/test_kernels.py`` checks that the loop never compiles).
 
         Returns:
-            The link kinematics [m, m/s], the largest link-end speed [m/s], the rows of eq. (15), and the pair of
-            smallest surface distance with that distance [m].
+            A :class:`KernelCycle`.
         """
         ends = np.empty((4, self._n_links, 3))
         pair, corner, horizon = _row_outputs(self._n_links, capsules.shape[1])
@@ -613,7 +626,7 @@ class RobotKernels:
             corner,
             horizon,
         )
-        return (
+        return KernelCycle(
             LinkKinematics(ends[0], ends[1], ends[2], ends[3]),
             speed_mps,
             _rows_from_packed(pair, corner, horizon, lowest),

@@ -343,10 +343,11 @@ def _handovers(
 
 
 def _table_worker(rng: np.random.Generator, human_id: str, duration_s: float) -> tuple[HumanScript, dict[str, Any]]:
-    """Works across a table from the robot, 1.1–1.4 m from its base (within arm's reach of its tool), and takes or
-    hands over a part every 2–5 s."""
+    """Works across a table from the robot, 1.4–1.8 m from its base (0.6–1.0 m from the robot's surface: the
+    program's tool reaches x = 0.64 m; the worker's arm reaches into the robot's workspace), and takes or hands over
+    a part every 2–5 s."""
     bearing = float(rng.uniform(-0.5, 0.5))
-    distance = float(rng.uniform(1.1, 1.4))
+    distance = float(rng.uniform(1.4, 1.8))
     xy = _at(bearing, distance)
     facing = _heading_to_origin(*xy)
     frames = [Keyframe(t_s=0.0, xy_m=xy, heading_rad=facing)]

@@ -27,7 +27,7 @@ def test_people_where_the_kind_says() -> None:
         assert not case.beyond_budget
         if kind in ("shared_table", "walk_by"):
             table = people["shared_table"]
-            assert 1.1 <= table["distance_m"] <= 1.4  # within the tool's reach (x up to 0.64 m + an arm)
+            assert 1.4 <= table["distance_m"] <= 1.8  # the worker's arm reaches the tool (x up to 0.64 m)
             assert table["handovers"] >= 3  # every 2–5 s over 30 s
             worker = case.scenario.humans[0]
             for t in range(30):

@@ -132,7 +132,7 @@ def test_round_trip_random_joint_states_and_humans() -> None:
                                 b=rng.uniform(-3, 3, 3).tolist(),
                                 radius=float(rng.uniform(0, 0.3)),
                             )
-                            for k in range(int(rng.integers(0, 5)))
+                            for k in range(int(rng.integers(1, 5)))
                         ],
                     )
                     for i in range(int(rng.integers(0, 4)))

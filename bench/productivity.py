@@ -301,7 +301,7 @@ def ratios_table(targets: Sequence[AtLeast]) -> str:
             (
                 t.name,
                 f"{t.measured:.2f}x" if math.isfinite(t.measured) else "-",
-                f"{t.limit:.1f}x",
+                f"{t.limit:.2f}x",
                 t.verdict if t.counts else f"{t.verdict} (violations or no figure: does not count)",
             )
             for t in targets

@@ -90,10 +90,14 @@ def next_zone(
 ) -> Zone:
     """The zone after one decision.
 
+    A safety exception starts at or below the method's protective distance, or with a bound at or below its
+    ``stop_below_delta`` (0 for the methods that share Δ); it ends beyond ``resume_m`` with a bound above
+    ``resume_above_delta``.
+
     Args:
         zone: the zone of the previous decision.
         min_distance_m: smallest surface distance to any human, None when nobody is seen [m].
-        delta_bound: δ allowed by the constraint rows (eq. (15)) this cycle.
+        delta_bound: δ allowed by the method this cycle (eq. (15) by default).
         thresholds: this cycle's thresholds.
         config: hysteresis and the reduced-speed level.
     """

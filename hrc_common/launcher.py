@@ -114,7 +114,8 @@ def cli(argv: list[str] | None = None) -> None:
         procs = {name: subprocess.Popen(cmd, start_new_session=True) for name, cmd in commands.items()}
         url = f"http://{config.gateway.http_host}:{http_port}/api/v1/status"
         print(f"hrc-cell: cell {config.cell!r} running ({', '.join(procs)}) on {endpoint}; status: {url}", flush=True)
-        print("hrc-cell: Ctrl-C stops everything", flush=True)
+        page = f"http://{config.gateway.http_host}:{http_port}/"
+        print(f"hrc-cell: operator page: {page}; Ctrl-C stops everything", flush=True)
         failed = None
         while not stop.wait(0.2):
             failed = next((name for name, p in procs.items() if p.poll() is not None), None)

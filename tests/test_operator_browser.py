@@ -83,15 +83,16 @@ def test_the_page_follows_a_person_walking_in_and_says_stale_when_the_gateway_st
             seen.append(state)
             return state
 
+        def nobody(s: dict[str, Any]) -> bool:
+            # the cell running with nobody in it; not the start-up, when faults hold the robot in safety exception
+            return s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0 and s["zone"] == "autonomous"
+
         def nobody_then_someone() -> bool:
             state = view()
-            empty = [i for i, s in enumerate(seen) if s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0]
-            return bool(empty) and state["humans"] > 0 and state["zone"] != seen[empty[0]]["zone"]
+            return any(nobody(s) for s in seen) and state["humans"] > 0 and state["zone"] != "autonomous"
 
         wait_for(nobody_then_someone, 2 * SCENARIO_LOOP_S + 15.0, "the page shows nobody, then the person walking in")
-        before = next(s for s in seen if s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0)
         after = seen[-1]
-        assert before["zone"] == "autonomous"
         assert after["zone"] in ("guarded distance", "reduced speed", "safety exception")
         assert after["closest"] == 1, "the closest pair is drawn once someone is seen"
         close = ("reduced speed", "safety exception")

@@ -103,16 +103,19 @@ def summary(values: Sequence[float] | np.ndarray, scale: float = 1.0, digits: in
 
 @dataclass(frozen=True)
 class Target:
-    """A speed target and the figure measured against it (smaller is better)."""
+    """A target and the figure measured against it: smaller is better (a time), unless ``at_least`` (a rate)."""
 
     name: str
     measured: float
     limit: float
     unit: str
+    at_least: bool = False
+    """The measured figure must reach ``limit`` (≥), instead of staying under it (≤)."""
 
     @property
     def verdict(self) -> str:
-        return "PASS" if self.measured <= self.limit else "MISS"
+        ok = self.measured >= self.limit if self.at_least else self.measured <= self.limit
+        return "PASS" if ok else "MISS"
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -120,8 +123,14 @@ class Target:
             "measured": self.measured,
             "target": self.limit,
             "unit": self.unit,
+            "at_least": self.at_least,
             "verdict": self.verdict,
         }
+
+    @classmethod
+    def from_dict(cls, doc: dict[str, Any]) -> Target:
+        """The target of :meth:`as_dict` (a report's ``targets``; ``at_least`` false when absent)."""
+        return cls(doc["name"], doc["measured"], doc["target"], doc["unit"], bool(doc.get("at_least", False)))
 
 
 def table(headers: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
@@ -144,9 +153,10 @@ def _cell(value: object) -> str:
 
 
 def targets_table(targets: Sequence[Target]) -> str:
+    """The targets with their verdicts; a limit the figure must reach (``at_least``) is shown as ``≥ limit``."""
     return table(
         ["target", "measured", "limit", "unit", "verdict"],
-        [(t.name, t.measured, t.limit, t.unit, t.verdict) for t in targets],
+        [(t.name, t.measured, f"≥ {_cell(t.limit)}" if t.at_least else t.limit, t.unit, t.verdict) for t in targets],
     )
 
 

@@ -10,7 +10,7 @@ Reference workload: the UR5 of ``configs/cell.toml`` and 2 humans × 15 capsules
 Then the growth with humans (1…10, one robot) and robots (1…8 copies of the UR5 at other base poses,
 2 humans), and where the time goes (an instrumented pass that wraps the functions ``SafetyCore`` calls).
 
-    python -m bench.compute [--cycles 10000] [--scale-cycles 2000] [--json out/bench/compute.json]
+    python -m bench.compute [--cycles 10000] [--scale-cycles 2000] [--workload 8 4] [--json out/bench/compute.json]
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 import gateway.methods
+from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from gateway import kernels
 from gateway.core import RobotDecision, SafetyCore
@@ -50,6 +51,9 @@ JOINT_AGE_NS = 1_000_000
 HUMAN_AGE_NS = 30_000_000
 OVERRIDE_PATH_NS = 8_000_000
 CAPSULES_PER_HUMAN = 15
+HUMAN_RING_MAX_M = 4.8
+"""People walk at most this far (+0.9 m) from the robots' centre: inside the default cell's ±7 m volume with their
+reach (beyond it every frame is rejected as ``outside_world`` and the cycle computes no rows)."""
 
 Q0_RAD = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
 QD_NOMINAL_RADPS = np.array([0.6, -0.4, 0.5, 0.3, 0.2, 0.1])
@@ -91,11 +95,13 @@ def human_capsules(pose: BodyPose) -> list[dict[str, Any]]:
 
 
 def robot_copies(config: CellConfig, n_robots: int) -> CellConfig:
-    """The cell with ``n_robots`` copies of its first robot on a 2 m grid, each turned by another yaw."""
+    """The cell with ``n_robots`` copies of its first robot on a 2 m grid centred on the origin (one robot stays
+    at the origin), each turned by another yaw."""
     first = next(iter(config.robots.values()))
     robots = {}
+    x0_m, y0_m = float(min(n_robots, 4) - 1), float((n_robots - 1) // 4)  # the grid's centre, 4 robots a row
     for k in range(n_robots):
-        pose = Pose(xyz=(2.0 * (k % 4), 2.0 * (k // 4), 0.8), rpy=(0.0, 0.0, 0.7 * k))
+        pose = Pose(xyz=(2.0 * (k % 4) - x0_m, 2.0 * (k // 4) - y0_m, 0.8), rpy=(0.0, 0.0, 0.7 * k))
         robots["ur5" if k == 0 else f"ur5_{k}"] = first.model_copy(update={"base_pose_world": pose})
     return config.model_copy(update={"robots": robots})
 
@@ -174,7 +180,8 @@ class Rig:
         per_tracker: dict[str, list[dict[str, Any]]] = {t: [] for t in self.trackers}
         for i in range(self.n_humans):
             angle = 2 * math.pi * i / max(1, self.n_humans) + 0.3
-            radius = self.spread_m + 2.3 + 0.4 * (i % 3) + 0.1 * math.sin(t_s + i)
+            # beyond the robots, but inside the cell's volume: a person outside it is rejected at the door
+            radius = min(self.spread_m + 2.3, HUMAN_RING_MAX_M) + 0.4 * (i % 3) + 0.1 * math.sin(t_s + i)
             x, y = self.centre[0] + radius * math.cos(angle), self.centre[1] + radius * math.sin(angle)
             pose = BodyPose(x, y, heading_rad=angle + math.pi, reach=(i % 3) / 2)
             per_tracker[self.trackers[i % len(self.trackers)]].append(
@@ -367,11 +374,17 @@ def breakdown(rig: Rig, cycles: int) -> dict[str, Any]:
 # -- the benchmark --------------------------------------------------------------------------------
 
 
-def _scale(base: CellConfig, workloads: list[Workload], cycles: int, warmup: int) -> list[dict[str, Any]]:
+def _scale(
+    base: CellConfig, workloads: list[Workload], cycles: int, warmup: int, progress: Progress | None = None
+) -> list[dict[str, Any]]:
     points = []
     for workload in workloads:
+        if progress is not None:
+            progress.update(progress.done, f"scaling: {workload.label}")
         rig = build_rig(base, workload)
         times = rig.run(cycles, warmup)
+        if progress is not None:
+            progress.advance(cycles + warmup)
         points.append(
             {
                 "robots": workload.n_robots,
@@ -400,8 +413,10 @@ def run(
     max_robots: int,
     breakdown_cycles: int,
     config_path: Path | None,
+    workloads: list[tuple[int, int]] | None = None,
 ) -> Report:
-    """Measure and return the report (not yet written)."""
+    """Measure and return the report (not yet written); ``workloads`` (robots, humans) are measured as the
+    reference workload is (``cycles`` cycles each), e.g. (8, 4)."""
     base = load_cell_config(config_path)
     report = Report(
         NAME,
@@ -419,21 +434,28 @@ def run(
     )
     report.references = REFERENCES
 
-    rig = build_rig(base, Workload(1, 2))
-    times = rig.run(cycles, warmup)
-    reference = summary(times, 1e-3)
-    callbacks = {kind: summary(v, 1e-3) for kind, v in rig.callback_ns.items()}
-    report.results["reference"] = {
-        "workload": Workload(1, 2).label,
-        "compute_us": reference,
-        "sanity": rig.sanity(),
-        "callbacks_us_not_in_cycle": callbacks,
-    }
-    report.results["breakdown_us"] = breakdown(rig, breakdown_cycles)
-    humans = _scale(base, [Workload(1, h) for h in range(1, max_humans + 1)], scale_cycles, warmup)
-    robots = _scale(base, [Workload(r, 2) for r in range(1, max_robots + 1)], scale_cycles, warmup)
+    # Progress in cycles, updated between the timed passes only (never inside one).
+    total_cycles = cycles + breakdown_cycles + (max_humans + max_robots + 1) * warmup
+    with Progress(NAME, total_cycles + (max_humans + max_robots) * scale_cycles, "cycles") as progress:
+        progress.update(0, "reference workload")
+        rig = build_rig(base, Workload(1, 2))
+        times = rig.run(cycles, warmup)
+        progress.update(cycles + warmup, "breakdown")
+        reference = summary(times, 1e-3)
+        callbacks = {kind: summary(v, 1e-3) for kind, v in rig.callback_ns.items()}
+        report.results["reference"] = {
+            "workload": Workload(1, 2).label,
+            "compute_us": reference,
+            "sanity": rig.sanity(),
+            "callbacks_us_not_in_cycle": callbacks,
+        }
+        report.results["breakdown_us"] = breakdown(rig, breakdown_cycles)
+        progress.advance(breakdown_cycles)
+        humans = _scale(base, [Workload(1, h) for h in range(1, max_humans + 1)], scale_cycles, warmup, progress)
+        robots = _scale(base, [Workload(r, 2) for r in range(1, max_robots + 1)], scale_cycles, warmup, progress)
     report.results["scaling_humans"] = {"points": humans, "p50_us_per_human": _slope_us(humans, "humans")}
     report.results["scaling_robots"] = {"points": robots, "p50_us_per_robot": _slope_us(robots, "robots")}
+    report.results["workloads"] = _scale(base, [Workload(r, h) for r, h in workloads or []], cycles, warmup)
     report.targets = [
         Target("compute p50 (reference workload)", reference["p50"], TARGET_P50_US, "µs"),
         Target("compute p99 (reference workload)", reference["p99"], TARGET_P99_US, "µs"),
@@ -460,6 +482,25 @@ def _part_label(part: str) -> str:
     return part
 
 
+def _points_table(points: list[dict[str, Any]]) -> str:
+    """Workload points (:func:`_scale`) as a table: size, p50, p99, max [µs] and the faults (none expected)."""
+    return table(
+        ["robots", "humans", "capsules", "p50", "p99", "max", "faults"],
+        [
+            [
+                p["robots"],
+                p["humans"],
+                p["capsules"],
+                p["compute_us"]["p50"],
+                p["compute_us"]["p99"],
+                p["compute_us"]["max"],
+                sum(p["sanity"]["faults"].values()),
+            ]
+            for p in points
+        ],
+    )
+
+
 def print_report(doc: dict[str, Any]) -> None:
     results = doc["results"]
     ref = results["reference"]
@@ -471,7 +512,7 @@ def print_report(doc: dict[str, Any]) -> None:
     ]
     rows += [[r["name"], r.get("mean_us"), None, r.get("p95_us"), None, r.get("max_us")] for r in doc["references"]]
     print(table(["compute per cycle [µs]", "mean", "p50", "p95", "p99", "max"], rows))
-    print("\n" + targets_table([Target(t["name"], t["measured"], t["target"], t["unit"]) for t in doc["targets"]]))
+    print("\n" + targets_table([Target.from_dict(t) for t in doc["targets"]]))
     print("\nwhere the time goes (instrumented pass) [µs]")
     print(
         table(
@@ -487,23 +528,10 @@ def print_report(doc: dict[str, Any]) -> None:
     for key, unit in (("scaling_humans", "human"), ("scaling_robots", "robot")):
         scaling = results[key]
         print(f"\ngrowth with {unit}s [µs]  (p50 slope: {scaling[f'p50_us_per_{unit}']} µs per {unit})")
-        print(
-            table(
-                ["robots", "humans", "capsules", "p50", "p99", "max", "faults"],
-                [
-                    [
-                        p["robots"],
-                        p["humans"],
-                        p["capsules"],
-                        p["compute_us"]["p50"],
-                        p["compute_us"]["p99"],
-                        p["compute_us"]["max"],
-                        sum(p["sanity"]["faults"].values()),
-                    ]
-                    for p in scaling["points"]
-                ],
-            )
-        )
+        print(_points_table(scaling["points"]))
+    if results.get("workloads"):
+        print(f"\nother workloads (--workload), {doc['parameters']['cycles']} cycles each [µs]")
+        print(_points_table(results["workloads"]))
     load = doc["load_average"]
     print(f"\nload average start {load['start']} end {load['end']}")
 
@@ -516,6 +544,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=200, help="untimed cycles before each measurement")
     parser.add_argument("--max-humans", type=int, default=10)
     parser.add_argument("--max-robots", type=int, default=8)
+    parser.add_argument(
+        "--workload",
+        type=int,
+        nargs=2,
+        action="append",
+        metavar=("ROBOTS", "HUMANS"),
+        help="also measure this many robots and humans as the reference workload is (repeatable), e.g. 8 4",
+    )
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
@@ -528,6 +564,7 @@ def main(argv: list[str] | None = None) -> int:
         args.max_robots,
         args.breakdown_cycles,
         args.config,
+        [(robots, humans) for robots, humans in args.workload or []],
     )
     doc = report.finish(args.json)
     print_report(doc)

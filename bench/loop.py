@@ -19,31 +19,40 @@ seconds, records:
 With load, a generator in this process sends ``--http-rate`` requests/s (status, one robot, readyz,
 config) to the gateway's REST API on 127.0.0.1, at most rate × duration requests, each with a 1 s timeout.
 
-    python -m bench.loop [--duration 60] [--rates 500,250] [--http-rates 0,200] [--fixed-rate]
-                         [--json out/bench/loop.json]
+With ``--sse-clients N``, every (rate, HTTP rate) is run twice, without and with N clients of the status
+stream (``GET /api/v1/stream``, server-sent events, served by the gateway's HTTP child) connected during the
+whole window, each counting the documents it receives; the report compares the period with and without them.
+
+    python -m bench.loop [--duration 60] [--rates 500,250] [--http-rates 0,200] [--sse-clients 10]
+                         [--fixed-rate] [--json out/bench/loop.json]
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import itertools
 import json
 import os
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from types import TracebackType
 from typing import Any, NamedTuple
 
 import httpx
 import numpy as np
 import zenoh
 
+from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from bench.procs import (
     BenchError,
+    Program,
     StartupError,
     exited_programs,
     free_port,
@@ -63,6 +72,13 @@ TARGET_P99_PERIODS = 1.1
 LATE_PERIODS = 1.5
 HTTP_PATHS = ["/api/v1/status"] * 10 + ["/api/v1/robots/{robot}"] * 5 + ["/readyz"] * 3 + ["/api/v1/config"] * 2
 """The request mix of the load: half status, a quarter one robot, the rest readyz and config."""
+STREAM_PATH = "/api/v1/stream"
+TARGET_SSE_DOCS_PER_S = 20.0
+"""Issue 11: the stream delivers at least this many documents/s to each of 10 clients ..."""
+TARGET_SSE_P99_RATIO = 1.05
+"""Issue 11: ... without raising the loop's period p99 by more than 5 %."""
+SSE_READ_TIMEOUT_S = 5.0
+"""An SSE client gives up when no byte arrives for this long (the gateway publishes at the status rate)."""
 
 
 class Stamp(NamedTuple):
@@ -196,6 +212,119 @@ class HttpLoad:
         }
 
 
+# -- SSE clients ------------------------------------------------------------------------------------
+
+
+def stream_rate(received_s: Sequence[float], start_s: float, end_s: float) -> dict[str, Any]:
+    """One client's documents in the window ``[start_s, end_s)`` [monotonic s]: how many, per second, and the
+    fewest in any whole second of it (a stall shows there even when the mean looks fine)."""
+    times = np.asarray(received_s, dtype=float)
+    inside = times[(times >= start_s) & (times < end_s)]
+    span_s = end_s - start_s
+    whole_s = int(span_s)
+    bins: list[int] = (
+        np.histogram(inside, bins=whole_s, range=(start_s, start_s + whole_s))[0].tolist() if whole_s >= 1 else []
+    )
+    return {
+        "documents": int(inside.size),
+        "docs_per_s": round(inside.size / span_s, 2) if span_s > 0 else 0.0,
+        "fewest_in_a_second": min(bins) if bins else None,
+    }
+
+
+def versions_skipped(ids: Sequence[int]) -> int:
+    """Status versions a client never got between the first and last it got (the stream sends only the newest:
+    a client that reads too slowly skips some)."""
+    ordered = sorted(set(ids))
+    return sum(b - a - 1 for a, b in itertools.pairwise(ordered))
+
+
+class SseClients:
+    """``count`` clients of the status stream, each in its own thread with its own connection, each recording
+    when every ``status`` event arrived [monotonic s] and its id (the board's version).
+
+    A context manager: the clients connect on entry and disconnect on exit. Like :class:`HttpLoad`, the
+    threads lower their CPU priority by ``nice``: in a cell the clients are browsers on other machines.
+    """
+
+    def __init__(self, base_url: str, count: int, nice: int = 0) -> None:
+        self.url = base_url + STREAM_PATH
+        self.count = count
+        self.nice = nice
+        self.received_s: list[list[float]] = [[] for _ in range(count)]
+        self.ids: list[list[int]] = [[] for _ in range(count)]
+        self.errors: list[str | None] = [None] * count
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+
+    def __enter__(self) -> SseClients:
+        for k in range(self.count):
+            thread = threading.Thread(target=self._read, args=(k,), name=f"sse-client-{k}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(SSE_READ_TIMEOUT_S + 1.0)
+
+    def all_receiving(self) -> bool:
+        """Every client has received a document."""
+        return all(self.received_s)
+
+    def _read(self, k: int) -> None:
+        if self.nice:
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + self.nice)
+        try:
+            with httpx.Client(timeout=SSE_READ_TIMEOUT_S) as client, client.stream("GET", self.url) as response:
+                response.raise_for_status()
+                event, event_id, has_data = "", -1, False
+                for line in response.iter_lines():
+                    if self._stop.is_set():
+                        return
+                    if not line:  # the end of an event
+                        if event == "status" and has_data:
+                            self.received_s[k].append(time.monotonic())
+                            self.ids[k].append(event_id)
+                        event, event_id, has_data = "", -1, False
+                    elif line.startswith("event:"):
+                        event = line[6:].strip()
+                    elif line.startswith("id:"):
+                        event_id = int(line[3:].strip() or -1)
+                    elif line.startswith("data:"):
+                        has_data = True
+            if not self._stop.is_set():
+                self.errors[k] = "the stream ended"
+        except (httpx.HTTPError, ValueError) as exc:
+            if not self._stop.is_set():
+                self.errors[k] = f"{type(exc).__name__}: {exc}"
+
+    def results(self, start_s: float, end_s: float) -> dict[str, Any]:
+        """Documents/s of each client over the window, the slowest client's, and what went wrong."""
+        clients = []
+        for received_s, ids, error in zip(self.received_s, self.ids, self.errors, strict=True):
+            in_window = [i for t, i in zip(received_s, ids, strict=True) if start_s <= t < end_s]
+            clients.append({**stream_rate(received_s, start_s, end_s), "versions_skipped": versions_skipped(in_window)})
+            if error is not None:
+                clients[-1]["error"] = error
+        rates = [c["docs_per_s"] for c in clients]
+        return {
+            "clients": self.count,
+            "min_docs_per_s": min(rates) if rates else None,
+            "docs_per_s": summary(rates, 1.0, 2),
+            "fewest_in_a_second": min(
+                (c["fewest_in_a_second"] for c in clients if c["fewest_in_a_second"] is not None), default=None
+            ),
+            "versions_skipped": sum(c["versions_skipped"] for c in clients),
+            "errors": [c["error"] for c in clients if "error" in c],
+            "per_client": clients,
+        }
+
+
 # -- one run ------------------------------------------------------------------------------------------
 
 
@@ -210,6 +339,13 @@ class RunSettings:
     event_driven: bool = True
     load_nice: int = 0
     controllers_per_process: int = 1
+    sse_clients: int = 0
+
+    @property
+    def label(self) -> str:
+        """E.g. ``250 Hz, 200 req/s, 10 SSE clients`` (the SSE part only with clients)."""
+        sse = f", {self.sse_clients} SSE clients" if self.sse_clients else ""
+        return f"{self.rate_hz:g} Hz, {self.http_rate:g} req/s{sse}"
 
 
 def periods(stamps: list[Stamp]) -> tuple[np.ndarray, int]:
@@ -260,12 +396,15 @@ def _controller_spec(robots: list[str], args: list[str], log: Path) -> tuple[str
     return "bench.controller_host", [*args, "--robots", ",".join(robots)], log
 
 
-def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
+def run_once(
+    base: CellConfig, settings: RunSettings, work_dir: Path, on_progress: Callable[[float], None] | None = None
+) -> dict[str, Any]:
+    """Start the cell, measure ``settings.duration_s`` (``on_progress(seconds measured)`` every 0.1 s), analyse."""
     robots = list(base.robots)
     robot = robots[0]  # the robot whose overrides are recorded (the gateway sends one per robot per cycle)
     gw_port, http_port = free_port(), free_port()
     gw_ep = f"tcp/127.0.0.1:{gw_port}"
-    tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps"
+    tag = f"{settings.rate_hz:g}hz-{settings.http_rate:g}rps-{settings.sse_clients}sse"
     config = with_gateway_rate(base, settings.rate_hz, http_port, settings.event_driven)
     config_path = write_cell_config(config, work_dir / f"cell-{tag}.toml")
     n = settings.controllers_per_process
@@ -284,7 +423,9 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
     ]
     recorder = Recorder(robot)
     base_url = f"http://127.0.0.1:{http_port}"
+    spec_logs = [log for _, _, log in specs]
     http_result: dict[str, Any] | None = None
+    sse_result: dict[str, Any] | None = None
     with programs(specs) as procs, zenoh.open(session_config(connect=[gw_ep])) as session:
         subscribers = [
             session.declare_subscriber(keys.robot_override(base.cell, robot), recorder.on_override),
@@ -294,30 +435,51 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
             wait_for(recorder.any_status.is_set, 30.0, "the gateway's first status", procs)
             wait_for(lambda: _http_up(base_url), 30.0, "the gateway's REST API", procs)
         except StartupError as exc:
-            exited = exited_programs(procs, [log for _, _, log in specs])
-            raise StartupError(f"{exc}\n{exited or log_tail(logs['gateway'])}") from None
+            raise StartupError(f"{exc}\n{exited_programs(procs, spec_logs) or log_tail(logs['gateway'])}") from None
         time.sleep(settings.warmup_s)
-        load = (
-            HttpLoad(base_url, robot, settings.http_rate, settings.duration_s, nice=settings.load_nice)
-            if settings.http_rate > 0
-            else None
-        )
-        recorder.on.set()
-        started_s = time.monotonic()
-        if load is not None:
-            load.start()
-        while time.monotonic() - started_s < settings.duration_s:
-            time.sleep(0.1)
-            exited = exited_programs(procs, [log for _, _, log in specs])
-            if exited is not None:
+        with SseClients(base_url, settings.sse_clients, settings.load_nice) as sse:
+            wait_for(sse.all_receiving, 10.0, "a first document on every SSE stream", procs)
+            load = (
+                HttpLoad(base_url, robot, settings.http_rate, settings.duration_s, nice=settings.load_nice)
+                if settings.http_rate > 0
+                else None
+            )
+            recorder.on.set()
+            started_s = time.monotonic()
+            if load is not None:
+                load.start()
+            try:
+                _watch(settings.duration_s, started_s, procs, spec_logs, on_progress)
+            finally:
+                recorder.on.clear()
+                ended_s = time.monotonic()
                 if load is not None:
-                    load.stop()
-                raise BenchError(f"a program exited during the run: {exited}")
-        recorder.on.clear()
-        if load is not None:
-            http_result = load.stop()
+                    http_result = load.stop()
+            if settings.sse_clients:
+                sse_result = sse.results(started_s, ended_s)
         del subscribers
-    return analyse(settings, recorder, http_result)
+    return {**analyse(settings, recorder, http_result), "sse_clients": settings.sse_clients, "sse": sse_result}
+
+
+def _watch(
+    duration_s: float,
+    started_s: float,
+    procs: list[Program],
+    logs: list[Path],
+    on_progress: Callable[[float], None] | None,
+) -> None:
+    """Wait out the measured window, checking every 0.1 s that every program still runs.
+
+    Raises:
+        BenchError: a program exited during the window.
+    """
+    while (elapsed_s := time.monotonic() - started_s) < duration_s:
+        if on_progress is not None:
+            on_progress(elapsed_s)
+        time.sleep(0.1)
+        exited = exited_programs(procs, logs)
+        if exited is not None:
+            raise BenchError(f"a program exited during the run: {exited}")
 
 
 def _http_up(base_url: str) -> bool:
@@ -349,6 +511,7 @@ def analyse(settings: RunSettings, recorder: Recorder, http: dict[str, Any] | No
         "tick_pairs_skipped_unknown": ticks_skipped,
         "decision_interval_ms": summary(interval_ns, 1e-6, 3),
         "pairs_skipped_missing_seq": skipped,
+        "status_per_s": round(len(statuses) / settings.duration_s, 2),
         "cycles_in_window": _growth([s.cycles for s in statuses]),
         "tick_cycles_in_window": _growth([s.tick_cycles for s in statuses]),
         "event_cycles_in_window": _growth([s.event_cycles for s in statuses]),
@@ -364,6 +527,75 @@ def analyse(settings: RunSettings, recorder: Recorder, http: dict[str, Any] | No
 # -- the benchmark ----------------------------------------------------------------------------------
 
 
+def matrix(
+    rates: Sequence[float], http_rates: Sequence[float], sse_clients: int, common: RunSettings
+) -> list[RunSettings]:
+    """The runs: every rate × HTTP rate, and with ``sse_clients`` > 0 each of them without and with the clients
+    (next to each other, so the pair sees the same machine as far as possible)."""
+    sse_counts = [0, sse_clients] if sse_clients > 0 else [0]
+    return [
+        dataclasses.replace(common, rate_hz=rate, http_rate=http_rate, sse_clients=sse)
+        for rate in rates
+        for http_rate in http_rates
+        for sse in sse_counts
+    ]
+
+
+def run_matrix(base: CellConfig, runs: list[RunSettings], work_dir: Path) -> list[dict[str, Any]]:
+    """Each run in order (start-up retried), with a progress line over the measured seconds of all of them."""
+    results = []
+    total_s = sum(r.duration_s for r in runs)
+    with Progress(NAME, total_s, "s measured") as progress:
+        for k, settings in enumerate(runs):
+            progress.message(f"... {settings.label}, {settings.duration_s:g} s")
+            done_s = sum(r.duration_s for r in runs[:k])
+            note = f"run {k + 1}/{len(runs)}: {settings.label}"
+            progress.update(done_s, note)
+
+            def measured(elapsed_s: float, done_s: float = done_s, note: str = note) -> None:
+                progress.update(done_s + elapsed_s, note)
+
+            results.append(with_retries(partial(run_once, base, settings, work_dir, measured), settings.label))
+            progress.update(done_s + settings.duration_s)
+    return results
+
+
+def _same_point(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    return bool(a["rate_hz"] == b["rate_hz"] and a["http_rate_per_s"] == b["http_rate_per_s"])
+
+
+def sse_targets(runs: list[dict[str, Any]]) -> list[Target]:
+    """Issue 11's targets for each run with SSE clients: the slowest client's documents/s, and the period p99
+    with the clients over the p99 of the run without them at the same rate and HTTP rate."""
+    targets = []
+    for with_sse in runs:
+        sse = with_sse.get("sse")
+        if not sse:
+            continue
+        point = f"{with_sse['rate_hz']:g} Hz, {with_sse['http_rate_per_s']:g} req/s"
+        targets.append(
+            Target(
+                f"SSE documents/s to each of {sse['clients']} clients (slowest) at {point}",
+                sse["min_docs_per_s"],
+                TARGET_SSE_DOCS_PER_S,
+                "docs/s",
+                at_least=True,
+            )
+        )
+        without = [r for r in runs if _same_point(r, with_sse) and not r.get("sse_clients")]
+        if without and without[0]["period_ms"].get("n") and with_sse["period_ms"].get("n"):
+            ratio = with_sse["period_ms"]["p99"] / without[0]["period_ms"]["p99"]
+            targets.append(
+                Target(
+                    f"period p99 with {sse['clients']} SSE clients / without at {point}",
+                    round(ratio, 3),
+                    TARGET_SSE_P99_RATIO,
+                    "×",
+                )
+            )
+    return targets
+
+
 def run(
     rates: list[float],
     http_rates: list[float],
@@ -376,6 +608,7 @@ def run(
     event_driven: bool = True,
     load_nice: int = 0,
     controllers_per_process: int = 1,
+    sse_clients: int = 0,
 ) -> Report:
     base = load_cell_config(config_path)
     report = Report(
@@ -384,6 +617,8 @@ def run(
             "rates_hz": rates,
             "event_driven": event_driven,
             "http_rates_per_s": http_rates,
+            "sse_clients": sse_clients,
+            "status_rate_hz": base.gateway.status_rate_hz,
             "load_nice": load_nice,
             "controllers_per_process": controllers_per_process,
             "duration_s": duration_s,
@@ -394,26 +629,24 @@ def run(
             "config": str(config_path) if config_path else "configs/cell.toml",
         },
     )
-    runs = []
-    for rate in rates:
-        for http_rate in http_rates:
-            print(f"... {rate:g} Hz, {http_rate:g} HTTP requests/s, {duration_s:g} s")
-            settings = RunSettings(
-                rate, http_rate, duration_s, warmup_s, scenario, seed, event_driven, load_nice, controllers_per_process
-            )
-            runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz, {http_rate:g} req/s"))
+    common = RunSettings(
+        0.0, 0.0, duration_s, warmup_s, scenario, seed, event_driven, load_nice, controllers_per_process
+    )
+    runs = run_matrix(base, matrix(rates, http_rates, sse_clients, common), work_dir)
     report.results["runs"] = runs
     loaded = max(http_rates)
     for r in runs:
         if r["http_rate_per_s"] == loaded and r["period_ms"].get("n"):
+            with_sse = f" and {r['sse_clients']} SSE clients" if r["sse_clients"] else ""
             report.targets.append(
                 Target(
-                    f"period p99 at {r['rate_hz']:g} Hz with {loaded:g} req/s",
+                    f"period p99 at {r['rate_hz']:g} Hz with {loaded:g} req/s{with_sse}",
                     r["period_ms"]["p99"],
                     round(TARGET_P99_PERIODS * r["nominal_period_ms"], 3),
                     "ms",
                 )
             )
+    report.targets += sse_targets(runs)
     report.notes = [
         "period = difference of the override stamp_ns of consecutive ticks, i.e. of the gateway's tick "
         "starts (time.time_ns in the gateway; the loop itself sleeps on the monotonic clock); event cycles "
@@ -424,6 +657,11 @@ def run(
         "The HTTP server is a child process of the gateway at niceness +10 (gateway.http_server); the load "
         "generator runs in this process, its threads at niceness +load_nice (in a cell the HTTP clients are "
         "other machines); all share the same 2 cores with the controller and tracker emulators.",
+        "SSE clients (sse_clients > 0): each a thread of this process (niceness +load_nice, like the load) with "
+        "its own connection to GET /api/v1/stream, connected and receiving before the window opens; docs_per_s = "
+        "status events received in the window / window length; the stream sends the newest document at the "
+        "status rate (status_rate_hz), so docs_per_s is at most that. fewest_in_a_second: the fewest in any "
+        "whole second of the window; versions_skipped: status versions a client never got (it read too slowly).",
         "Figures on a shared 2-core machine are indicative: see load_average.",
     ]
     return report
@@ -434,11 +672,14 @@ def print_report(doc: dict[str, Any]) -> None:
     for r in doc["results"]["runs"]:
         p = r["period_ms"]
         http = r["http"] or {}
+        sse = r.get("sse") or {}
         rows.append(
             [
                 f"{r['rate_hz']:g} Hz",
                 f"{r['http_rate_per_s']:g}",
                 http.get("achieved_rate_per_s", "-"),
+                r.get("sse_clients", 0),
+                sse.get("min_docs_per_s", "-"),
                 p.get("n"),
                 p.get("p50"),
                 p.get("p99"),
@@ -458,6 +699,8 @@ def print_report(doc: dict[str, Any]) -> None:
                 "gateway",
                 "req/s",
                 "achieved",
+                "SSE",
+                "docs/s min",
                 "periods",
                 "p50 [ms]",
                 "p99 [ms]",
@@ -479,47 +722,115 @@ def print_report(doc: dict[str, Any]) -> None:
                 f"{r['rate_hz']:g} Hz with load: {h['requests']} requests, responses {h['responses']}, "
                 f"latency p50 {h['latency_ms'].get('p50')} ms p99 {h['latency_ms'].get('p99')} ms"
             )
-    print("\n" + targets_table([Target(t["name"], t["measured"], t["target"], t["unit"]) for t in doc["targets"]]))
+    for line in sse_lines(doc["results"]["runs"]):
+        print(line)
+    print("\n" + targets_table([Target.from_dict(t) for t in doc["targets"]]))
     load = doc["load_average"]
     print(f"\nload average start {load['start']} end {load['end']}")
 
 
+def sse_lines(runs: list[dict[str, Any]]) -> list[str]:
+    """For each run with SSE clients: what the clients got, and the period beside the run without them."""
+    lines = []
+    for r in runs:
+        sse = r.get("sse")
+        if not sse:
+            continue
+        point = f"{r['rate_hz']:g} Hz, {r['http_rate_per_s']:g} req/s"
+        rates = sse["docs_per_s"]
+        lines.append(
+            f"{point} with {sse['clients']} SSE clients (status documents received over Zenoh: "
+            f"{r.get('status_per_s')}/s): docs/s per client min {rates.get('min')} "
+            f"mean {rates.get('mean')} max {rates.get('max')}; fewest in a second {sse['fewest_in_a_second']}; "
+            f"versions skipped {sse['versions_skipped']}; errors {sse['errors'] or 'none'}"
+        )
+        without = [o for o in runs if _same_point(o, r) and not o.get("sse_clients")]
+        if without:
+            a, b = without[0]["period_ms"], r["period_ms"]
+            lines.append(
+                f"{point} period without → with SSE clients: p50 {a.get('p50')} → {b.get('p50')} ms, "
+                f"p99 {a.get('p99')} → {b.get('p99')} ms"
+            )
+    return lines
+
+
+class MatrixArguments(NamedTuple):
+    """The run matrix and its common settings, from the command line (:func:`add_matrix_arguments`)."""
+
+    rates_hz: list[float]
+    http_rates: list[float]
+    sse_clients: int
+    duration_s: float
+    warmup_s: float
+    load_nice: int
+
+
+def add_matrix_arguments(parser: argparse.ArgumentParser, rates: str = "500,250", warmup_s: float = 2.0) -> None:
+    """The options of the run matrix, shared with ``bench.many_robots`` (read back by :func:`matrix_arguments`)."""
+    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
+    parser.add_argument("--warmup", type=float, default=warmup_s, help="seconds after start-up before measuring")
+    parser.add_argument("--rates", default=rates, help="gateway rates, comma-separated [Hz]")
+    parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
+    parser.add_argument(
+        "--sse-clients",
+        type=int,
+        default=0,
+        help=f"clients of the status stream ({STREAM_PATH}); > 0: every run without and with them (default 0)",
+    )
+    parser.add_argument(
+        "--load-nice",
+        type=int,
+        default=10,
+        help="the HTTP load generator's and SSE clients' threads lower their CPU priority by this much "
+        "(default 10; 0 = not)",
+    )
+
+
+def matrix_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> MatrixArguments:
+    """The options of :func:`add_matrix_arguments`, checked (``parser.error`` on a bad value)."""
+    try:
+        rates = [float(x) for x in args.rates.split(",") if x.strip()]
+        http_rates = [float(x) for x in args.http_rates.split(",") if x.strip()]
+    except ValueError as exc:
+        parser.error(f"--rates and --http-rates are comma-separated numbers: {exc}")
+    if not rates or any(r <= 0 for r in rates):
+        parser.error("--rates must list rates > 0")
+    if not http_rates or any(r < 0 for r in http_rates):
+        parser.error("--http-rates must list rates >= 0")
+    if args.load_nice < 0:
+        parser.error("--load-nice must be >= 0")
+    if args.sse_clients < 0:
+        parser.error("--sse-clients must be >= 0")
+    if args.duration <= 0 or args.warmup < 0:
+        parser.error("--duration must be > 0 and --warmup >= 0")
+    return MatrixArguments(rates, http_rates, args.sse_clients, args.duration, args.warmup, args.load_nice)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.loop", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
-    parser.add_argument("--warmup", type=float, default=2.0, help="seconds after start-up before measuring")
-    parser.add_argument("--rates", default="500,250", help="gateway rates, comma-separated [Hz]")
-    parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
+    add_matrix_arguments(parser)
     parser.add_argument("--scenario", default="two_people", help="tracker scenario (looping)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--fixed-rate", action="store_true", help="gateway.event_driven = false: decide at the ticks only"
     )
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
-    parser.add_argument(
-        "--load-nice",
-        type=int,
-        default=10,
-        help="the HTTP load generator's threads lower their CPU priority by this much (default 10; 0 = not)",
-    )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
-    if args.load_nice < 0:
-        parser.error("--load-nice must be >= 0")
-    rates = [float(x) for x in args.rates.split(",") if x.strip()]
-    http_rates = [float(x) for x in args.http_rates.split(",") if x.strip()]
+    m = matrix_arguments(parser, args)
     print_header("sustained loop: period and missed cycles of the real gateway, with and without HTTP load")
     report = run(
-        rates,
-        http_rates,
-        args.duration,
-        args.warmup,
+        m.rates_hz,
+        m.http_rates,
+        m.duration_s,
+        m.warmup_s,
         args.scenario,
         args.seed,
         args.config,
         args.json.parent,
         event_driven=not args.fixed_rate,
-        load_nice=args.load_nice,
+        load_nice=m.load_nice,
+        sse_clients=m.sse_clients,
     )
     doc = report.finish(args.json)
     print_report(doc)

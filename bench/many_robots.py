@@ -8,7 +8,7 @@ issue allows one emulator process to host several controllers). The cell file an
 output folder; the measurement is ``bench.loop``'s (period of the ticks from the first robot's override stamps,
 missed cycles, HTTP load).
 
-    python -m bench.many_robots [--pairs 4] [--duration 60] [--rates 250] [--http-rates 0,200]
+    python -m bench.many_robots [--pairs 4] [--duration 60] [--rates 250] [--http-rates 0,200] [--sse-clients 0]
                                 [--controllers-per-process 4] [--json out/bench/many_robots.json]
 """
 
@@ -97,6 +97,7 @@ def write_cell(pairs: int, work_dir: Path) -> Path:
         BenchError: the written cell does not load back to the same configuration.
         ConfigError: the written scenario is not valid.
     """
+    work_dir = work_dir.resolve()  # the cell file names its scenarios by absolute path
     two_arms = load_cell_config(TWO_ARMS)
     scenarios_dir = work_dir / f"{NAME}-scenarios"
     scenarios_dir.mkdir(parents=True, exist_ok=True)
@@ -110,11 +111,7 @@ def write_cell(pairs: int, work_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.many_robots", description=__doc__.split("\n\n")[0])
     parser.add_argument("--pairs", type=int, default=4, help="copies of the two-arm cell (robots = 2 × pairs)")
-    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds per run")
-    parser.add_argument("--warmup", type=float, default=5.0, help="seconds after start-up before measuring")
-    parser.add_argument("--rates", default="250", help="gateway rates, comma-separated [Hz]")
-    parser.add_argument("--http-rates", default="0,200", help="HTTP request rates, comma-separated [1/s]")
-    parser.add_argument("--load-nice", type=int, default=10, help="as bench.loop's")
+    loop.add_matrix_arguments(parser, rates="250", warmup_s=5.0)
     parser.add_argument(
         "--controllers-per-process",
         type=int,
@@ -123,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
+    matrix = loop.matrix_arguments(parser, args)
     if not 1 <= args.pairs <= 16:
         parser.error("--pairs must be 1-16")
     if args.controllers_per_process < 1:
@@ -130,16 +128,17 @@ def main(argv: list[str] | None = None) -> int:
     print_header(f"sustained loop with {2 * args.pairs} robots × {args.pairs} people: period and missed cycles")
     cell_path = write_cell(args.pairs, args.json.parent)
     report = loop.run(
-        [float(x) for x in args.rates.split(",") if x.strip()],
-        [float(x) for x in args.http_rates.split(",") if x.strip()],
-        args.duration,
-        args.warmup,
+        matrix.rates_hz,
+        matrix.http_rates,
+        matrix.duration_s,
+        matrix.warmup_s,
         SCENARIO,
         0,
         cell_path,
         args.json.parent,
-        load_nice=args.load_nice,
+        load_nice=matrix.load_nice,
         controllers_per_process=args.controllers_per_process,
+        sse_clients=matrix.sse_clients,
     )
     report.benchmark = NAME
     report.parameters.update(pairs=args.pairs, robots=2 * args.pairs, people=args.pairs)

@@ -24,7 +24,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,25 +168,40 @@ def with_gateway_rate(
 # -- programs -------------------------------------------------------------------------------------
 
 
-def start_program(module: str, args: Sequence[str], log_path: Path) -> Program:
+def program_env(plain_tcp: bool = True) -> dict[str, str]:
+    """This process's environment for a program, its output unbuffered; ``plain_tcp``: plain TCP on loopback
+    allowed (development), else without ``HRC_INSECURE_PLAIN_TCP`` (the program must use TLS)."""
+    env = {k: v for k, v in os.environ.items() if k != PLAIN_TCP_ENV_VAR} | {"PYTHONUNBUFFERED": "1"}
+    return (env | {PLAIN_TCP_ENV_VAR: "1"}) if plain_tcp else env
+
+
+def start_program(
+    module: str, args: Sequence[str], log_path: Path, env: Mapping[str, str] | None = None, wrapper: Sequence[str] = ()
+) -> Program:
     """Start ``python -m module args`` from the repository root, stdout and stderr appended to ``log_path``.
 
-    Every program of every benchmark and test is started here: options that all of them need (e.g. the
-    certificates of a secured Zenoh link) belong in this function only.
+    ``env``: its environment (default: :func:`program_env`); ``wrapper``: the command that runs it (e.g.
+    ``ip netns exec NS``). Every program of every benchmark and test is started here: options that all of
+    them need (e.g. the certificates of a secured Zenoh link) belong in this function only.
     """
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as log:  # the child keeps its own copy of the descriptor
         return subprocess.Popen(
-            [sys.executable, "-m", module, *args],
+            [*wrapper, sys.executable, "-m", module, *args],
             stdout=log,
             stderr=subprocess.STDOUT,
             cwd=REPO_ROOT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1", PLAIN_TCP_ENV_VAR: "1"},  # loopback tcp/ (development)
+            env=program_env() if env is None else dict(env),
         )
 
 
-def stop_program(proc: Program, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S) -> int:
+def stop_program(
+    proc: Program, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S, abort_s: float = 0.0
+) -> int:
     """Send ``sig`` (after SIGCONT, in case the program was frozen) and return its exit code.
+
+    ``abort_s`` > 0: a program still running after ``timeout_s`` gets SIGABRT and that long before it is
+    killed (under ``PYTHONFAULTHANDLER=1`` it writes every thread's stack to its log: where it hangs).
 
     Raises:
         subprocess.TimeoutExpired: it did not exit within ``timeout_s``; it has been killed (this process only).
@@ -197,6 +212,10 @@ def stop_program(proc: Program, sig: int = signal.SIGINT, timeout_s: float = STO
     try:
         return proc.wait(timeout_s)
     except subprocess.TimeoutExpired:
+        if abort_s > 0.0:
+            proc.send_signal(signal.SIGABRT)
+            with suppress(subprocess.TimeoutExpired):
+                proc.wait(abort_s)
         proc.kill()
         proc.wait()
         raise
@@ -221,21 +240,40 @@ def programs(specs: Sequence[tuple[str, Sequence[str], Path]]) -> Iterator[list[
         stop_all(procs)
 
 
-def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, procs: Sequence[Program] = ()) -> None:
-    """Evaluate ``predicate`` every :data:`POLL_S` until it holds.
+def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, procs: Sequence[Program] = ()) -> float:
+    """Evaluate ``predicate`` every :data:`POLL_S` until it holds; return how long that took [s].
 
     Raises:
         StartupError: ``timeout_s`` passed, or one of ``procs`` exited meanwhile.
     """
-    deadline = time.monotonic() + timeout_s
+    start_s = time.monotonic()
+    deadline = start_s + timeout_s
     while time.monotonic() < deadline:
         if predicate():
-            return
+            return time.monotonic() - start_s
         for proc in procs:
             if proc.poll() is not None:
                 raise StartupError(f"{describe(proc)} exited with code {proc.returncode} ({what})")
         time.sleep(POLL_S)
     raise StartupError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def wait_or_fail(
+    predicate: Callable[[], bool],
+    timeout_s: float,
+    what: str,
+    logs: Iterable[Path] = (),
+    procs: Sequence[Program] = (),
+) -> float:
+    """:func:`wait_for` in a test: waiting in vain fails the test with the end of every log.
+
+    Raises:
+        AssertionError: ``timeout_s`` passed, or one of ``procs`` exited meanwhile.
+    """
+    try:
+        return wait_for(predicate, timeout_s, what, procs)
+    except StartupError as exc:
+        raise AssertionError(f"{exc}\n{logs_tail(logs)}") from None
 
 
 def describe(proc: Program) -> str:
@@ -258,6 +296,11 @@ def log_tail(path: Path, lines: int = 10) -> str:
         return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
     except OSError:
         return ""
+
+
+def logs_tail(logs: Iterable[Path], lines: int = 15) -> str:
+    """The last ``lines`` lines of each log, headed by its name."""
+    return "\n".join(f"--- {path.stem} ---\n{log_tail(path, lines)}" for path in logs)
 
 
 # -- a whole cell ---------------------------------------------------------------------------------
@@ -319,10 +362,7 @@ class Cell:
         Raises:
             AssertionError: ``timeout_s`` passed (the test using the cell fails).
         """
-        try:
-            wait_for(condition, timeout_s, what)
-        except StartupError as exc:
-            raise AssertionError(f"{exc}\n{self.tail()}") from None
+        wait_or_fail(condition, timeout_s, what, self.logs.values())
 
     def wait_until(
         self, predicate: Callable[[Status], bool], timeout_s: float, what: str, robot: str = "ur5"
@@ -349,7 +389,7 @@ class Cell:
         return matched[0]
 
     def tail(self, lines: int = 15) -> str:
-        return "\n".join(f"--- {name} ---\n{log_tail(path, lines)}" for name, path in self.logs.items())
+        return logs_tail(self.logs.values(), lines)
 
 
 @contextmanager

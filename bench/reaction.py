@@ -43,6 +43,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import zenoh
 
+from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from bench.procs import (
     StartupError,
@@ -325,8 +326,15 @@ class Sender:
         self.samples: list[Sample] = []
         self._next_s = time.monotonic()
 
-    def send_until(self, count: int | None, stop_at_s: float | None, done: Callable[[], bool] | None = None) -> None:
-        """Send until ``count`` samples were sent in all, ``stop_at_s`` [monotonic s] passed, or ``done()``."""
+    def send_until(
+        self,
+        count: int | None,
+        stop_at_s: float | None,
+        done: Callable[[], bool] | None = None,
+        on_sent: Callable[[int], None] | None = None,
+    ) -> None:
+        """Send until ``count`` samples were sent in all, ``stop_at_s`` [monotonic s] passed, or ``done()``;
+        ``on_sent(samples sent in all)`` after each (after its ping: not between a sample and its stamp)."""
         interval_s, jitter = self.settings.interval_s, self.settings.jitter
         while (count is None or len(self.samples) < count) and (stop_at_s is None or time.monotonic() < stop_at_s):
             self._next_s += interval_s * (1.0 + self.rng.uniform(-jitter, jitter))
@@ -339,12 +347,17 @@ class Sender:
             self.tracker_pub.put(_humans_payload(seq, stamp_ns, near))
             self.samples.append(Sample(seq, stamp_ns, near))
             self.ping_pub.put(json.dumps({"seq": seq, "stamp_ns": time.time_ns()}).encode())
+            if on_sent is not None:
+                on_sent(len(self.samples))
             if done is not None and done():
                 return
 
 
-def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[str, Any]:
-    """Start gateway, controller emulator and the ping peer; send samples; match; return the figures."""
+def run_once(
+    base: CellConfig, settings: RunSettings, work_dir: Path, on_progress: Callable[[int], None] | None = None
+) -> dict[str, Any]:
+    """Start gateway, controller emulator and the ping peer; send samples (``on_progress(measured samples
+    sent)`` after each); match; return the figures."""
     robot = next(iter(base.robots))
     gw_port, bench_port, http_port = free_port(), free_port(), free_port()
     gw_ep, bench_ep = f"tcp/127.0.0.1:{gw_port}", f"tcp/127.0.0.1:{bench_port}"
@@ -403,7 +416,8 @@ def run_once(base: CellConfig, settings: RunSettings, work_dir: Path) -> dict[st
             sender.send_until(None, time.monotonic() + settings.settle_s)
             measured_from = len(samples)
             status_before = len(recorder.statuses)
-            sender.send_until(measured_from + settings.samples, None)
+            on_sent = None if on_progress is None else (lambda sent: on_progress(sent - measured_from))
+            sender.send_until(measured_from + settings.samples, None, on_sent=on_sent)
             measured_to = len(samples)
             # More samples, not measured: keep the data fresh while the last overrides and states arrive.
             sender.send_until(None, time.monotonic() + max(0.3, 3.0 / settings.rate_hz))
@@ -513,19 +527,28 @@ def run(
         },
     )
     runs = []
-    for k, rate in enumerate(rates):
-        settings = RunSettings(
-            rate_hz=rate,
-            samples=samples,
-            interval_s=max(2.5 / rate, min_interval_s),
-            jitter=jitter,
-            warmup_timeout_s=warmup_timeout_s,
-            settle_s=settle_s,
-            seed=seed + k,
-            event_driven=event_driven,
-        )
-        print(f"... {rate:g} Hz: {samples} samples every {settings.interval_s * 1e3:.1f} ms ± {100 * jitter:g} %")
-        runs.append(with_retries(partial(run_once, base, settings, work_dir), f"{rate:g} Hz"))
+    with Progress(NAME, len(rates) * samples, "samples") as progress:
+        for k, rate in enumerate(rates):
+            settings = RunSettings(
+                rate_hz=rate,
+                samples=samples,
+                interval_s=max(2.5 / rate, min_interval_s),
+                jitter=jitter,
+                warmup_timeout_s=warmup_timeout_s,
+                settle_s=settle_s,
+                seed=seed + k,
+                event_driven=event_driven,
+            )
+            progress.message(
+                f"... {rate:g} Hz: {samples} samples every {settings.interval_s * 1e3:.1f} ms ± {100 * jitter:g} %"
+            )
+            note = f"run {k + 1}/{len(rates)}: {rate:g} Hz"
+            progress.update(k * samples, note)
+
+            def sent(n: int, done: int = k * samples, note: str = note) -> None:
+                progress.update(done + n, note)
+
+            runs.append(with_retries(partial(run_once, base, settings, work_dir, sent), f"{rate:g} Hz"))
     report.results["runs"] = runs
     for r in runs:
         report.targets.append(
@@ -595,7 +618,7 @@ def print_report(doc: dict[str, Any]) -> None:
     estimate = doc["results"].get("event_driven_estimate_ms")
     if estimate:
         print(f"event-driven estimate (not measured): published p99 ≈ {estimate['p99_published']} ms")
-    print("\n" + targets_table([Target(t["name"], t["measured"], t["target"], t["unit"]) for t in doc["targets"]]))
+    print("\n" + targets_table([Target.from_dict(t) for t in doc["targets"]]))
     load = doc["load_average"]
     print(f"\nload average start {load['start']} end {load['end']}")
 

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from bench._progress import Progress
 from hrc_common.access_control import CellPolicy
 from hrc_common.pki import CellPki
 from hrc_common.service import stop_on_signals
@@ -118,9 +119,12 @@ def main(argv: list[str] | None = None) -> int:
         for cn in ("gateway", "controller-ur5"):
             CellPki(pki_dir).identity(cn)
         results: dict[str, list[np.ndarray]] = {s: [] for s in SECURITIES}
-        for _ in range(args.rounds):
-            for security in SECURITIES:
-                results[security].append(measure(security, pki_dir, work, args.samples, args.warmup, args.rate_hz))
+        with Progress("tls_cost", args.rounds * len(SECURITIES), "measurements") as progress:
+            for k in range(args.rounds):
+                for security in SECURITIES:
+                    progress.update(progress.done, f"round {k + 1}/{args.rounds}: {security}")
+                    results[security].append(measure(security, pki_dir, work, args.samples, args.warmup, args.rate_hz))
+                    progress.advance(note=f"round {k + 1}/{args.rounds}: {security} done")
     print(f"one-way put → subscriber, loopback: {args.samples} samples × {args.rounds} rounds at {args.rate_hz:g} Hz")
     p50_plain = p99_plain = 0.0
     for security in SECURITIES:

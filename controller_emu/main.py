@@ -35,6 +35,7 @@ from hrc_common.service import (
     add_config_argument,
     add_zenoh_arguments,
     configure_logging,
+    freeze_startup_heap,
     stop_on_signals,
 )
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
@@ -146,6 +147,7 @@ def _publish(output: ControllerOutput, publishers: _Publishers, config: Controll
 
 def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Event) -> RateLoop:
     """Cycle the node at its rate until ``stop`` is set; stats every second, a progress line every 5 s."""
+    freeze_startup_heap()
     rate = RateLoop(node.config.cycle_s)
     next_stats_s = time.monotonic() + STATS_EVERY_S
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S

@@ -8,6 +8,7 @@ fault has cleared. Per robot, everything remembered between cycles is one :class
 
 from __future__ import annotations
 
+import math
 import operator
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -16,8 +17,8 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from gateway.delay import NS_PER_S, DelayBudget, WindowMax
-from gateway.inputs import HumanFrame, InputSnapshot, JointSample, OverridePathEstimate, TopicFault, age_s
+from gateway.delay import NS_PER_S, DelayBudget, OverridePathEstimate, WindowMax
+from gateway.inputs import HumanFrame, InputSnapshot, JointSample, TopicFault, age_s
 from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
 from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
@@ -191,8 +192,11 @@ class SafetyCore:
             topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
             age = age_s(frame, now_mono_ns)
             ages[topic] = age
-            oldest_s = max(oldest_s, max_age_s if age is None else age)  # no data yet counts as data at the limit
-            faults += tracker_faults(tracker, frame, age, max_age_s)
+            if frame is None or age is None or age > max_age_s:  # no data yet counts as data at the limit
+                oldest_s = max(oldest_s, max_age_s if age is None else age)
+                faults += tracker_faults(tracker, frame, age, max_age_s)
+            elif age > oldest_s:
+                oldest_s = age
             if topic in inputs.faults:
                 faults.append(inputs.faults[topic])
             if frame is not None:
@@ -231,25 +235,26 @@ class SafetyCore:
         joint_age = age_s(joint, now.mono_ns)
         path = inputs.override_path[state.name]
         faults = list(humans.faults)
-        faults += joint_faults(state.name, joint, joint_age, max_age_s)
+        if joint is None or joint_age is None or joint_age > max_age_s:
+            faults += joint_faults(state.name, joint, joint_age, max_age_s)
         if state.topic in inputs.faults:
             faults.append(inputs.faults[state.topic])
         faults += override_path_faults(path, now.mono_ns, max_age_s)
         delay = self._delay(joint_age, path, humans.age_s, period_s)
+        t_delay_s = delay.total_s
         t_brake_max_s = state.kernels.t_brake_max_s
-        clearance = decision_clearance_m(self.config.safety, t_brake_max_s, delay.total_s)
+        clearance = decision_clearance_m(self.config.safety, t_brake_max_s, t_delay_s)
         delta_bound, min_distance, closest, speed_mps, links = 0.0, None, None, 0.0, None
         if joint is not None:
             delta_bound, min_distance, closest, speed_mps, links = self._bound(
-                state, joint, humans, delay.total_s, clearance, period_s
+                state, joint, humans, t_delay_s, clearance, period_s
             )
-            delta_bound = delta_bound if delta_bound == delta_bound else 0.0  # nan never moves a robot
         thresholds = zone_thresholds(
             self.config.zones,
             clearance,
-            t_brake_max_s + delay.total_s,
+            t_brake_max_s + t_delay_s,
             state.speed_hold.push(now.mono_ns, speed_mps),
-            self._method.protection(t_brake_max_s, delay.total_s),  # each method's own stopping model
+            self._method.protection(t_brake_max_s, t_delay_s, clearance),  # each method's own stopping model
         )
         if faults:
             state.zone, delta = Zone.SAFETY_EXCEPTION, 0.0
@@ -284,27 +289,37 @@ class SafetyCore:
         clearance_m: float,
         period_s: float,
     ) -> tuple[float, float | None, ClosestPair | None, float, LinkEnds]:
-        """The method's δ bound, the closest pair and its distance [m], the largest link-end speed [m/s], the links."""
-        links, speed_mps, rows, (i, j, distance_m) = state.kernels.cycle(
+        """The method's δ bound, the closest pair and its distance [m], the largest link-end speed [m/s], the links.
+
+        The one guard against numbers that are not finite, for every method: δ = 0 when q, q̇_nominal, a capsule,
+        t_delay, Δ, δ_prev or T is not finite (the kernel checks the arrays), or when the method's bound is nan.
+        """
+        links, speed_mps, rows, (i, j, distance_m), inputs_finite = state.kernels.cycle(
             joint.q_rad, joint.qd_nominal_radps, humans.columns, t_delay_s
         )
-        bound = self._method.bound(
-            MethodInput(
-                state.robot,
-                state.data,
-                joint.q_rad,
-                links,
-                rows,
-                humans.capsules,
-                joint.qd_nominal_radps,
-                t_delay_s,
-                clearance_m,
-                state.previous_delta,
-                period_s,
+        bound = 0.0
+        if inputs_finite and math.isfinite(t_delay_s + clearance_m + state.previous_delta + period_s):
+            bound = self._method.bound(
+                MethodInput(
+                    state.robot,
+                    state.data,
+                    joint.q_rad,
+                    links,
+                    rows,
+                    humans.capsules,
+                    joint.qd_nominal_radps,
+                    t_delay_s,
+                    clearance_m,
+                    state.previous_delta,
+                    period_s,
+                )
             )
-        )
+            bound = bound if bound == bound else 0.0  # nan never moves a robot
+        else:
+            speed_mps = 0.0  # not a speed: kept out of the adaptive thresholds' hold window
+        ends = LinkEnds(links.p_a_world, links.p_b_world)
         if i < 0:  # nobody seen
-            return bound, None, None, speed_mps, LinkEnds(links.p_a_world, links.p_b_world)
+            return bound, None, None, speed_mps, ends
         capsules = humans.capsules
         closest = ClosestPair(capsules.human_ids[j], capsules.capsule_names[j], state.robot.link_names[i])
-        return bound, distance_m, closest, speed_mps, LinkEnds(links.p_a_world, links.p_b_world)
+        return bound, distance_m, closest, speed_mps, ends

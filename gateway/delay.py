@@ -38,6 +38,20 @@ class DelayBudget(NamedTuple):
         )
 
 
+class OverridePathEstimate(NamedTuple):
+    """What the override echo taught so far (:class:`OverridePath`), None before it is known.
+
+    Attributes:
+        latency_s: the largest override path latency within the window [s].
+        controller_cycle_s: the largest interval between joint states within the window [s].
+        acked_sent_mono_ns: send time of the newest override echoed, on the gateway's monotonic clock [ns].
+    """
+
+    latency_s: float | None
+    controller_cycle_s: float | None
+    acked_sent_mono_ns: int | None
+
+
 class WindowMax:
     """Largest value pushed within the last ``window_ns`` (monotonic deque: O(1) amortised per push)."""
 
@@ -76,6 +90,9 @@ class OverridePath:
         self._last_state_stamp_ns: int | None = None
         self.acked_sent_mono_ns: int | None = None
         """Send time of the newest override the controller reported, on the gateway's monotonic clock [ns]."""
+        self.estimate = OverridePathEstimate(None, None, None)
+        """The three together, renewed by :meth:`on_state` (the only call that changes them: a window's maximum
+        moves only on a push), so that the loop reads them without recomputing them every cycle."""
 
     def on_sent(self, seq: int, sent_ns: int, sent_mono_ns: int) -> None:
         """Record an override sent at ``sent_ns`` (wall clock, compared with the controller's stamps) and
@@ -87,16 +104,19 @@ class OverridePath:
 
     def on_state(self, override_seq: int, stamp_ns: int) -> None:
         """Record a joint state's echo of the override seq and its stamp."""
+        changed = False
         if self._last_state_stamp_ns is not None and stamp_ns > self._last_state_stamp_ns:
             self._cycle_ns.push(stamp_ns, stamp_ns - self._last_state_stamp_ns)
+            changed = True
         self._last_state_stamp_ns = stamp_ns
         sent = self._sent_ns.get(override_seq)
-        if sent is None:
-            return
-        if override_seq != self._last_ack_seq:
+        if sent is not None and override_seq != self._last_ack_seq:
             self._last_ack_seq = override_seq
             sent_ns, self.acked_sent_mono_ns = sent
             self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent_ns))
+            changed = True
+        if changed:
+            self.estimate = OverridePathEstimate(self.latency_s(), self.controller_cycle_s(), self.acked_sent_mono_ns)
 
     def latency_s(self) -> float | None:
         """Largest override path latency within the window, None before the first echo [s]."""

@@ -41,7 +41,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.delay import NS_PER_S, OverridePath, WindowMax
+from gateway.delay import NS_PER_S, OverridePath, OverridePathEstimate, WindowMax
 from hrc_common import keys
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
@@ -122,12 +122,6 @@ def age_s(sample: JointSample | HumanFrame | None, now_mono_ns: int) -> float | 
     if sample is None:
         return None
     return (sample.transit_ns + max(0, now_mono_ns - sample.received_mono_ns)) / NS_PER_S
-
-
-class OverridePathEstimate(NamedTuple):
-    latency_s: float | None
-    controller_cycle_s: float | None
-    acked_sent_mono_ns: int | None
 
 
 class InputSnapshot(NamedTuple):
@@ -336,23 +330,25 @@ class InputStore:
             entry.commanded.push(sent.mono_ns, delta)
 
     def snapshot(self, now: Clocks) -> InputSnapshot:
-        """The newest samples, the active faults and the override paths at ``now``."""
+        """The newest samples, the active faults and the override paths at ``now``.
+
+        Built from what the callbacks left ready: a stream without a fault is skipped without a call, and each
+        override path's estimate is renewed by its joint states (:attr:`gateway.delay.OverridePath.estimate`).
+        """
         with self._lock:
             self._watch_clock(now)
             faults = {}
             for topic, stream in self._streams.items():
-                fault = stream.active_fault(now.mono_ns, self._hold_ns)
-                if fault is not None:
-                    faults[topic] = fault
-            paths = {
-                name: OverridePathEstimate(r.path.latency_s(), r.path.controller_cycle_s(), r.path.acked_sent_mono_ns)
-                for name, r in self._robots.items()
-            }
+                if stream.fault is not None:  # only a stream with a fault can have an active one
+                    fault = stream.active_fault(now.mono_ns, self._hold_ns)
+                    if fault is not None:
+                        faults[topic] = fault
+            robots = self._robots.items()
             return InputSnapshot(
-                {name: r.sample for name, r in self._robots.items()},
+                {name: r.sample for name, r in robots},
                 dict(self._frames),
                 faults,
-                paths,
+                {name: r.path.estimate for name, r in robots},
                 self._clock_fault.active_fault(now.mono_ns, self._hold_ns),
             )
 

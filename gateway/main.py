@@ -25,7 +25,7 @@ import zenoh
 from gateway.core import RobotDecision
 from gateway.events import EventLog
 from gateway.http_server import HttpServerProcess
-from gateway.node import GatewayCycle, GatewayNode, humans_summary
+from gateway.node import GatewayCycle, GatewayNode, NodeRecorder, humans_summary
 from gateway.status import effective_config, human_capsules, loop_status, robot_status, status_document
 from hrc_common import keys
 from hrc_common.clocks import read_clocks
@@ -39,9 +39,12 @@ from hrc_common.service import (
     add_config_argument,
     add_zenoh_arguments,
     configure_logging,
+    freeze_startup_heap,
     stop_on_signals,
 )
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+from recorder.gateway_log import GatewayRecorder
+from recorder.mcap_sink import RecordingError
 
 log = logging.getLogger("hrc-gateway")
 
@@ -51,11 +54,19 @@ MAX_EVENT_SEQS_PER_STATUS = 256
 """At most this many event-cycle seqs are listed in one status document (``loop.event_seqs``)."""
 
 
-def _callback(node: GatewayNode) -> Callable[[zenoh.Sample], None]:
-    """A Zenoh callback: the node judges and stores; an exception is logged, counted and faults the topic."""
+def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.Sample], None]:
+    """A Zenoh callback: the node judges and stores; an exception is logged, counted and faults the topic.
+
+    ``realtime_priority`` > 0: each thread that calls it first puts itself under SCHED_FIFO at that priority
+    (``gateway.input_realtime_priority``).
+    """
+    scheduled = threading.local()
 
     def on_sample(sample: zenoh.Sample) -> None:
         received = read_clocks()
+        if realtime_priority and not getattr(scheduled, "done", False):
+            scheduled.done = True
+            _use_realtime_scheduling(realtime_priority, "a Zenoh thread that receives inputs")
         key = str(sample.key_expr)
         try:
             node.on_message(key, sample.payload.to_bytes(), received)
@@ -109,18 +120,18 @@ def service_status_line(decisions: dict[str, RobotDecision], missed_cycles: int)
     return f"{robots}; missed cycles {missed_cycles}"
 
 
-def _use_realtime_scheduling(priority: int) -> None:
-    """Run the calling thread (the safety loop) under SCHED_FIFO at ``priority``; warn if the OS refuses.
+def _use_realtime_scheduling(priority: int, thread: str = "the safety loop") -> None:
+    """Run the calling thread under SCHED_FIFO at ``priority``; warn if the OS refuses.
 
-    Only this thread: on Linux the scheduling policy of pid 0 is the calling thread's, so Zenoh's threads and
+    Only this thread: on Linux the scheduling policy of pid 0 is the calling thread's, so the other threads and
     the HTTP child keep normal scheduling and cannot starve the machine.
     """
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except (AttributeError, OSError) as exc:  # not Linux, or no CAP_SYS_NICE
-        log.warning("could not run the safety loop under SCHED_FIFO priority %d: %s", priority, exc)
+        log.warning("could not run %s under SCHED_FIFO priority %d: %s", thread, priority, exc)
     else:
-        log.info("safety loop thread under SCHED_FIFO priority %d", priority)
+        log.info("%s (thread %d) under SCHED_FIFO priority %d", thread, threading.get_native_id(), priority)
 
 
 @dataclass
@@ -180,6 +191,7 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
     period_s = 1.0 / gateway.rate_hz
     status_every = max(1, round(gateway.rate_hz / gateway.status_rate_hz))
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+    freeze_startup_heap()
     rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
     service = LoopNotifier.from_environment()  # READY=1, WATCHDOG=1 from this loop, STATUS=, STOPPING=1
     while rate.sleep(stop, wake):
@@ -192,7 +204,9 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
         service.stall_for_tests(stop)  # TEST ONLY (HRC_TEST_STALL_AFTER_CYCLES): a stalled loop stops the pings
         if rate.last_was_event and len(out.event_seqs) < MAX_EVENT_SEQS_PER_STATUS:
             out.event_seqs.append(cycle.seq)
-        out.compute_max_s = max(out.compute_max_s, time.monotonic() - started_s)
+        compute_s = time.monotonic() - started_s
+        rate.cycle_took(compute_s)
+        out.compute_max_s = max(out.compute_max_s, compute_s)
         _log_changes(out.previous, cycle.decisions)
         out.http.offer_events(out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions))
         out.previous = cycle.decisions
@@ -238,7 +252,8 @@ def run_gateway(
     """
     with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
-        subscribers = [session.declare_subscriber(k, _callback(node)) for k in (states_key, humans_key)]
+        on_sample = _callback(node, config.gateway.input_realtime_priority)
+        subscribers = [session.declare_subscriber(k, on_sample) for k in (states_key, humans_key)]
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
         effective = effective_config(config)
         out = _declare_outputs(session, config, HttpServerProcess(http_host, http_port, effective, events_log))
@@ -264,8 +279,8 @@ def run_gateway(
             del token, subscribers  # undeclared when the session closes
 
 
-def build_node(config: CellConfig, wake: threading.Event | None) -> GatewayNode:
-    """Load the robot models and build the node (compiles or loads the kernels).
+def build_node(config: CellConfig, wake: threading.Event | None, recorder: NodeRecorder | None = None) -> GatewayNode:
+    """Load the robot models and build the node (compiles or loads the kernels); ``recorder``: see the node.
 
     Raises:
         ConfigError: a robot model or the safety configuration cannot be used.
@@ -273,7 +288,13 @@ def build_node(config: CellConfig, wake: threading.Event | None) -> GatewayNode:
     robots = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
-    return GatewayNode(config, robots, on_tracker_change=None if wake is None else wake.set)
+    return GatewayNode(config, robots, on_tracker_change=None if wake is None else wake.set, recorder=recorder)
+
+
+def _close_recording(recorder: GatewayRecorder) -> None:
+    summary = recorder.close()
+    how = "complete" if summary.complete else f"INCOMPLETE: {summary.dropped} dropped {summary.error or ''}".strip()
+    log.info("recording %s: %d messages (%s)", summary.path, summary.records, how)
 
 
 def cli(argv: list[str] | None = None) -> None:
@@ -282,6 +303,9 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--http-host", default=None, help="default: gateway.http_host of the config")
     parser.add_argument("--http-port", type=int, default=None, help="default: gateway.http_port of the config")
     parser.add_argument("--events-log", type=Path, default=None, help="JSON Lines file of the event log (rotated)")
+    parser.add_argument(
+        "--record", type=Path, default=None, metavar="PATH", help="record inputs, cycles and config to PATH (MCAP)"
+    )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
@@ -290,7 +314,11 @@ def cli(argv: list[str] | None = None) -> None:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
             wake = stop.wake_event() if config.gateway.event_driven else None
-            node = build_node(config, wake)
+            recorder = None if args.record is None else GatewayRecorder(args.record, config)
+            node = build_node(config, wake, recorder)
+        except RecordingError as exc:
+            print(f"hrc-gateway: {exc}", file=sys.stderr)
+            sys.exit(2)
         except ConfigError as exc:
             print(f"hrc-gateway: invalid configuration: {exc}", file=sys.stderr)
             sys.exit(2)
@@ -309,6 +337,8 @@ def cli(argv: list[str] | None = None) -> None:
             zenoh_options=zenoh_options,
             events_log=args.events_log,
         )
+        if recorder is not None:
+            _close_recording(recorder)
     sys.exit(code)
 
 

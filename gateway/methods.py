@@ -24,10 +24,12 @@ largest programmed link speed 1.5 m/s (``zones.fixed_speed_mps``; the shipped pr
 at δ = 1 S_p = 1.6·0.68 + 1.5·0.15 + 1.5·0.53/2 + 0.05 = 1.76 m → slow below 1.8 m; at δ = 0.5
 S_p = 1.6·0.415 + 0.75·0.15 + 0.75·0.265/2 + 0.05 = 0.93 m → stop below 1.0 m.
 
-Every method fails closed: a decision whose scalars (t_delay, Δ, δ_prev, T), joint state (q, q̇_nominal) or
-capsule end points are not finite, or whose reduction meets a nan, gives δ = 0 (:func:`inputs_are_finite`,
-:func:`finite_or_zero`). In Python ``min(1.0, nan)`` is 1.0 and every comparison with nan is False, so each
-reduction is written so that a nan ends at 0, never at 1.
+Every decision fails closed on a number that is not finite, in two layers. A decision whose scalars (t_delay,
+Δ, δ_prev, T), joint state (q, q̇_nominal) or capsule end points are not finite gets δ = 0 from
+:class:`gateway.core.SafetyCore`, once per decision for every method (the input door already rejects non-finite
+messages; this guard holds the line behind it). Each method's reduction is written so that a nan in the rows or
+distances it reads ends at 0, never at 1 (:func:`finite_or_zero`): in Python ``min(1.0, nan)`` is 1.0 and every
+comparison with nan is False.
 
 Eq. (16) of Pupa et al. 2021, the replan request, is :class:`ReplanMonitor`: the status flag is raised
 while the commanded δ has stayed below ``replan_delta_below`` for ``replan_after_s``.
@@ -72,7 +74,8 @@ class MethodInput(NamedTuple):
         data: its Pinocchio data (scratch space; a method that needs frames runs its own kinematics).
         q_rad: joint positions of this decision [rad].
         links: link end points and velocities at the programmed speed [m, m/s].
-        rows: the eq. (15) rows of this decision (surface distances included).
+        rows: the eq. (15) rows of this decision (surface distances included); valid during this call only (the
+            robot's compiled kernels write the next cycle's rows into the same arrays).
         humans: all human capsules seen.
         qd_nominal_radps: programmed joint velocity at 100 % override [rad/s].
         t_delay_s: the measured delay of the whole chain [s].
@@ -101,8 +104,9 @@ class OverrideMethod(Protocol):
 
     def bound(self, x: MethodInput) -> float: ...
 
-    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
-        """The protective distance (and δ thresholds) of this decision's safety exception."""
+    def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
+        """The protective distance (and δ thresholds) of this decision's safety exception; ``clearance_m`` is the
+        decision's Δ of :func:`gateway.metric.decision_clearance_m` when the caller has it [m]."""
         ...
 
 
@@ -112,21 +116,12 @@ class SharedClearance:
 
     safety: SafetyConfig
 
-    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
-        """Δ of :func:`gateway.metric.decision_clearance_m`, δ = 0 only on a bound of 0."""
-        return Protection(decision_clearance_m(self.safety, t_brake_max_s, t_delay_s))
-
-
-def inputs_are_finite(x: MethodInput) -> bool:
-    """True if the decision's scalars, joint state and capsule end points are finite numbers.
-
-    Two dot products per decision (≈ 1.5 µs on this 2-core machine under load): q·q̇_nominal is finite only if
-    every q_j and q̇_j is (nan·0 and ∞·0 are nan, ∞ − ∞ is nan), and h_a·h_b likewise for the capsule end points.
-    A product too large for a float (no real input) also counts as not finite.
-    """
-    joints = float(np.dot(x.q_rad, x.qd_nominal_radps))
-    humans = float(np.vdot(x.humans.h_a_world, x.humans.h_b_world))  # vdot flattens: no reshape per cycle
-    return math.isfinite(joints + humans + x.t_delay_s + x.clearance_m + x.previous_delta + x.period_s)
+    def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
+        """Δ of :func:`gateway.metric.decision_clearance_m` (``clearance_m`` when given: the core has it already),
+        δ = 0 only on a bound of 0."""
+        if clearance_m is None:
+            clearance_m = decision_clearance_m(self.safety, t_brake_max_s, t_delay_s)
+        return Protection(clearance_m)
 
 
 def finite_or_zero(delta: float) -> float:
@@ -143,8 +138,6 @@ class Zanchettin2016(SharedClearance):
         self.safety = safety
 
     def bound(self, x: MethodInput) -> float:
-        if not inputs_are_finite(x):
-            return 0.0
         return override_from_rows(x.rows)  # already in [0, 1], and 0 for a nan bound
 
 
@@ -157,8 +150,6 @@ class Iso15066(SharedClearance):
         self.safety = safety
 
     def bound(self, x: MethodInput) -> float:
-        if not inputs_are_finite(x):
-            return 0.0
         rows = iso15066.build_rows(
             x.links, x.robot.link_radius_m, x.robot.t_brake_link_s, x.humans, self.safety, x.t_delay_s
         )
@@ -227,8 +218,6 @@ class ThreeZones(SharedClearance):
         return np.asarray(x.robot.R_world_base @ p_base + x.robot.p_world_base, dtype=float)
 
     def bound(self, x: MethodInput) -> float:
-        if not inputs_are_finite(x):
-            return 0.0
         if not x.humans.n_capsules:
             return 1.0
         distance = point_surface_distance_m(self.tool_point_world(x), x.humans)
@@ -260,8 +249,6 @@ class StopOnly(SharedClearance):
         self.safety = safety
 
     def bound(self, x: MethodInput) -> float:
-        if not inputs_are_finite(x):
-            return 0.0
         d = x.rows.surface_distance_m
         if not d.size:
             return 1.0
@@ -300,8 +287,6 @@ class SpeedAware:
         )
 
     def bound(self, x: MethodInput) -> float:
-        if not inputs_are_finite(x):
-            return 0.0
         d = x.rows.surface_distance_m
         bounds = speed_aware_bounds(
             d,
@@ -314,9 +299,10 @@ class SpeedAware:
         lowest = bounds.min_bound  # inf when nothing bounds δ (nobody seen): δ = 1; nan: 0
         return 0.0 if lowest != lowest else min(max(lowest, 0.0), 1.0)
 
-    def protection(self, t_brake_max_s: float, t_delay_s: float) -> Protection:
+    def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
         """Δ(δ) at δ = ``speed_aware_stop_below_delta`` with the largest t_b (every link within it has a human-alone
-        bound at or below that δ), and the method's δ thresholds."""
+        bound at or below that δ), and the method's δ thresholds (the decision's Δ ``clearance_m`` is not this
+        method's)."""
         safety = self.safety
         delta = safety.speed_aware_stop_below_delta
         protective_m = speed_aware_clearance_m(safety, self.close_speed_below_m, delta, t_brake_max_s, t_delay_s)

@@ -10,9 +10,11 @@ proves the program, not a copy of its loop. No I/O and no clock inside: every ti
 
 from __future__ import annotations
 
+import contextlib
+import threading
 from collections import Counter
 from collections.abc import Callable, Mapping
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 from gateway.core import RobotDecision, SafetyCore
 from gateway.inputs import InputSnapshot, InputStore
@@ -39,6 +41,19 @@ class GatewayCycle(NamedTuple):
     inputs: InputSnapshot
 
 
+class NodeRecorder(Protocol):
+    """Told of everything that changes the node, in the order the node saw it (``hrc-gateway --record``).
+
+    Called with the node's order lock held: every method must return at once (queue, never write).
+    """
+
+    def on_input(self, key: str, payload: bytes, received: Clocks) -> None: ...
+
+    def on_internal_error(self, key: str, received: Clocks) -> None: ...
+
+    def on_cycle(self, now: Clocks, period_s: float, cycle: GatewayCycle) -> None: ...
+
+
 class GatewayNode:
     """The gateway's state and step: the input store, the safety core, and the override sequence.
 
@@ -47,6 +62,9 @@ class GatewayNode:
         robots: the models of ``config.robots``.
         on_tracker_change: called on the caller's thread when a tracker message changed what the next cycle
             sees (to wake an event-driven loop); must not block.
+        recorder: told of every input and cycle. Then one lock orders each input against each whole cycle
+            (callbacks run on Zenoh threads while the loop cycles), so the recorded order is the order the node
+            saw them in and a replay in that order decides the same; without a recorder there is no lock.
 
     Raises:
         ConfigError: as :class:`SafetyCore`.
@@ -57,12 +75,17 @@ class GatewayNode:
         config: CellConfig,
         robots: Mapping[str, RobotModel],
         on_tracker_change: Callable[[], None] | None = None,
+        recorder: NodeRecorder | None = None,
     ) -> None:
         self.config = config
         self.robots = dict(robots)
         self.core = SafetyCore(config, self.robots)
         self.inputs = InputStore(config, self.robots, on_tracker_change)
         self.seq = 0
+        self._recorder = recorder
+        self._order: contextlib.AbstractContextManager[Any] = (
+            contextlib.nullcontext() if recorder is None else threading.Lock()
+        )
 
     # -- inputs (any thread) ----------------------------------------------------------------------
 
@@ -76,15 +99,21 @@ class GatewayNode:
 
     def on_message(self, key: str, payload: bytes, received: Clocks) -> None:
         """A payload on either input key (routed by the key)."""
-        if keys.name_from_key(key, "tracker") is not None:
-            self.on_humans(key, payload, received)
-        else:
-            self.on_joint_state(key, payload, received)
+        with self._order:
+            if self._recorder is not None:
+                self._recorder.on_input(key, payload, received)
+            if keys.name_from_key(key, "tracker") is not None:
+                self.on_humans(key, payload, received)
+            else:
+                self.on_joint_state(key, payload, received)
 
     def on_internal_error(self, key: str, received: Clocks) -> None:
         """Handling a message on ``key`` raised: count it and fault the topic (δ = 0 for what it concerns)."""
         kind = "tracker" if keys.name_from_key(key, "tracker") is not None else "robot"
-        self.inputs.count_rejection(f"{kind}/{keys.name_from_key(key, kind) or '?'}", "internal_error", received)
+        with self._order:
+            if self._recorder is not None:
+                self._recorder.on_internal_error(key, received)
+            self.inputs.count_rejection(f"{kind}/{keys.name_from_key(key, kind) or '?'}", "internal_error", received)
 
     # -- the loop -----------------------------------------------------------------------------------
 
@@ -95,14 +124,18 @@ class GatewayNode:
             now: the decision time on both clocks.
             period_s: at most the time until the next decision (the loop's period plus its lateness) [s].
         """
-        snapshot = self.inputs.snapshot(now)
-        decisions = self.core.step(snapshot, now, period_s)
-        self.seq += 1
-        overrides = {}
-        for name, decision in decisions.items():
-            overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
-            self.inputs.on_override_sent(name, self.seq, decision.delta, now)
-        return GatewayCycle(self.seq, decisions, overrides, snapshot)
+        with self._order:
+            snapshot = self.inputs.snapshot(now)
+            decisions = self.core.step(snapshot, now, period_s)
+            self.seq += 1
+            overrides = {}
+            for name, decision in decisions.items():
+                overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
+                self.inputs.on_override_sent(name, self.seq, decision.delta, now)
+            cycle = GatewayCycle(self.seq, decisions, overrides, snapshot)
+            if self._recorder is not None:
+                self._recorder.on_cycle(now, period_s, cycle)
+        return cycle
 
     def stop_overrides(self, now: Clocks) -> dict[str, Override]:
         """δ = 0 for every robot: the last word on shutdown (their watchdogs would stop them anyway)."""

@@ -71,13 +71,14 @@ def zone_thresholds(
     speed = config.fixed_speed_mps if config.thresholds == "fixed" else programmed_speed_mps
     half = clearance_m + 0.5 * horizon_s * speed
     reduce = half + math.sqrt(max(0.0, half * half - clearance_m * clearance_m))
-    return ZoneThresholds(
-        protective_m=protection.protective_m,
-        resume_m=max(config.resume_distance_m, protection.protective_m + config.hysteresis_m),
-        reduce_m=reduce,
-        monitored_m=max(config.monitored_distance_min_m, reduce + config.guard_margin_m),
-        stop_below_delta=protection.stop_below_delta,
-        resume_above_delta=protection.resume_above_delta,
+    protective_m, stop_below_delta, resume_above_delta = protection
+    return ZoneThresholds(  # positional (a keyword call costs twice as much), in the order of the fields
+        protective_m,
+        max(config.resume_distance_m, protective_m + config.hysteresis_m),
+        reduce,
+        max(config.monitored_distance_min_m, reduce + config.guard_margin_m),
+        stop_below_delta,
+        resume_above_delta,
     )
 
 

@@ -34,6 +34,8 @@ FORWARDERS = ("gateway", "router", "relay")
 ``hrc-fault-relay``."""
 TRACKER_EMULATOR = "tracker-emu"
 AUDITOR = "observer-audit"
+RECORDER = "recorder"
+"""``hrc-record``'s CN: a member with no grant, so it reads every topic of the cell and may put on none."""
 
 
 @dataclass(frozen=True)

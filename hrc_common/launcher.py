@@ -34,8 +34,9 @@ def program_commands(
     http_port: int,
     endpoint: str,
     security_args: list[str],
+    record_dir: Path | None = None,
 ) -> dict[str, list[str]]:
-    """The command line of each program of the cell, by name (gateway, controller-<robot>, tracker).
+    """The command line of each program of the cell, by name (gateway, controller-<robot>, tracker[, recorder]).
 
     Args:
         config: the cell.
@@ -44,10 +45,22 @@ def program_commands(
         http_port: the gateway's REST port.
         endpoint: the gateway's Zenoh endpoint; the emulators connect to it.
         security_args: given to every program (``--pki-dir DIR`` or ``--insecure-plain-tcp``).
+        record_dir: if given, the gateway records itself to ``gateway.mcap`` there and ``hrc-record`` records
+            every topic of the cell to ``cell.mcap`` (README, "Recording and replay").
     """
     common = [*(["--config", config_path] if config_path else []), *security_args]
+    gateway_record = ["--record", str(record_dir / "gateway.mcap")] if record_dir else []
+    recorder = {}
+    if record_dir is not None:
+        events_url = f"http://{config.gateway.http_host}:{http_port}"
+        output = str(record_dir / "cell.mcap")
+        recorder["recorder"] = _module_command(
+            "recorder.cell", *common, "--output", output, "--zenoh-connect", endpoint, "--events-url", events_url
+        )
     return {
-        "gateway": _module_command("gateway.main", *common, "--zenoh-listen", endpoint, "--http-port", str(http_port)),
+        "gateway": _module_command(
+            "gateway.main", *common, "--zenoh-listen", endpoint, "--http-port", str(http_port), *gateway_record
+        ),
         **{
             f"controller-{robot}": _module_command(
                 "controller_emu.main", *common, "--robot", robot, "--zenoh-connect", endpoint
@@ -57,6 +70,7 @@ def program_commands(
         "tracker": _module_command(
             "tracker_emu.main", *common, *(["--scenario", scenario] if scenario else []), "--zenoh-connect", endpoint
         ),
+        **recorder,
     }
 
 
@@ -100,7 +114,17 @@ def cli(argv: list[str] | None = None) -> None:
         action="store_true",
         help="DEVELOPMENT ONLY: plain TCP on loopback, without authentication, encryption or access control",
     )
+    parser.add_argument(
+        "--record",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="record the run: DIR/gateway.mcap (the gateway's inputs and decisions, for hrc-replay) and "
+        "DIR/cell.mcap (every topic, with 3D capsules for Foxglove)",
+    )
     args = parser.parse_args(argv)
+    if args.record is not None:
+        args.record.mkdir(parents=True, exist_ok=True)
     try:
         config = load_cell_config(args.config)
         pki_dir = Path(args.pki_dir) if args.pki_dir else default_pki_dir()
@@ -109,7 +133,7 @@ def cli(argv: list[str] | None = None) -> None:
         print(f"hrc-cell: invalid configuration: {' '.join(str(exc).split())}", file=sys.stderr)
         sys.exit(2)
     http_port = args.http_port if args.http_port is not None else config.gateway.http_port
-    commands = program_commands(config, args.config, args.scenario, http_port, endpoint, security_args)
+    commands = program_commands(config, args.config, args.scenario, http_port, endpoint, security_args, args.record)
     with stop_on_signals() as stop:
         procs = {name: subprocess.Popen(cmd, start_new_session=True) for name, cmd in commands.items()}
         url = f"http://{config.gateway.http_host}:{http_port}/api/v1/status"

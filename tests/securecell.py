@@ -1,4 +1,5 @@
-"""Helpers of the security tests: programs as processes, a joint-state watch, and an intruder.
+"""Helpers of the security tests: a listening check, a joint-state watch, and an intruder (the programs are
+started by ``bench.procs``).
 
 The intruder is also a program, run in another network namespace by ``test_security_netns.py``::
 
@@ -13,14 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,49 +26,12 @@ import zenoh
 
 from hrc_common import keys
 from hrc_common.messages import JointState, Override, parse_message, to_payload
-from hrc_common.zenoh_session import PLAIN_TCP_ENV_VAR
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 FORGED_SEQ_START = 10**9
 """Far above any seq the gateway reaches in a test, so that a controller checking seq would take it."""
 
 
-# -- processes --------------------------------------------------------------------------------------
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def secure_env() -> dict[str, str]:
-    """This environment without ``HRC_INSECURE_PLAIN_TCP`` (which allows plain TCP for the other tests)."""
-    return {k: v for k, v in os.environ.items() if k != PLAIN_TCP_ENV_VAR} | {"PYTHONUNBUFFERED": "1"}
-
-
-def start(command: Sequence[str], log_path: Path, env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
-    """Start ``command`` from the repository root, output appended to ``log_path``."""
-    with log_path.open("ab") as log:
-        return subprocess.Popen(
-            list(command), stdout=log, stderr=subprocess.STDOUT, cwd=REPO_ROOT, env=env or secure_env()
-        )
-
-
-def module(name: str, *args: str) -> list[str]:
-    return [sys.executable, "-m", name, *args]
-
-
-def stop(proc: subprocess.Popen[bytes], timeout_s: float = 10.0) -> int | None:
-    """SIGINT, then SIGKILL after ``timeout_s``. Returns the exit code."""
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-        return None
+# -- listeners --------------------------------------------------------------------------------------
 
 
 def listening(endpoint: str) -> bool:
@@ -79,19 +39,6 @@ def listening(endpoint: str) -> bool:
     port = int(endpoint.rsplit(":", 1)[1])
     with socket.socket() as s:
         return s.connect_ex(("127.0.0.1", port)) == 0
-
-
-def wait_until(predicate: Callable[[], bool], timeout_s: float, what: str, logs: Sequence[Path] = ()) -> None:
-    """Poll ``predicate`` every 20 ms until true; AssertionError naming ``what`` and the logs' tails if not."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.02)
-    if predicate():
-        return
-    tails = "\n".join(f"--- {p.name} ---\n" + "\n".join(p.read_text(errors="replace").splitlines()[-12:]) for p in logs)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}\n{tails}")
 
 
 # -- what the controller does -----------------------------------------------------------------------

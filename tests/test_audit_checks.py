@@ -8,10 +8,11 @@ import math
 
 import numpy as np
 import pytest
+from known_cases import LINK_UP, moving_links, point_hands
 
 from audit.checks import AuditAccumulator, CycleAudit, audit_cycle, audit_links, merge_summaries
 from audit.kinematics import LinkMotion, link_motion
-from hrc_common.humans import NO_HUMANS, HumanCapsules
+from hrc_common.humans import NO_HUMANS
 from hrc_common.robot_model import RobotModel
 
 K = 1.6  # human approach speed [m/s]
@@ -20,14 +21,9 @@ RADIUS = np.array([0.05])  # link radius [m]
 NAMES = ("link",)
 
 
-def _links(p_a, p_b, v_a, v_b) -> LinkMotion:
-    return LinkMotion(*(np.atleast_2d(np.asarray(x, dtype=float)) for x in (p_a, p_b, v_a, v_b)))
-
-
-def _points(points, radius=0.05) -> HumanCapsules:
-    p = np.atleast_2d(np.asarray(points, dtype=float))
-    n = len(p)
-    return HumanCapsules(p, p.copy(), np.full(n, radius), tuple(f"h{i}" for i in range(n)), ("hand",) * n)
+def _links(p_a, p_b, v_a, v_b) -> LinkMotion:  # type: ignore[no-untyped-def]
+    """The auditor's own link type (it shares nothing with the gateway) for :func:`known_cases.moving_links`."""
+    return LinkMotion(*moving_links(p_a, p_b, v_a, v_b))
 
 
 def _audit(links, humans, delta, t_b=T_B) -> CycleAudit:
@@ -35,14 +31,14 @@ def _audit(links, humans, delta, t_b=T_B) -> CycleAudit:
 
 
 # A 0.4 m link on the x axis, radius 0.05 m, translating along +y at 2 m/s (actual velocity).
-TRANSLATING = _links((0, 0, 0), (0.4, 0, 0), (0, 2, 0), (0, 2, 0))
+TRANSLATING = LinkMotion(*LINK_UP)
 
 
 def test_link_moving_straight_at_a_point_hand() -> None:
     # hand at (0.2, 1, 0), radius 0.05: d = 1.0 − 0.05 − 0.05 = 0.9
     # δ = 0.5: t_stop = 0.5 · 0.24 = 0.12 s; travel = 2 · 0.12 / 2 = 0.12 m; human: 1.6 · 0.12 = 0.192 m
     # margin = 0.9 − 0.12 − 0.192 = 0.588
-    got = _audit(TRANSLATING, _points([(0.2, 1.0, 0.0)]), delta=0.5)
+    got = _audit(TRANSLATING, point_hands([(0.2, 1.0, 0.0)]), delta=0.5)
     assert got.margin_m == pytest.approx(0.588)
     assert got.min_distance_m == pytest.approx(0.9)
     assert not got.violation
@@ -54,7 +50,7 @@ def test_link_moving_straight_at_a_point_hand() -> None:
 def test_oblique_approach_counts_the_projection_only() -> None:
     # hand at (0.2, 0.6, 0.8): closest link point (0.2, 0, 0), direction (0, 0.6, 0.8), v_toward = 2 · 0.6 = 1.2
     # d = 1.0 − 0.1 = 0.9; margin = 0.9 − 1.2 · 0.12 / 2 − 0.192 = 0.9 − 0.072 − 0.192 = 0.636
-    got = _audit(TRANSLATING, _points([(0.2, 0.6, 0.8)]), delta=0.5)
+    got = _audit(TRANSLATING, point_hands([(0.2, 0.6, 0.8)]), delta=0.5)
     assert got.margin_m == pytest.approx(0.636)
 
 
@@ -62,30 +58,30 @@ def test_rotating_link_uses_the_velocity_of_its_closest_point() -> None:
     # link rotating about end a: v_a = 0, v_b = (0, 2, 0); hand at (0.3, 1, 0): s = 0.75, v = 0.75 · 2 = 1.5
     # margin = 0.9 − 1.5 · 0.12 / 2 − 0.192 = 0.9 − 0.09 − 0.192 = 0.618
     rotating = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 0), (0, 2, 0))
-    got = _audit(rotating, _points([(0.3, 1.0, 0.0)]), delta=0.5)
+    got = _audit(rotating, point_hands([(0.3, 1.0, 0.0)]), delta=0.5)
     assert got.margin_m == pytest.approx(0.618)
 
 
 def test_retreating_link_has_no_approach_term() -> None:
     # moving away at 2 m/s: only the human's approach counts: margin = 0.9 − 0.192 = 0.708
     away = _links((0, 0, 0), (0.4, 0, 0), (0, -2, 0), (0, -2, 0))
-    got = _audit(away, _points([(0.2, 1.0, 0.0)]), delta=0.5)
+    got = _audit(away, point_hands([(0.2, 1.0, 0.0)]), delta=0.5)
     assert got.margin_m == pytest.approx(0.708)
     sideways = _links((0, 0, 0), (0.4, 0, 0), (0, 0, 2), (0, 0, 2))
-    assert _audit(sideways, _points([(0.2, 1.0, 0.0)]), delta=0.5).margin_m == pytest.approx(0.708)
+    assert _audit(sideways, point_hands([(0.2, 1.0, 0.0)]), delta=0.5).margin_m == pytest.approx(0.708)
 
 
 def test_too_close_at_full_speed_is_a_violation() -> None:
     # hand at (0.2, 0.35, 0): d = 0.25; δ = 1: t_stop = 0.24; travel 2 · 0.24 / 2 = 0.24; human 1.6 · 0.24 = 0.384
     # margin = 0.25 − 0.624 = −0.374
-    got = _audit(TRANSLATING, _points([(0.2, 0.35, 0.0)]), delta=1.0)
+    got = _audit(TRANSLATING, point_hands([(0.2, 0.35, 0.0)]), delta=1.0)
     assert got.margin_m == pytest.approx(-0.374)
     assert got.violation
     assert not got.contact_while_moving
 
 
 def test_contact_while_moving_and_contact_at_standstill() -> None:
-    touching = _points([(0.2, 0.05, 0.0)])  # centre-line distance 0.05 < 0.05 + 0.05: surface distance 0
+    touching = point_hands([(0.2, 0.05, 0.0)])  # centre-line distance 0.05 < 0.05 + 0.05: surface distance 0
     moving = _audit(TRANSLATING, touching, delta=0.5)
     assert moving.contact_while_moving
     assert moving.violation
@@ -103,7 +99,7 @@ def test_contact_while_moving_and_contact_at_standstill() -> None:
 
 def test_centre_lines_crossing_counts_the_full_speed() -> None:
     # hand on the link's axis: no direction to project on; the whole speed 2 m/s counts (d = 0).
-    got = _audit(TRANSLATING, _points([(0.2, 0.0, 0.0)]), delta=0.5)
+    got = _audit(TRANSLATING, point_hands([(0.2, 0.0, 0.0)]), delta=0.5)
     assert got.margin_m == pytest.approx(0.0 - 2.0 * 0.12 / 2 - 0.192)
 
 
@@ -122,7 +118,7 @@ def test_the_worst_pair_is_named() -> None:
         [(0, 0, 0), (0, 0, 1)], [(0.4, 0, 0), (0.4, 0, 1)], [(0, 2, 0), (0, 0, 0)], [(0, 2, 0), (0, 0, 0)]
     )
     # capsule 1 is in the moving link's way; capsule 0 sits near the still link, a bit farther
-    humans = _points([(0.2, 0.0, 1.6), (0.2, 0.8, 0.0)])
+    humans = point_hands([(0.2, 0.0, 1.6), (0.2, 0.8, 0.0)])
     got = audit_links(two_links, np.array([0.05, 0.05]), ("low", "high"), 1.0, T_B, humans, K)
     # pair (low, 1): d = 0.7, margin = 0.7 − 0.24 − 0.384 = 0.076; pair (high, 0): d = 0.5, margin = 0.116
     assert (got.worst_link, got.worst_capsule) == ("low", 1)
@@ -134,7 +130,7 @@ def test_audit_cycle_on_the_ur5_is_audit_links_on_its_link_motion(ur5: RobotMode
     data = ur5.model.createData()
     q = np.array([0.3, -1.14, 1.25, -1.68, -1.57, 0.3])
     qd = np.array([-1.0, 0.2, 0.4, -0.5, 0.0, -1.0])
-    humans = _points([(0.9, 0.2, 1.1), (0.5, -0.6, 1.0)])
+    humans = point_hands([(0.9, 0.2, 1.1), (0.5, -0.6, 1.0)])
     got = audit_cycle(ur5, data, q, qd, 0.7, T_B, humans, K)
     links = link_motion(ur5, ur5.model.createData(), q, qd)
     expected = audit_links(links, ur5.link_radius_m, ur5.link_names, 0.7, T_B, humans, K)

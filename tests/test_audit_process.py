@@ -24,7 +24,7 @@ from audit.main import (
     exit_code,
     format_report,
 )
-from bench.procs import free_port, start_program, stop_program
+from bench.procs import Program, free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 from hrc_common import keys
 from hrc_common.config import REPO_ROOT, CellConfig
 from hrc_common.messages import Capsule, Human, Humans, JointState, to_payload
@@ -180,15 +180,11 @@ def test_zones_program_cycles_gaps_and_rejections(auditor: TruthAuditor) -> None
 # -- the program ---------------------------------------------------------------------------------------
 
 
-def _start_audit(tmp_path: Path, extra: list[str]) -> tuple[subprocess.Popen[bytes], str, Path]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+def _start_audit(tmp_path: Path, extra: list[str]) -> tuple[Program, str, Path]:
+    endpoint = free_endpoint()
     log_path = tmp_path / "audit.log"
     proc = start_program("audit.main", ["--zenoh-listen", endpoint, *extra], log_path)
-    deadline = time.monotonic() + 30.0
-    while "auditing cell" not in (log_path.read_text() if log_path.exists() else ""):
-        assert proc.poll() is None, log_path.read_text()
-        assert time.monotonic() < deadline, log_path.read_text()
-        time.sleep(0.05)
+    wait_or_fail(lambda: "auditing cell" in log_path.read_text(), 30.0, "the auditor's start", [log_path], [proc])
     return proc, endpoint, log_path
 
 
@@ -216,9 +212,7 @@ def test_program_exits_1_on_a_violation_with_summary_and_json(tmp_path: Path) ->
         _play(endpoint, 1.0, (0.45, -0.35, 1.15))
         assert proc.wait(30) == EXIT_VIOLATION, log_path.read_text()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
     report = json.loads(json_path.read_text())
     r = report["robots"]["ur5"]
     assert r["violations"] > 100
@@ -237,9 +231,7 @@ def test_program_until_sigterm_passes_a_safe_run(tmp_path: Path) -> None:
         _play(endpoint, 0.8, (4.0, 0.0, 1.0))
         assert stop_program(proc, signal.SIGTERM) == EXIT_OK, log_path.read_text()
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
     report = json.loads(json_path.read_text())
     assert report["verdict"] == "pass"
     assert report["robots"]["ur5"]["cycles"] > 100

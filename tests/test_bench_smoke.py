@@ -5,6 +5,7 @@ Not timed assertions: the figures depend on the machine; only the shape of the r
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,7 @@ from typing import Any
 import pytest
 
 from bench import compute, loop, reaction
+from bench._progress import Progress, progress_line
 from bench.procs import with_gateway_rate, write_cell_config
 from bench.reaction import OverrideSeen, Sample, StateSeen, StatusSeen, check_against_status, match_reactions
 from hrc_common.config import load_cell_config
@@ -135,13 +137,95 @@ def test_reaction_benchmark_runs(tmp_path: Path) -> None:
 
 
 @pytest.mark.e2e
-def test_loop_benchmark_runs(tmp_path: Path) -> None:
+def test_loop_benchmark_runs_with_and_without_sse_clients(tmp_path: Path) -> None:
     out = tmp_path / "loop.json"
-    argv = ["--duration", "1.5", "--warmup", "0.5", "--rates", "250", "--http-rates", "50", "--json", str(out)]
-    assert loop.main(argv) == 0
+    argv = ["--duration", "1.5", "--warmup", "0.5", "--rates", "250", "--http-rates", "50", "--sse-clients", "2"]
+    assert loop.main([*argv, "--json", str(out)]) == 0
     doc = _load(out)
-    run = doc["results"]["runs"][0]
-    assert run["period_ms"]["n"] > 100
-    assert 2.0 < run["period_ms"]["p50"] < 8.0  # about 4 ms, on a busy machine too
-    assert run["http"]["requests"] > 0
-    assert len(doc["targets"]) == 1
+    without, with_sse = doc["results"]["runs"]  # the pair at the same rate: without, then with the clients
+    for run in (without, with_sse):
+        assert run["period_ms"]["n"] > 100
+        assert 2.0 < run["period_ms"]["p50"] < 8.0  # about 4 ms, on a busy machine too
+        assert run["http"]["requests"] > 0
+    assert (without["sse_clients"], without["sse"]) == (0, None)
+    sse = with_sse["sse"]
+    assert sse["clients"] == 2
+    assert sse["errors"] == []
+    assert sse["min_docs_per_s"] > 0
+    assert all(c["documents"] > 0 and c["docs_per_s"] > 0 for c in sse["per_client"])
+    # The status rate bounds what a client can get (the stream sends each document once).
+    assert sse["docs_per_s"]["max"] <= 1.2 * doc["parameters"]["status_rate_hz"]
+    targets = {t["name"]: t for t in doc["targets"]}
+    assert len(targets) == 4  # period p99 of each run, documents/s of the slowest client, p99 with / without
+    docs = targets["SSE documents/s to each of 2 clients (slowest) at 250 Hz, 50 req/s"]
+    assert docs["at_least"]
+    assert docs["measured"] == sse["min_docs_per_s"]
+    ratio = targets["period p99 with 2 SSE clients / without at 250 Hz, 50 req/s"]
+    assert ratio["measured"] == pytest.approx(with_sse["period_ms"]["p99"] / without["period_ms"]["p99"], abs=1e-3)
+
+
+def test_stream_rate_counts_the_window_and_its_worst_second() -> None:
+    received_s = [0.5, *(10.0 + k / 25 for k in range(50)), 12.5, 13.5]  # 25/s for 2 s, then one each second
+    rate = loop.stream_rate(received_s, 10.0, 14.0)
+    assert rate == {"documents": 52, "docs_per_s": 13.0, "fewest_in_a_second": 1}
+    assert loop.versions_skipped([3, 4, 5, 7, 10]) == 3
+
+
+# -- progress ---------------------------------------------------------------------------------------------
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
+def test_progress_on_a_terminal_redraws_one_line_in_place() -> None:
+    out, clock = io.StringIO(), FakeClock()
+    with Progress("bench", 4, "runs", stream=out, tty=True, redraw_s=0.1, clock_s=clock, columns=200) as progress:
+        for k in range(1, 5):
+            clock.now_s = 10.0 * k
+            progress.update(k, note=f"run {k}")
+            progress.update(k)  # no time passed: not drawn again (not even the end)
+        assert "\n" not in out.getvalue()
+    text = out.getvalue()
+    assert text.endswith("\n")
+    assert text.count("\n") == 1  # one line, ended once at close
+    frames = text.rstrip("\n").split("\r")[1:]
+    assert len(frames) == 5  # each update that moved time, and the last state at close
+    assert frames[0].startswith("bench  [" + "#" * 6 + "-" * 18 + "]   25%  1/4 runs  0:10 elapsed, ~0:30 left")
+    assert frames[-1].rstrip().endswith("100%  4/4 runs  0:40 elapsed, ~0:00 left  run 4")
+
+
+def test_progress_off_a_terminal_writes_a_line_every_few_seconds_or_percent() -> None:
+    out, clock = io.StringIO(), FakeClock()
+    progress = Progress("bench", 100.0, "s", stream=out, every_s=5.0, step_percent=50.0, clock_s=clock)
+    assert not progress.tty  # StringIO is no terminal
+    for t_s, done in [(1.0, 10.0), (6.0, 20.0), (7.0, 60.0), (8.0, 70.0), (9.0, 100.0)]:
+        clock.now_s = t_s
+        progress.update(done)
+    progress.close()
+    lines = out.getvalue().splitlines()
+    assert "\r" not in out.getvalue()
+    # 20 %: 5 s since the start; 60 %: past 50 %; 100 %: past 100 % (close does not repeat it).
+    assert lines == [
+        progress_line("bench", 20.0, 100.0, "s", 6.0, bar=False),
+        progress_line("bench", 60.0, 100.0, "s", 7.0, bar=False),
+        progress_line("bench", 100.0, 100.0, "s", 9.0, bar=False),
+    ]
+    assert lines[0] == "bench   20%  20/100 s  0:06 elapsed, ~0:24 left"
+
+
+def test_progress_message_clears_the_bar_and_draws_it_again(capsys: pytest.CaptureFixture[str]) -> None:
+    out, clock = io.StringIO(), FakeClock()
+    progress = Progress("bench", 2, stream=out, tty=True, clock_s=clock, columns=40)
+    clock.now_s = 1.0
+    progress.update(1)
+    progress.message("... run 2")
+    assert capsys.readouterr().out == "... run 2\n"
+    drawn = out.getvalue().split("\r")
+    assert drawn[1] == "bench  [" + "#" * 12 + "-" * 12 + "]   50%"  # cut to 39 columns
+    assert drawn[2].strip() == ""  # the bar cleared before the message
+    assert drawn[-1] == drawn[1]  # and drawn again after it

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -17,13 +15,14 @@ from typing import Any
 import pytest
 import zenoh
 
+from bench.procs import Program, free_endpoint, start_program, stop_all, wait_or_fail
 from hrc_common import keys
+from hrc_common.config import REPO_ROOT
 from hrc_common.messages import JointState, Override, parse_message, to_payload
 from hrc_common.zenoh_session import session_config
 
 pytestmark = pytest.mark.e2e
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 CELL, ROBOT = "demo", "ur5"
 OVERRIDE_PERIOD_S = 0.004
 
@@ -36,23 +35,6 @@ GARBAGE = [
     b"[1, 2, 3]",
     b"\xff\xfe",
 ]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _start(args: list[str], log_path: Path) -> subprocess.Popen[bytes]:
-    with log_path.open("wb") as log:
-        return subprocess.Popen(
-            [sys.executable, "-m", "controller_emu.main", *args],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            cwd=REPO_ROOT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
 
 
 class Recorder:
@@ -77,31 +59,19 @@ class Recorder:
             return self._items[-1] if self._items else None
 
 
-def _wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, log_path: Path) -> float:
-    """Poll until ``predicate`` holds; returns the time it took [s]."""
-    start = time.monotonic()
-    while time.monotonic() - start < timeout_s:
-        if predicate():
-            return time.monotonic() - start
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}\n{log_path.read_text(errors='replace')}")
-
-
 @pytest.fixture
-def controller(tmp_path: Path) -> Iterator[tuple[subprocess.Popen[bytes], str, Path]]:
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+def controller(tmp_path: Path) -> Iterator[tuple[Program, str, Path]]:
+    endpoint = free_endpoint()
     log_path = tmp_path / "controller.log"
-    proc = _start(["--zenoh-listen", endpoint], log_path)
+    proc = start_program("controller_emu.main", ["--zenoh-listen", endpoint], log_path)
     try:
         yield proc, endpoint, log_path
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
 
 
 def test_controller_follows_overrides_and_stops_on_its_own(
-    controller: tuple[subprocess.Popen[bytes], str, Path],
+    controller: tuple[Program, str, Path],
 ) -> None:
     proc, endpoint, log_path = controller
     states = Recorder(lambda payload: parse_message(payload, JointState))
@@ -112,7 +82,7 @@ def test_controller_follows_overrides_and_stops_on_its_own(
         pub = session.declare_publisher(keys.robot_override(CELL, ROBOT), express=True)
 
         # Before any override: joint states flow, the robot is in a protective stop.
-        _wait_for(lambda: len(states.items()) >= 10, 15.0, "joint states", log_path)
+        wait_or_fail(lambda: len(states.items()) >= 10, 15.0, "joint states", [log_path])
         first: JointState = states.latest()
         assert (first.mode, first.override, first.override_seq) == ("protective_stop", 0.0, -1)
         alive = list(session.liveliness().get(keys.alive(CELL, f"controller-{ROBOT}"), timeout=2.0))
@@ -145,9 +115,9 @@ def test_controller_follows_overrides_and_stops_on_its_own(
         assert any(max(abs(v) for v in s.qd) > 0.0 for s in window), "the robot moves"
 
         # It stops on its own when the overrides stop: watchdog, then a controlled stop.
-        took_s = _wait_for(lambda: states.latest().mode == "protective_stop", 1.0, "protective stop", log_path)
+        took_s = wait_or_fail(lambda: states.latest().mode == "protective_stop", 1.0, "protective stop", [log_path])
         assert took_s + (time.monotonic() - last_sent_s) < 1.0
-        _wait_for(lambda: states.latest().override == 0.0, 1.0, "standstill", log_path)
+        wait_or_fail(lambda: states.latest().override == 0.0, 1.0, "standstill", [log_path])
 
         # The garbage was survived and counted by reason.
         def garbage_counted() -> bool:
@@ -156,7 +126,7 @@ def test_controller_follows_overrides_and_stops_on_its_own(
                 latest["rejected"]
             )
 
-        _wait_for(garbage_counted, 3.0, "rejections in emu_stats", log_path)
+        wait_or_fail(garbage_counted, 3.0, "rejections in emu_stats", [log_path])
         doc = stats.latest()
         assert doc["robot"] == ROBOT
         assert doc["rejected"]["wrong_robot"] >= 1
@@ -199,9 +169,9 @@ def test_invalid_configuration_exits_2_with_one_line(tmp_path: Path, args: list[
     assert expected in lines[0]
 
 
-def test_sigterm_exits_0(controller: tuple[subprocess.Popen[bytes], str, Path]) -> None:
+def test_sigterm_exits_0(controller: tuple[Program, str, Path]) -> None:
     proc, _, log_path = controller
-    _wait_for(lambda: "waiting for overrides" in log_path.read_text(), 15.0, "start-up", log_path)
+    wait_or_fail(lambda: "waiting for overrides" in log_path.read_text(), 15.0, "start-up", [log_path])
     proc.send_signal(signal.SIGTERM)
     assert proc.wait(5.0) == 0
     assert "program cycles completed" in log_path.read_text()

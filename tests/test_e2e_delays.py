@@ -27,13 +27,11 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import statistics
 import subprocess
 import threading
-import time
 from collections.abc import Iterator
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,7 +40,16 @@ import httpx
 import pytest
 import zenoh
 
-from bench.procs import free_port, start_program
+from bench.procs import (
+    Program,
+    free_endpoint,
+    free_port,
+    logs_tail,
+    start_program,
+    stop_all,
+    stop_program,
+    wait_or_fail,
+)
 from hrc_common import keys
 from hrc_common.config import REPO_ROOT, UNSAFE_ENV_VAR
 from hrc_common.zenoh_session import session_config
@@ -132,11 +139,7 @@ class DelayedRun:
         return dict(self.audit["robots"]["ur5"])
 
     def tail(self, lines: int = 12) -> str:
-        out = []
-        for name, path in self.logs.items():
-            text = path.read_text(errors="replace").splitlines()[-lines:]
-            out.append(f"--- {name} ---\n" + "\n".join(text))
-        return "\n".join(out)
+        return logs_tail(self.logs.values(), lines)
 
 
 @contextmanager
@@ -154,25 +157,12 @@ def _status_recorder(endpoint: str) -> Iterator[list[dict[str, Any]]]:
         yield trace
 
 
-def _wait_http(port: int, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, "the gateway exited during start-up"
-        with suppress(httpx.HTTPError):
-            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0).status_code == 200:
-                return
-        time.sleep(0.1)
-    raise AssertionError(f"the gateway did not come up within {timeout_s} s")
-
-
-def _wait_log(path: Path, text: str, proc: subprocess.Popen[bytes], timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if path.exists() and text in path.read_text(errors="replace"):
-            return
-        assert proc.poll() is None, f"{path.name}: the program exited\n{path.read_text(errors='replace')}"
-        time.sleep(0.05)
-    raise AssertionError(f"{path.name}: no {text!r} within {timeout_s} s")
+def _healthy(port: int) -> bool:
+    """Whether the gateway's ``/healthz`` answers 200."""
+    try:
+        return httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0).status_code == 200
+    except httpx.HTTPError:
+        return False
 
 
 HUNG = -1000
@@ -185,31 +175,24 @@ def _stacks_on_abort(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PYTHONFAULTHANDLER", "1")
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> int:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
+def _stop(proc: Program) -> int:
+    """SIGINT; its exit code, or :data:`HUNG` (then SIGABRT: faulthandler writes every thread's stack to its log)."""
     try:
-        return proc.wait(10.0)
+        return stop_program(proc, abort_s=5.0)
     except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGABRT)  # faulthandler writes every thread's stack to the log
-        try:
-            proc.wait(5.0)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-    return HUNG
+        return HUNG
 
 
 def run_delayed(tmp_path: Path, link: str, delay_s: float, config: Path, seed: int = 0) -> DelayedRun:
     """One run of the test scenario with the relay on ``link`` (``tracker``, ``state`` or ``override``)."""
-    gw_ep, ctrl_ep, trk_ep, relay_ep = (f"tcp/127.0.0.1:{free_port()}" for _ in range(4))
+    gw_ep, ctrl_ep, trk_ep, relay_ep = (free_endpoint() for _ in range(4))
     http = free_port()
     forward, rule = RULES[link]
     behind_relay = "tracker" if link == "tracker" else "controller"
     cfg = ["--config", str(config)]
     logs = {name: tmp_path / f"{name}.log" for name in ("gateway", "controller", "tracker", "relay", "audit")}
     audit_json, relay_json = tmp_path / "audit.json", tmp_path / "relay.json"
-    procs: dict[str, subprocess.Popen[bytes]] = {}
+    procs: dict[str, Program] = {}
     codes: dict[str, int] = {}
     try:
         procs["gateway"] = start_program(
@@ -227,7 +210,7 @@ def run_delayed(tmp_path: Path, link: str, delay_s: float, config: Path, seed: i
         procs["controller"] = start_program(
             "controller_emu.main", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", ctrl_up], logs["controller"]
         )
-        _wait_http(http, procs["gateway"], STARTUP_S)
+        wait_or_fail(lambda: _healthy(http), STARTUP_S, "the gateway's /healthz", logs.values(), [procs["gateway"]])
         trk_up = relay_ep if behind_relay == "tracker" else gw_ep
         with _status_recorder(gw_ep) as trace:
             # The auditor loads Pinocchio (~1 s) before it subscribes: the tracker (scenario time 0) starts
@@ -241,7 +224,13 @@ def run_delayed(tmp_path: Path, link: str, delay_s: float, config: Path, seed: i
                 ],
                 logs["audit"],
             )
-            _wait_log(logs["audit"], "auditing cell", procs["audit"], STARTUP_S)
+            wait_or_fail(
+                lambda: "auditing cell" in logs["audit"].read_text(errors="replace"),
+                STARTUP_S,
+                "'auditing cell' in the auditor's log",
+                [logs["audit"]],
+                [procs["audit"]],
+            )
             procs["tracker"] = start_program(
                 "tracker_emu.main",
                 [
@@ -262,10 +251,7 @@ def run_delayed(tmp_path: Path, link: str, delay_s: float, config: Path, seed: i
         for name in ("tracker", "controller", "relay", "gateway"):
             codes[name] = _stop(procs[name])
     finally:
-        for proc in procs.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        stop_all(procs.values())
     run = DelayedRun(
         audit=json.loads(audit_json.read_text()) if audit_json.exists() else {},
         audit_code=codes["audit"],

@@ -45,6 +45,23 @@ def _assert_alive(cell: Cell, *names: str) -> None:
         assert cell.procs[name].poll() is None, f"{name} died\n{cell.tail()}"
 
 
+def _lose(cell: Cell, name: str, how: str) -> None:
+    """Kill the program ``name`` (``how`` = "kill") or freeze it."""
+    if how == "kill":
+        cell.procs[name].kill()
+        cell.procs[name].wait()
+    else:
+        cell.procs[name].send_signal(signal.SIGSTOP)
+
+
+def _bring_back(cell: Cell, name: str, how: str) -> None:
+    """Undo :func:`_lose`: restart the program with its command line, or thaw it."""
+    if how == "kill":
+        cell.start(name)
+    else:
+        cell.procs[name].send_signal(signal.SIGCONT)
+
+
 class _StateWatch:
     """Joint states of the controller, read directly from it (bypassing the gateway)."""
 
@@ -66,18 +83,11 @@ class _StateWatch:
 def test_tracker_lost_stops_the_robot_and_recovers(tmp_path: Path, how: str) -> None:
     with running_cell(tmp_path, scenario="standing_inside") as cell:
         cell.wait_until(_healthy, READY_S, "a moving robot")
-        if how == "kill":
-            cell.tracker.kill()
-            cell.tracker.wait()
-        else:
-            cell.tracker.send_signal(signal.SIGSTOP)
+        _lose(cell, "tracker", how)
         status = cell.wait_until(_stopped_with("tracker_stale"), DETECT_S, "a tracker_stale fault with δ = 0")
         assert any(f["reason"].startswith("tracker '") and " s old " in f["reason"] for f in status["faults"])
         assert (cell.get("/readyz")).status_code == 503
-        if how == "kill":
-            cell.start("tracker")
-        else:
-            cell.tracker.send_signal(signal.SIGCONT)
+        _bring_back(cell, "tracker", how)
         cell.wait_until(_healthy, RECOVER_S, "recovery after the tracker came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 
@@ -86,17 +96,10 @@ def test_tracker_lost_stops_the_robot_and_recovers(tmp_path: Path, how: str) -> 
 def test_controller_lost_is_a_fault_and_recovers(tmp_path: Path, how: str) -> None:
     with running_cell(tmp_path, scenario="standing_inside") as cell:
         cell.wait_until(_healthy, READY_S, "a moving robot")
-        if how == "kill":
-            cell.controller.kill()
-            cell.controller.wait()
-        else:
-            cell.controller.send_signal(signal.SIGSTOP)
+        _lose(cell, "controller", how)
         status = cell.wait_until(_stopped_with("joint_state_stale"), DETECT_S, "a joint_state_stale fault")
         assert "override_path_stale" in _fault_codes(status) or status["delta"] == 0.0
-        if how == "kill":
-            cell.start("controller")
-        else:
-            cell.controller.send_signal(signal.SIGCONT)
+        _bring_back(cell, "controller", how)
         cell.wait_until(_healthy, RECOVER_S, "recovery after the controller came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 
@@ -122,13 +125,11 @@ def test_gateway_lost_stops_the_controller_and_operation_resumes(tmp_path: Path,
             else:
                 cell.start("gateway")
             back_ns = time.time_ns()
-            deadline = time.monotonic() + RECOVER_S
-            while time.monotonic() < deadline:
-                if any(s.mode == "running" and s.override > 0.0 for s in watch.since(back_ns)):
-                    break
-                time.sleep(0.1)
-            else:
-                pytest.fail(f"the controller did not resume after the gateway came back\n{cell.tail()}")
+            cell.wait(
+                lambda: any(s.mode == "running" and s.override > 0.0 for s in watch.since(back_ns)),
+                RECOVER_S,
+                "the controller resuming after the gateway came back",
+            )
         cell.wait_until(_healthy, RECOVER_S, "a fault-free status after the gateway came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 

@@ -29,7 +29,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from bench.procs import Program, free_endpoint, free_port, log_tail, start_program, stop_program, wait_for
+from bench.procs import Program, free_endpoint, free_port, log_tail, start_program, stop_program, wait_for, wait_or_fail
 from hrc_common import keys
 from hrc_common.config import load_cell_config
 from hrc_common.sd_notify import PINGS_PER_TIMEOUT, STALL_ENV_VAR
@@ -131,10 +131,7 @@ def watch(endpoint: str, key_expr: str) -> Iterator[Watched]:
 
 
 def _wait_ready(notify: NotifySocket, proc: Program, log: Path) -> Notice:
-    try:
-        wait_for(lambda: bool(notify.with_field("READY=1")), START_TIMEOUT_S, "READY=1", [proc])
-    except Exception as exc:
-        raise AssertionError(f"{exc}\n{log_tail(log)}") from None
+    wait_or_fail(lambda: bool(notify.with_field("READY=1")), START_TIMEOUT_S, "READY=1", [log], [proc])
     return notify.with_field("READY=1")[0]
 
 

@@ -1,6 +1,7 @@
 """``./run-cell.sh --config configs/cell_two_arms.toml`` (``hrc-cell``): one controller emulator per robot, the
 status shows both robots running, ``hrc-audit`` (a Zenoh client of the gateway) audits both against the ground
-truth; Ctrl-C stops everything with exit code 0.
+truth; Ctrl-C stops everything with exit code 0; ``--record DIR`` leaves a cell recording with both robots' topics
+and a gateway recording that ``hrc-replay`` reproduces.
 
 Plain TCP on loopback like the other end-to-end tests (the launcher over mutual TLS is tests/test_security_cell.py's).
 """
@@ -9,10 +10,13 @@ from __future__ import annotations
 
 import json
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import httpx
 import pytest
+from mcap.reader import make_reader
 
 from bench.procs import StartupError, free_port, log_tail, start_program, stop_program, wait_for
 from hrc_common.config import DEFAULT_CELL_PATH
@@ -45,7 +49,8 @@ def _both_running(http_port: int) -> bool:
 def test_hrc_cell_runs_the_two_arm_cell_with_one_controller_per_robot(tmp_path: Path) -> None:
     http_port, zenoh_port = free_port(), free_port()
     log = tmp_path / "hrc-cell.log"
-    args = ["--config", str(CONFIG), "--insecure-plain-tcp", "--http-port", str(http_port)]
+    record_dir = tmp_path / "recording"
+    args = ["--config", str(CONFIG), "--insecure-plain-tcp", "--http-port", str(http_port), "--record", str(record_dir)]
     proc = start_program("hrc_common.launcher", [*args, "--zenoh-port", str(zenoh_port)], log)
     try:
         wait_for(lambda: _both_running(http_port), READY_S, "both robots running without faults", [proc])
@@ -69,6 +74,26 @@ def test_hrc_cell_runs_the_two_arm_cell_with_one_controller_per_robot(tmp_path: 
         assert audited["cycles"] > 250, (robot, audited)  # 4 ms controller cycles: >= 1 s of each robot audited
         assert audited["violations"] == 0, (robot, audited)
     text = log.read_text()
-    assert "(gateway, controller-ur5, controller-panda, tracker)" in text
+    assert "(gateway, controller-ur5, controller-panda, tracker, recorder)" in text
     assert "controller panda of cell 'twoarms'" in text
     assert "controller ur5 of cell 'twoarms'" in text
+
+    _check_recordings(record_dir)
+
+
+def _check_recordings(record_dir: Path) -> None:
+    with (record_dir / "cell.mcap").open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    topics = {channel.topic for channel in summary.channels.values()}
+    for robot in ("ur5", "panda"):
+        assert any(robot in topic and "state" in topic for topic in topics), topics
+        assert any(robot in topic and "override" in topic for topic in topics), topics
+    assert all(channel.schema_id != 0 for channel in summary.channels.values())
+    replay = subprocess.run(
+        [sys.executable, "-m", "recorder.replay", str(record_dir / "gateway.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert replay.returncode == 0, replay.stdout + replay.stderr

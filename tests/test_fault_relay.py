@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from bench.procs import free_port, start_program, stop_program
+from bench.procs import free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 from faultinject.delay_line import DelayLine
 from faultinject.rules import FaultRule, RuleError, draw_fate, first_match, parse_rule
 from hrc_common.config import REPO_ROOT
@@ -151,20 +151,19 @@ def _payload(i: int) -> bytes:
 
 def _wait_until_linked(a: zenoh.Session, at_b: Received, timeout_s: float = 15.0) -> None:
     """Put probes on side A until one comes out of side B."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
+
+    def linked() -> bool:
         a.put("hrc/t/probe", _payload(-1))
-        time.sleep(0.05)
-        if at_b.stream("hrc/t/probe"):
-            return
-    raise AssertionError("the relay did not link the two sessions")
+        return bool(at_b.stream("hrc/t/probe"))
+
+    wait_or_fail(linked, timeout_s, "the relay linking the two sessions")
 
 
 @pytest.fixture(scope="module")
 def relay_run(tmp_path_factory: pytest.TempPathFactory) -> RelayRun:
     """One relay; side A sends five streams interleaved (and B one back), then a partition by control message."""
     tmp = tmp_path_factory.mktemp("relay")
-    a_ep, b_ep = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    a_ep, b_ep = free_endpoint(), free_endpoint()
     stats_path, log_path = tmp / "stats.json", tmp / "relay.log"
     args = ["--a-listen", a_ep, "--b-connect", b_ep, "--seed", str(SEED), "--stats-json", str(stats_path)]
     proc = start_program("faultinject.relay", [*args, *(a for r in RULES for a in ("--rule", r))], log_path)
@@ -200,9 +199,7 @@ def relay_run(tmp_path_factory: pytest.TempPathFactory) -> RelayRun:
             time.sleep(0.3)
         code = stop_program(proc, signal.SIGINT)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
     return RelayRun(at_b, at_a, json.loads(stats_path.read_text()), code, log_path.read_text(), sends)
 
 
@@ -299,7 +296,7 @@ def test_partition_by_control_message_drops_then_heals(relay_run: RelayRun) -> N
 
 
 def test_scheduled_partition_and_sigterm(tmp_path: Path) -> None:
-    a_ep, b_ep = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    a_ep, b_ep = free_endpoint(), free_endpoint()
     stats_path = tmp_path / "stats.json"
     proc = start_program(
         "faultinject.relay",
@@ -325,9 +322,7 @@ def test_scheduled_partition_and_sigterm(tmp_path: Path) -> None:
             time.sleep(0.2)
         code = stop_program(proc, signal.SIGTERM)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
     got = {i for i, _ in at_b.stream("hrc/t/part")}
     missing = [t for i, t in sent if i not in got]
     assert code == 0

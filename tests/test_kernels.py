@@ -4,6 +4,7 @@ geometry and rows for the rest, on seeded random inputs with the degenerate case
 from __future__ import annotations
 
 import itertools
+import math
 from pathlib import Path
 
 import numba
@@ -253,6 +254,30 @@ def assert_same_rows(got: ConstraintRows, expected: ConstraintRows) -> None:
     assert override_from_rows(got) == pytest.approx(override_from_rows(expected), abs=1e-12)
 
 
+@pytest.mark.parametrize("where", ["q", "qd", "capsule", "radius", "t_delay"])
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_cycle_tells_a_non_finite_input(ur5: RobotModel, where: str, bad: float) -> None:
+    """The loop's call says whether every input was a finite number (the core's guard for every method reads it)."""
+    robot = RobotKernels(ur5, SafetyConfig())
+    q, qd, t_delay = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0]), np.array([0.6, -0.4, 0.5, 0.3, 0.2, 0.1]), 0.1
+    columns = kernels.capsule_columns(random_humans(np.random.default_rng(5), 4, ur5.p_world_base))
+    assert robot.cycle(q, qd, columns, t_delay).inputs_finite
+    if where == "q":
+        q[3] = bad
+    elif where == "qd":
+        qd[5] = bad
+    elif where == "capsule":
+        columns[1, 2] = bad
+    elif where == "radius":
+        columns[10, 3] = bad
+    else:
+        t_delay = bad
+    with np.errstate(invalid="ignore", over="ignore"):
+        cycle = robot.cycle(q, qd, columns, t_delay)
+    assert not cycle.inputs_finite
+    assert (cycle.closest.link, cycle.closest.capsule) == _argmin(cycle.rows)  # the first nan, as numpy's argmin
+
+
 def test_random_rows_equal_numpy(ur5: RobotModel) -> None:
     rng = np.random.default_rng(23)
     data = ur5.model.createData()
@@ -267,7 +292,10 @@ def test_random_rows_equal_numpy(ur5: RobotModel) -> None:
         got = kernels.build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, t_brake_max, humans, safety, t_delay)
         assert_same_rows(got, expected)
         # the one call per robot of the loop: the same kinematics and rows, and the first closest pair
-        cycle_links, speed_mps, rows, closest = per_robot[k % 3].cycle(q, qd, kernels.capsule_columns(humans), t_delay)
+        cycle_links, speed_mps, rows, closest, finite = per_robot[k % 3].cycle(
+            q, qd, kernels.capsule_columns(humans), t_delay
+        )
+        assert finite
         for a, b in zip(cycle_links, links, strict=True):
             np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-12)
         assert_same_rows(rows, expected)

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
+from known_cases import SAFETY, Q, moving_links, point_hands
 from pydantic import ValidationError
 
 from gateway import iso15066
@@ -28,20 +29,11 @@ from gateway.methods import (
 )
 from gateway.metric import build_rows
 from hrc_common.config import SAFETY_METHODS, ConfigError, SafetyConfig
-from hrc_common.humans import HumanCapsules, merge_humans
+from hrc_common.humans import HumanCapsules
 from hrc_common.robot_model import RobotModel
 
-SAFETY = SafetyConfig()
-
-
-def point_human(*xyz: float, radius: float = 0.0) -> HumanCapsules:
-    p = np.array([xyz], dtype=float)
-    return HumanCapsules(p, p.copy(), np.array([radius]), ("h",), ("hand",))
-
-
-def one_link(p_a, p_b, v_a, v_b) -> LinkKinematics:  # type: ignore[no-untyped-def]
-    return LinkKinematics(*(np.array([x], dtype=float) for x in (p_a, p_b, v_a, v_b)))
-
+POINT_2M = point_hands([(2, 0, 0)], 0.0)
+"""A point (radius 0) on the x axis, 2 m from the origin."""
 
 # -- v_r,max of ISO/TS 15066 (safety-math.md §7) ----------------------------------------------------
 
@@ -139,8 +131,8 @@ def test_delta_max_brute_force_over_delta() -> None:
 
 
 def test_rows_translating_link_straight_at_a_point() -> None:
-    links = one_link((0, 0, 0), (0.1, 0, 0), (1, 0, 0), (1, 0, 0))
-    humans = point_human(1.0, 0.0, 0.0, radius=0.05)
+    links = moving_links((0, 0, 0), (0.1, 0, 0), (1, 0, 0), (1, 0, 0))
+    humans = point_hands([(1.0, 0.0, 0.0)], 0.05)
     rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), humans, SAFETY, 0.1)
     assert rows.separation_m[0, 0] == pytest.approx(1.0 - 0.1 - 0.05 - 0.05)
     assert rows.v_toward_mps[0, 0] == pytest.approx([1.0, 1.0, 1.0])
@@ -153,8 +145,8 @@ def test_rows_translating_link_straight_at_a_point() -> None:
 
 @pytest.mark.parametrize("velocity", [(0, 1, 0), (0, 0, -1), (-1, 0, 0)])
 def test_rows_sideways_or_away_bound_nothing(velocity: tuple[float, float, float]) -> None:
-    links = one_link((0, 0, 0), (0.1, 0, 0), velocity, velocity)
-    rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), point_human(2, 0, 0), SAFETY, 0.1)
+    links = moving_links((0, 0, 0), (0.1, 0, 0), velocity, velocity)
+    rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), POINT_2M, SAFETY, 0.1)
     assert np.all(rows.v_toward_mps <= 1e-12)
     assert np.all(np.isinf(rows.bound))
     assert iso15066.override(rows, math.inf) == 1.0
@@ -162,8 +154,8 @@ def test_rows_sideways_or_away_bound_nothing(velocity: tuple[float, float, float
 
 def test_rows_rotating_link_end_points_and_closest_point() -> None:
     # a link from the origin (fixed) to (1, 0, 0) turning about z: v_b = (0, 1, 0); a point at (0.5, 1, 0)
-    links = one_link((0, 0, 0), (1, 0, 0), (0, 0, 0), (0, 1, 0))
-    rows = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_human(0.5, 1, 0), SAFETY, 0.1)
+    links = moving_links((0, 0, 0), (1, 0, 0), (0, 0, 0), (0, 1, 0))
+    rows = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_hands([(0.5, 1, 0)], 0.0), SAFETY, 0.1)
     # end a: still; end b: (0, 1, 0)·(−0.5, 1, 0)/√1.25; closest point (0.5, 0, 0) moves at 0.5 straight at it
     assert rows.v_toward_mps[0, 0] == pytest.approx([0.0, 1.0 / math.sqrt(1.25), 0.5])
     assert rows.separation_m[0, 0] == pytest.approx(1.0)
@@ -172,9 +164,9 @@ def test_rows_rotating_link_end_points_and_closest_point() -> None:
 
 def test_rows_use_the_close_human_speed_below_its_distance() -> None:
     safety = SafetyConfig(close_speed_below_m=0.5)
-    links = one_link((0, 0, 0), (0.1, 0, 0), (1, 0, 0), (1, 0, 0))
-    near = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_human(0.5, 0, 0), safety, 0.1)
-    far = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_human(0.7, 0, 0), safety, 0.1)
+    links = moving_links((0, 0, 0), (0.1, 0, 0), (1, 0, 0), (1, 0, 0))
+    near = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_hands([(0.5, 0, 0)], 0.0), safety, 0.1)
+    far = iso15066.build_rows(links, np.array([0.0]), np.array([0.5]), point_hands([(0.7, 0, 0)], 0.0), safety, 0.1)
     assert near.v_h_mps[0, 0] == 2.0
     assert far.v_h_mps[0, 0] == 1.6
 
@@ -296,7 +288,7 @@ def test_point_surface_distance() -> None:
 
 
 def test_three_zones_tool_point_default_and_configured(ur5: RobotModel) -> None:
-    q = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
+    q = np.array(Q)
     data = ur5.model.createData()
     links = link_kinematics(ur5, data, q, np.zeros(6))
     pin.framesForwardKinematics(ur5.model, data, q)
@@ -375,8 +367,8 @@ def test_method_parameters_are_validated(fields: dict[str, float], message: str)
 
 
 def test_iso_override_with_a_nan_row_is_zero() -> None:
-    links = one_link((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))  # sideways: every bound inf, δ = 1
-    rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), point_human(2, 0, 0), SAFETY, 0.1)
+    links = moving_links((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))  # sideways: every bound inf, δ = 1
+    rows = iso15066.build_rows(links, np.array([0.05]), np.array([0.5]), POINT_2M, SAFETY, 0.1)
     assert iso15066.override(rows, math.inf) == 1.0
     bound = rows.bound.copy()
     bound[0, 0, 1] = math.nan  # min(1.0, nan) is 1.0 in Python: the hole this closes
@@ -391,14 +383,15 @@ def test_iso_override_with_a_nan_row_is_zero() -> None:
 
 def test_iso_rows_from_a_nan_input_give_zero() -> None:
     """A nan delay reaches the bound of an approaching point; a nan human reaches the separation. (A nan delay
-    with nothing approaching leaves no trace in the rows: the method's input guard catches it, tested below.)"""
-    toward = one_link((0, 0, 0), (0.1, 0, 0), (0.1, 0, 0), (0.1, 0, 0))  # slow, 1.85 m away: δ = 1 with numbers
+    with nothing approaching leaves no trace in the rows: the core's input guard catches it, for every method:
+    tests/test_methods_core.py.)"""
+    toward = moving_links((0, 0, 0), (0.1, 0, 0), (0.1, 0, 0), (0.1, 0, 0))  # slow, 1.85 m away: δ = 1 with numbers
     t_b = np.array([0.5])
-    assert iso15066.override(iso15066.build_rows(toward, t_b / 10, t_b, point_human(2, 0, 0), SAFETY, 0.1), 9.0) == 1
-    rows = iso15066.build_rows(toward, t_b / 10, t_b, point_human(2, 0, 0), SAFETY, math.nan)
+    assert iso15066.override(iso15066.build_rows(toward, t_b / 10, t_b, POINT_2M, SAFETY, 0.1), 9.0) == 1
+    rows = iso15066.build_rows(toward, t_b / 10, t_b, POINT_2M, SAFETY, math.nan)
     assert iso15066.override(rows, math.inf) == 0.0
-    sideways = one_link((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))
-    rows = iso15066.build_rows(sideways, t_b / 10, t_b, point_human(2, math.nan, 0), SAFETY, 0.1)
+    sideways = moving_links((0, 0, 0), (0.1, 0, 0), (0, 1, 0), (0, 1, 0))
+    rows = iso15066.build_rows(sideways, t_b / 10, t_b, point_hands([(2, math.nan, 0)], 0.0), SAFETY, 0.1)
     assert iso15066.override(rows, math.inf) == 0.0
 
 
@@ -435,7 +428,7 @@ FAR_HUMAN = HumanCapsules(
     np.array([[4.0, 3.0, 0.2]]), np.array([[4.0, 3.0, 1.6]]), np.array([0.2]), ("far",), ("torso",)
 )
 """A person 5 m from the robot's base: every method allows full speed."""
-Q_MOVING = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
+Q_MOVING = np.array(Q)
 QD_MOVING = np.array([0.6, -0.4, 0.5, 0.3, -0.2, 0.4])
 
 
@@ -459,29 +452,6 @@ def _with_nan(values: np.ndarray, index: int) -> np.ndarray:
     out = np.array(values, dtype=float)
     out.flat[index] = math.nan
     return out
-
-
-NON_FINITE_INPUTS: dict[str, dict[str, object]] = {
-    "t_delay nan": {"t_delay_s": math.nan},
-    "t_delay inf": {"t_delay_s": math.inf},
-    "q nan": {"q_rad": _with_nan(Q_MOVING, 2)},
-    "q inf": {"q_rad": np.where(np.arange(6) == 4, math.inf, Q_MOVING)},
-    "qd nan": {"qd_nominal_radps": _with_nan(QD_MOVING, 5)},
-    "previous δ nan": {"previous_delta": math.nan},
-    "human end point nan": {
-        "humans": FAR_HUMAN._replace(h_b_world=_with_nan(FAR_HUMAN.h_b_world, 1)),
-    },
-    "second human inf": {"humans": merge_humans([FAR_HUMAN, FAR_HUMAN._replace(h_a_world=np.full((1, 3), math.inf))])},
-}
-
-
-@pytest.mark.parametrize("method", SAFETY_METHODS)
-@pytest.mark.parametrize("case", NON_FINITE_INPUTS, ids=list(NON_FINITE_INPUTS))
-def test_every_method_gives_zero_on_a_non_finite_input(ur5: RobotModel, method: str, case: str) -> None:
-    chosen = build_method(SafetyConfig(method=method), {"ur5": ur5})  # type: ignore[arg-type]
-    assert chosen.bound(decision(ur5)) == 1.0  # the same decision with numbers: full speed
-    with np.errstate(invalid="ignore", over="ignore"):
-        assert chosen.bound(decision(ur5, **NON_FINITE_INPUTS[case])) == 0.0
 
 
 @pytest.mark.parametrize("method", SAFETY_METHODS)

@@ -3,6 +3,7 @@ faults that stop every method, the replan request in the status."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from known_cases import FAR_TORSO, FRESH_T_DELAY_S, MS, NEAR_HAND, NOW, PERIOD_S
 
 from gateway import iso15066
 from gateway.core import SafetyCore
+from gateway.inputs import InputSnapshot
 from gateway.kinematics import link_kinematics
 from gateway.metric import build_rows, override_from_rows
 from gateway.status import robot_status
@@ -163,6 +165,54 @@ def test_every_method_gives_zero_on_a_fault(cell_config: CellConfig, ur5: RobotM
     assert d.zone is Zone.SAFETY_EXCEPTION
     assert d.replan_request is False
     assert 0.0 <= d.delta_bound <= 1.0
+
+
+def _with(values: np.ndarray, index: int, bad: float) -> np.ndarray:
+    out = np.array(values, dtype=float)
+    out.flat[index] = bad
+    return out
+
+
+def _non_finite_snapshot(inputs: InputSnapshot, case: str) -> InputSnapshot:
+    """``inputs`` with one number of ``case`` made nan or inf (behind the input door, which rejects them)."""
+    joint, front, side = inputs.joint["ur5"], inputs.humans["front"], inputs.humans["side"]
+    assert joint is not None
+    assert front is not None
+    assert side is not None
+    if case.startswith("q "):
+        joint = joint._replace(q_rad=_with(joint.q_rad, 2 if case == "q nan" else 4, BAD[case]))
+    elif case == "qd nan":
+        joint = joint._replace(qd_nominal_radps=_with(joint.qd_nominal_radps, 5, math.nan))
+    elif case == "human end point nan":
+        front = front._replace(capsules=front.capsules._replace(h_b_world=_with(front.capsules.h_b_world, 1, math.nan)))
+    elif case == "second human inf":
+        side = side._replace(capsules=side.capsules._replace(h_a_world=_with(side.capsules.h_a_world, 0, math.inf)))
+    return inputs._replace(joint={"ur5": joint}, humans={"front": front, "side": side})
+
+
+BAD = {"t_delay nan": math.nan, "t_delay inf": math.inf, "q nan": math.nan, "q inf": math.inf}
+NON_FINITE_CASES = [*BAD, "qd nan", "previous δ nan", "human end point nan", "second human inf"]
+
+
+@pytest.mark.parametrize("method", SAFETY_METHODS)
+@pytest.mark.parametrize("case", NON_FINITE_CASES)
+def test_every_method_gives_zero_on_a_non_finite_input(
+    cell_config: CellConfig, ur5: RobotModel, method: str, case: str
+) -> None:
+    """The core's one guard, for every method: a nan or inf in q, q̇_nominal, a capsule end point, t_delay (here
+    through the gateway period) or δ_prev gives δ = 0 where the same numbers finite give δ = 1."""
+    cell, now = warmed_up(cell_config, ur5, method)
+    now += 4 * MS
+    cell.feed(now, [FAR_TORSO])
+    clocks = at(now)
+    inputs = cell.store.snapshot(clocks)
+    assert cell.core.step(inputs, clocks, PERIOD_S)["ur5"].delta == 1.0  # the same decision with numbers
+    period_s = BAD[case] if case.startswith("t_delay") else PERIOD_S
+    if case == "previous δ nan":
+        cell.core.states["ur5"].previous_delta = math.nan
+    with np.errstate(invalid="ignore", over="ignore"):
+        d = cell.core.step(_non_finite_snapshot(inputs, case), clocks, period_s)["ur5"]
+    assert (d.delta_bound, d.delta) == (0.0, 0.0)
 
 
 @pytest.mark.parametrize("method", SAFETY_METHODS)

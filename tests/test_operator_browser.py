@@ -8,15 +8,14 @@ The browser is installed by ``scripts/bootstrap.sh`` (as root with apt); without
 from __future__ import annotations
 
 import os
-import shutil
 import signal
-import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from headless_browser import chromium
 
 from bench.procs import running_cell, stop_program, wait_for
 from hrc_common.config import REPO_ROOT
@@ -24,21 +23,8 @@ from hrc_common.status_models import EffectiveConfig, EventsResponse
 
 pytestmark = pytest.mark.e2e
 
-CHROMIUM = shutil.which("chromium")
-CHROMEDRIVER = shutil.which("chromedriver")
 SCREENSHOT = REPO_ROOT / "docs" / "operator-page.png"
 """The README's screenshot: rewritten only when HRC_UPDATE_SCREENSHOT=1 (a test run leaves the checkout clean)."""
-FLAGS = (
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--window-size=1400,1000",
-)
 SCENARIO_LOOP_S = 30.0
 """The default scenario (walk_in_reach_leave) repeats every 30 s: nobody for 3 s, then the person walks in."""
 
@@ -54,22 +40,8 @@ return {conn: document.getElementById('conn').textContent,
 
 @pytest.fixture
 def browser() -> Iterator[Any]:
-    if CHROMIUM is None or CHROMEDRIVER is None:
-        pytest.skip("no chromium/chromedriver on this machine (scripts/bootstrap.sh installs them as root with apt)")
-    webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is not installed (pip install -e .[dev])")
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in FLAGS:
-        options.add_argument(flag)
-    with tempfile.TemporaryDirectory(prefix="hrc-chromium-") as profile:
-        options.add_argument(f"--user-data-dir={profile}")
-        driver = webdriver.Chrome(options=options, service=Service(executable_path=CHROMEDRIVER))
-        try:
-            yield driver
-        finally:
-            driver.quit()
+    with chromium() as driver:
+        yield driver
 
 
 def test_the_page_follows_a_person_walking_in_and_says_stale_when_the_gateway_stops(

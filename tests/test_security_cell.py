@@ -14,6 +14,7 @@ import json
 import os
 import stat
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -23,19 +24,9 @@ from pathlib import Path
 import httpx
 import pytest
 import zenoh
-from securecell import (
-    StateWatch,
-    forge_overrides,
-    free_port,
-    intruder_config,
-    listening,
-    module,
-    secure_env,
-    start,
-    stop,
-    wait_until,
-)
+from securecell import StateWatch, forge_overrides, intruder_config, listening
 
+from bench.procs import Program, free_port, program_env, start_program, stop_all, stop_program, wait_or_fail
 from hrc_common import keys
 from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import provision_cell
@@ -61,7 +52,7 @@ class SecureCell:
     gateway_endpoint: str
     controller_endpoint: str
     logs: list[Path]
-    procs: dict[str, subprocess.Popen[bytes]] = field(default_factory=dict)
+    procs: dict[str, Program] = field(default_factory=dict)
 
     @property
     def cell(self) -> str:
@@ -94,23 +85,22 @@ def secure_cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SecureCell
     gw_ep, ctrl_ep = f"{protocol}/127.0.0.1:{free_port()}", f"{protocol}/127.0.0.1:{free_port()}"
     security = ["--insecure-plain-tcp"] if PLAIN else ["--pki-dir", str(pki.root)]
     commands = {
-        "gateway": module("gateway.main", "--zenoh-listen", gw_ep, "--http-port", str(free_port()), *security),
-        "controller": module("controller_emu.main", "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep, *security),
+        "gateway": ("gateway.main", ["--zenoh-listen", gw_ep, "--http-port", str(free_port()), *security]),
+        "controller": ("controller_emu.main", ["--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep, *security]),
     }
     cell = SecureCell(config, pki, gw_ep, ctrl_ep, [work / f"{name}.log" for name in commands])
     try:
-        for (name, command), log in zip(commands.items(), cell.logs, strict=True):
-            cell.procs[name] = start(command, log)
-        wait_until(lambda: listening(gw_ep) and listening(ctrl_ep), START_TIMEOUT_S, "the listeners", cell.logs)
+        for (name, (module, args)), log in zip(commands.items(), cell.logs, strict=True):
+            cell.procs[name] = start_program(module, args, log, program_env(plain_tcp=False))
+        wait_or_fail(lambda: listening(gw_ep) and listening(ctrl_ep), START_TIMEOUT_S, "the listeners", cell.logs)
         with zenoh.open(session_config([], [gw_ep], cell.options("observer-fixture"))) as session:
             watch = StateWatch(session, cell.cell, ROBOT)
             statuses: list[bytes] = []
             session.declare_subscriber(keys.gateway_status(cell.cell), lambda s: statuses.append(b""))
-            wait_until(lambda: bool(statuses) and watch.latest() is not None, START_TIMEOUT_S, "the cell", cell.logs)
+            wait_or_fail(lambda: bool(statuses) and watch.latest() is not None, START_TIMEOUT_S, "the cell", cell.logs)
         yield cell
     finally:
-        for proc in cell.procs.values():
-            stop(proc)
+        stop_all(cell.procs.values())
 
 
 def _publish_nobody(session: zenoh.Session, cell: str, trackers: list[str], halt: threading.Event) -> None:
@@ -130,7 +120,7 @@ def _wait_robot_stopped(cell: SecureCell, watch: StateWatch) -> None:
         latest = watch.latest()
         return latest is not None and latest.override == 0.0 and latest.mode != "running"
 
-    wait_until(stopped, 10.0, "the controller applying δ = 0", cell.logs)
+    wait_or_fail(stopped, 10.0, "the controller applying δ = 0", cell.logs)
 
 
 def test_override_reaches_the_controller_over_mutual_tls(secure_cell: SecureCell) -> None:
@@ -147,7 +137,7 @@ def test_override_reaches_the_controller_over_mutual_tls(secure_cell: SecureCell
         )
         publisher.start()
         try:
-            wait_until(
+            wait_or_fail(
                 lambda: (s := watch.latest()) is not None and s.override >= 0.9, 15.0, "δ = 1 applied", cell.logs
             )
         finally:
@@ -209,7 +199,7 @@ def test_observer_reads_status_but_its_puts_are_denied(secure_cell: SecureCell) 
         alice.put(status_key, forged_status)
         puts, statuses = forge_overrides(alice, cell.cell, ROBOT, 1.0)
         alice.put(status_key, forged_status)
-        wait_until(lambda: len(watch.since(started_s)) > 100, 5.0, "joint states", cell.logs)
+        wait_or_fail(lambda: len(watch.since(started_s)) > 100, 5.0, "joint states", cell.logs)
         with lock:
             seen = list(seen_by_bob)
     assert statuses > 0, "the observer reads the gateway status"
@@ -227,7 +217,7 @@ def test_auditor_reads_the_controller_through_the_gateway(secure_cell: SecureCel
     options = cell.options("observer-audit", enforce=True)
     with zenoh.open(session_config([], [cell.gateway_endpoint], options)) as auditor:
         auditor.declare_subscriber(keys.truth_robot_state(cell.cell, ROBOT), lambda s: received.append(b""))
-        wait_until(lambda: len(received) > 10, 10.0, "the controller's truth through the gateway", cell.logs)
+        wait_or_fail(lambda: len(received) > 10, 10.0, "the controller's truth through the gateway", cell.logs)
 
 
 @pytest.mark.parametrize("who", ["no certificate", "certificate of another CA", "plain TCP"])
@@ -248,6 +238,14 @@ def test_no_cell_certificate_no_connection(secure_cell: SecureCell, tmp_path: Pa
         zenoh.open(conf).close()
 
 
+def _run_secure(module: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """``python -m module args`` to its end, without the test harness's permission for plain TCP."""
+    command = [sys.executable, "-m", module, *args]
+    return subprocess.run(
+        command, capture_output=True, text=True, timeout=60, env=program_env(plain_tcp=False), check=False
+    )
+
+
 @pytest.mark.parametrize(
     ("args", "says"),
     [
@@ -256,14 +254,7 @@ def test_no_cell_certificate_no_connection(secure_cell: SecureCell, tmp_path: Pa
     ],
 )
 def test_controller_refuses_plain_tcp(tmp_path: Path, args: list[str], says: str) -> None:
-    result = subprocess.run(
-        module("controller_emu.main", "--pki-dir", str(tmp_path), *args),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=secure_env(),
-        check=False,
-    )
+    result = _run_secure("controller_emu.main", "--pki-dir", str(tmp_path), *args)
     assert result.returncode == 2
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1
@@ -271,14 +262,7 @@ def test_controller_refuses_plain_tcp(tmp_path: Path, args: list[str], says: str
 
 
 def test_router_refuses_plain_tcp_off_loopback(tmp_path: Path) -> None:
-    result = subprocess.run(
-        module("hrc_common.router", "--insecure-plain-tcp", "--listen", "tcp/0.0.0.0:7447"),
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=secure_env(),
-        check=False,
-    )
+    result = _run_secure("hrc_common.router", "--insecure-plain-tcp", "--listen", "tcp/0.0.0.0:7447")
     assert result.returncode == 2
     assert "only on loopback" in result.stderr
 
@@ -289,8 +273,10 @@ def test_hrc_cell_creates_the_pki_and_runs_over_mutual_tls(tmp_path: Path) -> No
     state = tmp_path / "state"
     http_port, zenoh_port = free_port(), free_port()
     log = tmp_path / "hrc-cell.log"
-    command = module("hrc_common.launcher", "--http-port", str(http_port), "--zenoh-port", str(zenoh_port))
-    proc = start(command, log, secure_env() | {STATE_DIR_ENV_VAR: str(state)})
+    args = ["--http-port", str(http_port), "--zenoh-port", str(zenoh_port)]
+    proc = start_program(
+        "hrc_common.launcher", args, log, program_env(plain_tcp=False) | {STATE_DIR_ENV_VAR: str(state)}
+    )
 
     def ready() -> bool:
         try:
@@ -299,9 +285,9 @@ def test_hrc_cell_creates_the_pki_and_runs_over_mutual_tls(tmp_path: Path) -> No
             return False
 
     try:
-        wait_until(ready, START_TIMEOUT_S, "/readyz 200 (inputs fresh, overrides flowing)", [log])
+        wait_or_fail(ready, START_TIMEOUT_S, "/readyz 200 (inputs fresh, overrides flowing)", [log])
     finally:
-        code = stop(proc)
+        code = stop_program(proc)
     assert code == 0
     text = log.read_text()
     assert f"on tls/127.0.0.1:{zenoh_port}" in text

@@ -19,18 +19,19 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, suppress
 from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 import zenoh
-from securecell import REPO_ROOT, StateWatch, free_port, listening, module, secure_env, start, stop, wait_until
+from securecell import StateWatch, listening
 
+from bench.procs import Program, free_port, program_env, start_program, stop_program, wait_or_fail
 from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import provision_cell
-from hrc_common.config import load_cell_config
+from hrc_common.config import REPO_ROOT, load_cell_config
 from hrc_common.pki import CellPki
 from hrc_common.zenoh_session import SessionOptions, mutual_tls, session_config
 
@@ -60,7 +61,8 @@ class Lan:
     netns: dict[str, str]
     router_ip: dict[str, str]
 
-    def command(self, host: str, argv: list[str]) -> list[str]:
+    def command(self, host: str, argv: Sequence[str] = ()) -> list[str]:
+        """``argv`` run in ``host``'s namespace."""
         return ["ip", "netns", "exec", self.netns[host], *argv]
 
 
@@ -115,38 +117,38 @@ def test_cell_across_namespaces_through_a_router(lan: Lan, tmp_path: Path) -> No
     router_eps = {host: f"tls/{ip}:{port}" for host, ip in lan.router_ip.items()}
     logs: list[Path] = []
 
-    def launch(name: str, command: list[str]) -> subprocess.Popen[bytes]:
+    def launch(name: str, module: str, args: list[str], host: str | None = None) -> Program:
         logs.append(tmp_path / f"{name}.log")
-        return start(command, logs[-1])
+        wrapper = lan.command(host) if host else []
+        return start_program(module, args, logs[-1], program_env(plain_tcp=False), wrapper)
 
     def client(host: str) -> list[str]:
         return ["--zenoh-mode", "client", "--zenoh-connect", router_eps[host], *pki_args]
 
     with ExitStack() as stack:
         listen = [a for ep in (*router_eps.values(), f"tls/127.0.0.1:{local_port}") for a in ("--listen", ep)]
-        router = launch("router", module("hrc_common.router", *listen, *pki_args))
-        stack.callback(stop, router)
-        wait_until(
+        router = launch("router", "hrc_common.router", [*listen, *pki_args])
+        stack.callback(stop_program, router)
+        wait_or_fail(
             lambda: listening(f"tls/127.0.0.1:{local_port}") or router.poll() is not None, 20.0, "the router", logs
         )
         assert router.poll() is None, (tmp_path / "router.log").read_text()
-        programs = {
-            "gateway": lan.command("gw", module("gateway.main", *client("gw"), "--http-port", str(free_port()))),
-            "controller": lan.command("ctl", module("controller_emu.main", *client("ctl"))),
-            "tracker": lan.command("trk", module("tracker_emu.main", *client("trk"))),
+        procs = {
+            "gateway": launch("gateway", "gateway.main", [*client("gw"), "--http-port", str(free_port())], "gw"),
+            "controller": launch("controller", "controller_emu.main", client("ctl"), "ctl"),
+            "tracker": launch("tracker", "tracker_emu.main", client("trk"), "trk"),
         }
-        procs = {name: launch(name, command) for name, command in programs.items()}
         for proc in procs.values():
-            stack.callback(stop, proc)
+            stack.callback(stop_program, proc)
         observer = SessionOptions("client", mutual_tls(pki.root, "observer-test", None))
         session = stack.enter_context(zenoh.open(session_config([], [f"tls/127.0.0.1:{local_port}"], observer)))
         watch = StateWatch(session, config.cell, ROBOT)
 
         # The cell works across hosts: tracker → router → gateway → router → controller.
-        wait_until(lambda: any(s.override >= 0.5 for s in watch.since(0.0)), 60.0, "δ > 0.5 applied", logs)
+        wait_or_fail(lambda: any(s.override >= 0.5 for s in watch.since(0.0)), 60.0, "δ > 0.5 applied", logs)
 
-        stop(procs["tracker"])  # no tracker data: the gateway commands δ = 0
-        wait_until(
+        stop_program(procs["tracker"])  # no tracker data: the gateway commands δ = 0
+        wait_or_fail(
             lambda: (s := watch.latest()) is not None and s.override == 0.0 and s.mode != "running",
             10.0,
             "δ = 0 applied",
@@ -175,7 +177,7 @@ def test_cell_across_namespaces_through_a_router(lan: Lan, tmp_path: Path) -> No
                 capture_output=True,
                 text=True,
                 timeout=60,
-                env=secure_env(),
+                env=program_env(plain_tcp=False),
                 check=False,
             )
             for name, args in intruders.items()

@@ -188,3 +188,26 @@ def test_a_signal_ends_the_wait_at_once() -> None:
             timer.cancel()
     assert stop.is_set()
     assert signal.getsignal(signal.SIGINT) is before  # restored
+
+
+def test_the_guard_grows_with_long_cycles_and_shrinks_back() -> None:
+    """An event cycle as long as the recent cycles cannot start where it would make the next tick late."""
+    rate = RateLoop(0.01, event_guard_s=0.0002)
+    assert rate.guard_s == 0.0002
+    rate.cycle_took(0.003)
+    assert rate.guard_s == 0.003
+    rate.cycle_took(0.05)  # a cycle longer than the period: the guard is at most one period
+    assert rate.guard_s == 0.01
+    for _ in range(400):
+        rate.cycle_took(0.0001)
+    assert rate.guard_s == 0.0002  # back to the configured guard once the cycles are short again
+
+
+def test_no_event_cycle_when_the_tick_is_due_within_a_recent_cycles_length() -> None:
+    rate = RateLoop(0.05, event_guard_s=0.0)
+    rate.cycle_took(0.05)  # the recent cycles are as long as the period: the tick is always within the guard
+    stop, wake = threading.Event(), threading.Event()
+    wake.set()
+    assert rate.sleep(stop, wake)
+    assert not rate.last_was_event
+    assert rate.wakes_served_by_tick == 1

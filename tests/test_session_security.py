@@ -9,16 +9,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import socket
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import zenoh
 from securecell import intruder_config
 
+from bench.procs import free_port, wait_or_fail
 from hrc_common.access_control import CellPolicy
 from hrc_common.cert_cli import cli as cert_cli
 from hrc_common.config import CellConfig
@@ -39,12 +37,6 @@ from hrc_common.zenoh_session import (
 
 POLICY = CellPolicy("demo", ("ur5",), ("front", "side"))
 OVERRIDE = "hrc/demo/robot/ur5/override"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _args(*argv: str) -> argparse.Namespace:
@@ -152,15 +144,6 @@ def test_mixed_protocols_are_refused(tmp_path: Path, cell_config: CellConfig) ->
 # -- real sessions in this process ----------------------------------------------------------------
 
 
-def _wait_for(predicate: Callable[[], bool], timeout_s: float) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
-
-
 def test_mutual_tls_delivers_and_access_control_filters(tmp_path: Path) -> None:
     """A gateway's override reaches a controller; a tracker's (valid certificate, client routed by the gateway)
     never does, and neither does a put straight to the controller."""
@@ -183,7 +166,7 @@ def test_mutual_tls_delivers_and_access_control_filters(tmp_path: Path) -> None:
     ):
         ctrl.declare_subscriber(OVERRIDE, on_override)
         publisher = gw.declare_publisher(OVERRIDE)
-        assert _wait_for(lambda: bool(publisher.matching_status.matching), 5.0)
+        wait_or_fail(lambda: bool(publisher.matching_status.matching), 5.0, "the controller subscribed")
         with (
             zenoh.open(session_config([], [gw_ep], tracker_client)) as via_gateway,
             zenoh.open(session_config([], [ctrl_ep], tracker_peer)) as direct,
@@ -198,11 +181,11 @@ def test_mutual_tls_delivers_and_access_control_filters(tmp_path: Path) -> None:
                 return bool(statuses)
 
             # The tracker is on the bus (it reads the gateway's status) while it forges.
-            assert _wait_for(forge_until_connected, 5.0)
+            wait_or_fail(forge_until_connected, 5.0, "the tracker reading the gateway status")
             for _ in range(20):
                 forge_until_connected()
             publisher.put(b"genuine")
-            assert _wait_for(lambda: b"genuine" in received, 5.0)
+            wait_or_fail(lambda: b"genuine" in received, 5.0, "the genuine override")
     assert set(received) == {b"genuine"}
 
 

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
 
-from hrc_common.config import UNSAFE_ENV_VAR, CellConfig
+from hrc_common.config import REPO_ROOT, UNSAFE_ENV_VAR, CellConfig, ConfigError
 from hrc_common.robot_model import load_robot_model
-from sim.sweep import CaseResult, CellVariant, cli, format_table, run_case, summarize
+from sim.sweep import CaseResult, CellVariant, cli, exit_code, format_table, run_case, run_sweep, summarize
+
+MEASURED_MODEL = REPO_ROOT / "configs" / "robots" / "ur5_measured.toml"
 
 CI_SEED = 2026
 CI_SCENARIOS = 10
@@ -23,9 +26,12 @@ def test_ci_subset_of_the_sweep_has_no_violations(cell_config: CellConfig) -> No
     config = CellVariant(tight_braking=True).apply(cell_config)
     robots = {name: load_robot_model(name, r) for name, r in config.robots.items()}
     results = [run_case(config, robots, CI_SEED, i, CI_DURATION_S) for i in range(CI_SCENARIOS)]
-    summary = summarize(results, wall_s=1.0)
-    violating = [(r.index, r.seed, r.smallest_margin_m, r.params) for r in results if r.violations]
+    summary = summarize(results, wall_s=1.0, human_speed_mps=config.safety.human_speed_mps)
+    violating = [(r.index, r.seed, r.smallest_margin_m, r.beyond_k, r.params) for r in results if r.violations]
     assert summary.violations == 0, violating
+    assert summary.within_k.cases + summary.beyond_k.cases == CI_SCENARIOS
+    assert summary.within_k.cases >= 1  # both sides of K are exercised by the subset
+    assert summary.beyond_k.cases >= 1
     assert summary.contacts_while_moving == 0
     assert summary.smallest_margin_m is not None
     assert summary.smallest_margin_m >= 0.0
@@ -38,7 +44,9 @@ def test_ci_subset_of_the_sweep_has_no_violations(cell_config: CellConfig) -> No
     assert "scenarios" in format_table(summary, workers=1)
 
 
-def _case(index: int, violations: int, margin: float | None, beyond: str | None = None) -> CaseResult:
+def _case(
+    index: int, violations: int, margin: float | None, beyond: str | None = None, approach_mps: float = 1.2
+) -> CaseResult:
     return CaseResult(
         index=index,
         seed=index,
@@ -61,6 +69,8 @@ def _case(index: int, violations: int, margin: float | None, beyond: str | None 
         params={},
         duration_s=10.0,
         wall_s=2.0,
+        fastest_approach_mps=approach_mps,
+        beyond_k=approach_mps > 1.6,
     )
 
 
@@ -76,6 +86,32 @@ def test_summary_of_known_cases() -> None:
     assert summary.program_cycles == 3
     assert (summary.beyond_budget, summary.beyond_budget_stopped) == (1, 1)
     assert summary.simulated_s == pytest.approx(30.0)
+    assert summary.within_k.cases == 3
+    assert summary.beyond_k.cases == 0
+    assert exit_code(summary) == 1
+
+
+def test_people_faster_than_k_are_reported_apart() -> None:
+    """A violation by a person faster than K has its own figure (cases, violations, margin lost) and does not fail
+    the sweep; one within K does."""
+    results = [_case(0, 0, 0.3), _case(1, 7, -0.05, approach_mps=1.95), _case(2, 0, 0.12, approach_mps=1.7)]
+    summary = summarize(results, wall_s=3.0, human_speed_mps=1.6)
+    assert summary.violations == 7  # the total still counts every cycle
+    within, beyond = summary.within_k, summary.beyond_k
+    assert (within.cases, within.violations, within.smallest_margin_moving_m) == (1, 0, pytest.approx(0.3))
+    assert within.margin_lost_m == 0.0
+    assert (beyond.cases, beyond.violations, beyond.cases_with_violations) == (2, 7, 1)
+    assert beyond.smallest_margin_moving_m == pytest.approx(-0.05)
+    assert beyond.smallest_margin_moving_case == 1
+    assert beyond.margin_lost_m == pytest.approx(0.05)
+    assert beyond.fastest_approach_mps == pytest.approx(1.95)
+    assert exit_code(summary) == 0
+    table = format_table(summary, workers=1)
+    assert re.search(r"within K: violations \(cycles\) +0 in 0 scenarios", table)
+    assert re.search(r"faster than K \(no guarantee\): violations \(cycles\) +7 in 1 scenarios", table)
+    assert "faster than K (no guarantee): margin lost [m]" in table
+    with_within_violation = summarize([*results, _case(3, 1, -0.01)], wall_s=1.0, human_speed_mps=1.6)
+    assert exit_code(with_within_violation) == 1
 
 
 def test_command_writes_the_table_and_json(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -89,6 +125,26 @@ def test_command_writes_the_table_and_json(tmp_path: Path, capsys: pytest.Captur
     doc = json.loads(out.read_text())
     assert doc["summary"]["scenarios"] == 2
     assert [c["index"] for c in doc["cases"]] == [0, 1]
+    assert "within K: scenarios" in printed
+    assert "faster than K (no guarantee): scenarios" in printed
+    summary = doc["summary"]
+    assert summary["human_speed_mps"] == 1.6
+    assert summary["within_k"]["cases"] + summary["beyond_k"]["cases"] == 2
+    assert all(isinstance(c["beyond_k"], bool) and c["fastest_approach_mps"] >= 0.0 for c in doc["cases"])
+
+
+def test_ctrl_c_ends_the_sweep_with_the_cases_done() -> None:
+    """A long sweep stopped by Ctrl-C still gives the figure of the cases it ran (and says so)."""
+
+    def stop_after_two(done: int, result: CaseResult) -> None:
+        if done == 2:
+            raise KeyboardInterrupt
+
+    summary, results = run_sweep(5, 3, 1, 0.5, progress=stop_after_two)
+    assert [r.index for r in results] == [0, 1]
+    assert summary.scenarios == 2
+    assert summary.interrupted
+    assert exit_code(summary) == 130
 
 
 def test_cell_variant(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -101,3 +157,19 @@ def test_cell_variant(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) 
     assert tight.safety.human_speed_mps == 2.2
     assert tight.safety.human_speed_close_mps == 2.2
     assert not cell_config.safety.unsafe_ignore_delay_for_tests  # the original is untouched
+
+
+def test_cell_variant_with_measured_stopping_times_and_a_method(cell_config: CellConfig) -> None:
+    measured = CellVariant(robot_model=str(MEASURED_MODEL), method="zanchettin2016_speed_aware").apply(cell_config)
+    assert measured.robots["ur5"].model.braking_time_s == [0.264] * 6  # configs/robots/ur5_measured.toml
+    assert measured.robots["ur5"].model.joints == cell_config.robots["ur5"].model.joints
+    assert measured.safety.method == "zanchettin2016_speed_aware"
+    with pytest.raises(ConfigError, match="no such file"):
+        CellVariant(robot_model="configs/robots/nope.toml").apply(cell_config)
+
+
+def test_command_refuses_a_missing_robot_model(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["--scenarios", "1", "--workers", "1", "--robot-model", "configs/robots/nope.toml", "--quiet"])
+    assert exit_info.value.code == 2
+    assert "no such file" in capsys.readouterr().err

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from bench.procs import free_port, start_program, stop_program
+from bench.procs import free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 from hrc_common import keys
 from hrc_common.config import REPO_ROOT, load_cell_config
 from hrc_common.messages import Humans, parse_message
@@ -48,7 +48,7 @@ def cell_with_latency(tmp_path: Path, latency_s: float) -> tuple[Path, str]:
 def test_publishes_every_tracker_at_its_rate_with_capture_stamps(tmp_path: Path) -> None:
     cell_path, slow_tracker = cell_with_latency(tmp_path, LATENCY_S)
     config = load_cell_config(cell_path)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = free_endpoint()
     log_path = tmp_path / "tracker.log"
     proc = start_program(
         "tracker_emu.main",
@@ -62,10 +62,13 @@ def test_publishes_every_tracker_at_its_rate_with_capture_stamps(tmp_path: Path)
                 f"hrc/{config.cell}/tracker/*/humans",
                 lambda sample: received.append((time.time_ns(), str(sample.key_expr), sample.payload.to_bytes())),
             )
-            deadline = time.monotonic() + 10.0
-            while len({key for _, key, _ in received}) < len(config.trackers) and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert received, f"no message within 10 s\n{log_path.read_text()}"
+            wait_or_fail(
+                lambda: len({key for _, key, _ in received}) == len(config.trackers),
+                10.0,
+                "a frame of every tracker",
+                [log_path],
+                [proc],
+            )
             collected_from = len(received)
             time.sleep(COLLECT_S)
             alive = [
@@ -77,9 +80,7 @@ def test_publishes_every_tracker_at_its_rate_with_capture_stamps(tmp_path: Path)
         assert alive == [keys.alive(config.cell, "tracker-emu")]
         assert stop_program(proc, signal.SIGINT, timeout_s=5.0) == 0
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
 
     by_tracker: dict[str, list[tuple[int, Humans]]] = defaultdict(list)
     for recv_ns, key, payload in received[collected_from:]:
@@ -106,34 +107,26 @@ def test_publishes_every_tracker_at_its_rate_with_capture_stamps(tmp_path: Path)
     assert "stopped;" in log
 
 
-def test_unknown_scenario_exits_2_listing_the_scenarios() -> None:
-    result = subprocess.run(
-        [sys.executable, "-m", "tracker_emu.main", "--scenario", "nope", "--zenoh-listen", "tcp/127.0.0.1:1"],
-        capture_output=True,
-        text=True,
-        cwd=REPO_ROOT,
-        timeout=30,
-    )
+def _refused(*args: str) -> str:
+    """The one line the tracker emulator writes on stderr when it refuses ``args`` (exit code 2)."""
+    command = [sys.executable, "-m", "tracker_emu.main", *args, "--zenoh-listen", "tcp/127.0.0.1:1"]
+    result = subprocess.run(command, capture_output=True, text=True, cwd=REPO_ROOT, timeout=30)
     assert result.returncode == 2
     message = result.stderr.strip()
     assert "\n" not in message
     assert message.startswith("hrc-tracker-emu: ")
+    return message
+
+
+def test_unknown_scenario_exits_2_listing_the_scenarios() -> None:
+    message = _refused("--scenario", "nope")
     assert "unknown scenario 'nope'" in message
     for name in available_scenarios(REPO_ROOT / "configs" / "scenarios"):
         assert name in message
 
 
 def test_unknown_tracker_exits_2_listing_the_trackers() -> None:
-    result = subprocess.run(
-        [sys.executable, "-m", "tracker_emu.main", "--tracker", "nope", "--zenoh-listen", "tcp/127.0.0.1:1"],
-        capture_output=True,
-        text=True,
-        cwd=REPO_ROOT,
-        timeout=30,
-    )
-    assert result.returncode == 2
-    message = result.stderr.strip()
-    assert "\n" not in message
+    message = _refused("--tracker", "nope")
     assert "unknown tracker 'nope'" in message
     for name in load_cell_config(None).trackers:
         assert name in message

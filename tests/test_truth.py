@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from bench.procs import free_port, start_program, stop_program
+from bench.procs import free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 from hrc_common import keys
 from hrc_common.config import REPO_ROOT, TrackerConfig
 from hrc_common.messages import Humans, JointState, parse_message
@@ -139,23 +139,18 @@ class _Collector:
 
 
 def _collect(module: str, args: list[str], tmp_path: Path, want: list[str], seconds: float) -> _Collector:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = free_endpoint()
     log_path = tmp_path / "program.log"
     proc = start_program(module, [*args, "--zenoh-listen", endpoint], log_path)
     collector = _Collector()
     try:
         with zenoh.open(session_config(connect=[endpoint])) as session:
             session.declare_subscriber("hrc/**", collector.on_sample)
-            deadline = time.monotonic() + 20.0
-            while not all(collector.count(k) for k in want) and time.monotonic() < deadline:
-                time.sleep(0.05)
-            assert all(collector.count(k) for k in want), f"missing {want}\n{log_path.read_text()}"
+            wait_or_fail(lambda: all(collector.count(k) for k in want), 20.0, f"{want}", [log_path], [proc])
             time.sleep(seconds)
         assert stop_program(proc, signal.SIGINT) == 0
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        stop_all([proc])
     return collector
 
 

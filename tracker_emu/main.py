@@ -15,7 +15,8 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
 
 import zenoh
 
@@ -23,7 +24,13 @@ from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_config
 from hrc_common.messages import to_payload
 from hrc_common.sd_notify import LoopNotifier
-from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
+from hrc_common.service import (
+    add_config_argument,
+    add_zenoh_arguments,
+    configure_logging,
+    freeze_startup_heap,
+    stop_on_signals,
+)
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
@@ -76,6 +83,96 @@ def _progress(emulator: TrackerEmulator, now_s: float) -> str:
     )
 
 
+class _Publishers(NamedTuple):
+    """The tracker emulator's publishers: one per tracker it plays, and the ground truth's."""
+
+    humans: dict[str, zenoh.Publisher]
+    truth: zenoh.Publisher
+
+
+def _declare_publishers(session: zenoh.Session, cell: str, trackers: Iterable[str]) -> _Publishers:
+    def declare(key: str) -> zenoh.Publisher:
+        return session.declare_publisher(key, encoding=zenoh.Encoding.APPLICATION_JSON, express=True)
+
+    return _Publishers(
+        {name: declare(keys.tracker_humans(cell, name)) for name in trackers}, declare(keys.truth_humans(cell))
+    )
+
+
+def _log_start(cell: str, scenario_name: str, scenario: Scenario, trackers: dict[str, TrackerConfig]) -> None:
+    log.info(
+        "cell %r: playing scenario %r (%.1f s%s: %s) as tracker(s) %s",
+        cell,
+        scenario_name,
+        scenario.duration_s,
+        ", loop" if scenario.loop else "",
+        scenario.description,
+        ", ".join(f"{n} ({t.rate_hz:g} Hz, latency {t.latency_s:g} s)" for n, t in trackers.items()),
+    )
+
+
+def _publish_due(
+    emulator: TrackerEmulator, truth: TruthSampler | None, publishers: _Publishers, now_s: float, now_ns: int
+) -> bool:
+    """Publish the frames due at ``now_s`` and the truth sample, if one is due; whether a frame went out."""
+    published = False
+    for name, message in emulator.step(now_s, now_ns):
+        publishers.humans[name].put(to_payload(message))
+        published = True
+    truth_message = truth.step(now_s, now_ns) if truth is not None else None
+    if truth_message is not None:
+        publishers.truth.put(to_payload(truth_message))
+    return published
+
+
+class _Course:
+    """What the log says of the scenario's course: each restart of a loop, the end of a single run, and
+    progress every :data:`PROGRESS_EVERY_S`."""
+
+    def __init__(self, scenario_name: str, scenario: Scenario, start_s: float) -> None:
+        self.scenario_name = scenario_name
+        self.scenario = scenario
+        self.next_progress_s = start_s + PROGRESS_EVERY_S
+        self.loop_index = 0
+        self.ended = False
+
+    def update(self, emulator: TrackerEmulator, now_s: float) -> None:
+        name, scenario = self.scenario_name, self.scenario
+        if scenario.loop and emulator.loop_index(now_s) != self.loop_index:
+            self.loop_index = emulator.loop_index(now_s)
+            log.info("scenario %r restarts (run %d); %s", name, self.loop_index + 1, _progress(emulator, now_s))
+        elif not scenario.loop and not self.ended and emulator.elapsed_s(now_s) >= scenario.duration_s:
+            self.ended = True
+            log.info("scenario %r ended; publishing empty frames until stopped", name)
+        if now_s >= self.next_progress_s:
+            self.next_progress_s = now_s + PROGRESS_EVERY_S
+            log.info(_progress(emulator, now_s))
+
+
+def _play(
+    emulator: TrackerEmulator,
+    truth: TruthSampler | None,
+    publishers: _Publishers,
+    course: _Course,
+    stop: threading.Event,
+) -> None:
+    """Publish what is due, then sleep until the next capture, publication, truth sample, progress line or
+    watchdog ping; until ``stop`` is set."""
+    service = LoopNotifier.from_environment()  # READY=1 after the first frame, WATCHDOG=1, STATUS=
+    published = False
+    freeze_startup_heap()
+    while not stop.is_set():
+        now_s = time.monotonic()
+        published = _publish_due(emulator, truth, publishers, now_s, time.time_ns()) or published
+        service.cycle_done(now_s, lambda: _progress(emulator, time.monotonic()), ready=published)
+        course.update(emulator, now_s)
+        next_s = min(emulator.next_event_s(), course.next_progress_s, now_s + service.ping_every_s)
+        if truth is not None:
+            next_s = min(next_s, truth.next_event_s())
+        stop.wait(max(0.0, next_s - time.monotonic()))
+    service.stopping()
+
+
 def main(
     config: CellConfig,
     scenario_name: str,
@@ -95,58 +192,13 @@ def main(
     """
     cell = config.cell
     with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
-        publishers = {
-            name: session.declare_publisher(
-                keys.tracker_humans(cell, name), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
-            )
-            for name in trackers
-        }
-        truth_pub = session.declare_publisher(
-            keys.truth_humans(cell), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
-        )
+        publishers = _declare_publishers(session, cell, trackers)
         token = session.liveliness().declare_token(keys.alive(cell, COMPONENT))
         emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
         truth = TruthSampler(scenario, truth_rate_hz, emulator.start_s) if truth_rate_hz > 0.0 else None
-        log.info(
-            "cell %r: playing scenario %r (%.1f s%s: %s) as tracker(s) %s",
-            cell,
-            scenario_name,
-            scenario.duration_s,
-            ", loop" if scenario.loop else "",
-            scenario.description,
-            ", ".join(f"{n} ({t.rate_hz:g} Hz, latency {t.latency_s:g} s)" for n, t in trackers.items()),
-        )
-        next_progress_s = emulator.start_s + PROGRESS_EVERY_S
-        loop_index = 0
-        ended = False
-        service = LoopNotifier.from_environment()  # READY=1 after the first frame, WATCHDOG=1, STATUS=
-        published = False
-        while not stop.is_set():
-            now_s = time.monotonic()
-            now_ns = time.time_ns()
-            for name, message in emulator.step(now_s, now_ns):
-                publishers[name].put(to_payload(message))
-                published = True
-            service.cycle_done(now_s, lambda: _progress(emulator, time.monotonic()), ready=published)
-            truth_message = truth.step(now_s, now_ns) if truth is not None else None
-            if truth_message is not None:
-                truth_pub.put(to_payload(truth_message))
-            if scenario.loop and emulator.loop_index(now_s) != loop_index:
-                loop_index = emulator.loop_index(now_s)
-                log.info("scenario %r restarts (run %d); %s", scenario_name, loop_index + 1, _progress(emulator, now_s))
-            elif not scenario.loop and not ended and emulator.elapsed_s(now_s) >= scenario.duration_s:
-                ended = True
-                log.info("scenario %r ended; publishing empty frames until stopped", scenario_name)
-            if now_s >= next_progress_s:
-                next_progress_s = now_s + PROGRESS_EVERY_S
-                log.info(_progress(emulator, now_s))
-            next_s = min(emulator.next_event_s(), next_progress_s)
-            if truth is not None:
-                next_s = min(next_s, truth.next_event_s())
-            next_s = min(next_s, now_s + service.ping_every_s)  # inf without a watchdog
-            stop.wait(max(0.0, next_s - time.monotonic()))
-        service.stopping()
-        del token, publishers, truth_pub  # undeclared when the session closes
+        _log_start(cell, scenario_name, scenario, trackers)
+        _play(emulator, truth, publishers, _Course(scenario_name, scenario, emulator.start_s), stop)
+        del token, publishers  # undeclared when the session closes
     log.info("stopped; %s", _progress(emulator, time.monotonic()))
     return 0
 

@@ -27,7 +27,7 @@ from pydantic import ValidationError
 
 from gateway.events import EventFile
 from gateway.http_api import StatusBoard, create_app
-from hrc_common.service import configure_logging
+from hrc_common.service import configure_logging, use_realtime_scheduling
 from hrc_common.status_models import EffectiveConfig, Event
 
 log = logging.getLogger("hrc-gateway.http")
@@ -113,9 +113,20 @@ class HttpServerProcess:
 
     ``offer()`` never blocks the caller: it replaces the pending document, and a writer thread does
     the (possibly blocking) pipe write. A slow or dead child only makes the API lag.
+
+    ``feed_realtime_priority`` > 0: the writer thread runs under SCHED_FIFO at that priority (the gateway's
+    ``io_realtime_priority``). It shares a lock with ``offer()`` and Python's interpreter lock with the safety
+    loop; at normal priority any other program could deschedule it while it holds one, and the loop would wait.
     """
 
-    def __init__(self, host: str, port: int, effective_config: EffectiveConfig, events_log: Path | None = None) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        effective_config: EffectiveConfig,
+        events_log: Path | None = None,
+        feed_realtime_priority: int = 0,
+    ) -> None:
         extra = [] if events_log is None else ["--events-log", str(events_log)]
         self._proc = subprocess.Popen(
             [sys.executable, "-m", "gateway.http_server", "--http-host", host, "--http-port", str(port), *extra],
@@ -130,6 +141,7 @@ class HttpServerProcess:
         self._events: deque[bytes] = deque(maxlen=MAX_QUEUED_EVENTS)
         self._cond = threading.Condition()
         self._closed = False
+        self._feed_priority = feed_realtime_priority
         self._writer = threading.Thread(target=self._write_loop, name="http-feed", daemon=True)
         self._writer.start()
 
@@ -149,6 +161,8 @@ class HttpServerProcess:
             self._cond.notify()
 
     def _write_loop(self) -> None:
+        if self._feed_priority:
+            use_realtime_scheduling(self._feed_priority, "the HTTP feed thread", log)
         stdin = self._proc.stdin
         if stdin is None:
             return

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
-import os
 import sys
 import threading
 import time
@@ -40,8 +39,11 @@ from hrc_common.service import (
     add_zenoh_arguments,
     configure_logging,
     freeze_startup_heap,
+    logging_through_a_queue,
     stop_on_signals,
+    use_realtime_scheduling,
 )
+from hrc_common.status_models import Event
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from recorder.gateway_log import GatewayRecorder
 from recorder.mcap_sink import RecordingError
@@ -58,7 +60,7 @@ def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.
     """A Zenoh callback: the node judges and stores; an exception is logged, counted and faults the topic.
 
     ``realtime_priority`` > 0: each thread that calls it first puts itself under SCHED_FIFO at that priority
-    (``gateway.input_realtime_priority``).
+    (``gateway.io_realtime_priority``).
     """
     scheduled = threading.local()
 
@@ -77,24 +79,15 @@ def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.
     return on_sample
 
 
-def _log_changes(previous: dict[str, RobotDecision], decisions: dict[str, RobotDecision]) -> None:
-    for name, decision in decisions.items():
-        before = previous.get(name)
-        if before is None or before.zone != decision.zone:
-            log.info(
-                "robot %s: zone %s (δ = %.2f, min distance %s m)",
-                name,
-                decision.zone.value,
-                decision.delta,
-                "-" if decision.min_distance_m is None else f"{decision.min_distance_m:.2f}",
-            )
-        codes = {f.code for f in decision.faults}
-        before_codes = set() if before is None else {f.code for f in before.faults}
-        for fault in decision.faults:
-            if fault.code not in before_codes:
-                log.warning("robot %s: fault %s: %s (δ = 0)", name, fault.code, fault.reason)
-        if before_codes - codes and not codes:
-            log.info("robot %s: all faults cleared", name)
+def _log_events(events: list[Event]) -> None:
+    """The event log's events as log lines: zone changes after their hold (not every flicker), faults raised
+    (a warning: δ = 0) and cleared."""
+    for event in events:
+        robot = f"robot {event.robot}: " if event.robot else ""
+        if event.kind == "fault_raised":
+            log.warning("%s%s (δ = 0)", robot, event.message)
+        elif event.kind in ("zone_changed", "fault_cleared"):
+            log.info("%s%s", robot, event.message)
 
 
 def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int) -> None:
@@ -121,17 +114,9 @@ def service_status_line(decisions: dict[str, RobotDecision], missed_cycles: int)
 
 
 def _use_realtime_scheduling(priority: int, thread: str = "the safety loop") -> None:
-    """Run the calling thread under SCHED_FIFO at ``priority``; warn if the OS refuses.
-
-    Only this thread: on Linux the scheduling policy of pid 0 is the calling thread's, so the other threads and
-    the HTTP child keep normal scheduling and cannot starve the machine.
-    """
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError) as exc:  # not Linux, or no CAP_SYS_NICE
-        log.warning("could not run %s under SCHED_FIFO priority %d: %s", thread, priority, exc)
-    else:
-        log.info("%s (thread %d) under SCHED_FIFO priority %d", thread, threading.get_native_id(), priority)
+    """The calling thread under SCHED_FIFO at ``priority`` (a warning if refused); the other threads and the HTTP
+    child keep their scheduling."""
+    use_realtime_scheduling(priority, thread, log)
 
 
 @dataclass
@@ -143,7 +128,6 @@ class _Outputs:
     http: HttpServerProcess
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
-    previous: dict[str, RobotDecision] = field(default_factory=dict)
     events: EventLog = field(default_factory=EventLog)
 
     def publish_overrides(self, messages: dict[str, Override]) -> None:
@@ -207,9 +191,10 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
         compute_s = time.monotonic() - started_s
         rate.cycle_took(compute_s)
         out.compute_max_s = max(out.compute_max_s, compute_s)
-        _log_changes(out.previous, cycle.decisions)
-        out.http.offer_events(out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions))
-        out.previous = cycle.decisions
+        events = out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions)
+        if events:
+            _log_events(events)
+            out.http.offer_events(events)
         if not rate.last_was_event and rate.tick_cycles % status_every == 0:
             out.publish_status(config, cycle, rate, node)
             if out.http.exit_code() is not None:
@@ -252,11 +237,15 @@ def run_gateway(
     """
     with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
-        on_sample = _callback(node, config.gateway.input_realtime_priority)
+        on_sample = _callback(node, config.gateway.io_realtime_priority)
         subscribers = [session.declare_subscriber(k, on_sample) for k in (states_key, humans_key)]
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
         effective = effective_config(config)
-        out = _declare_outputs(session, config, HttpServerProcess(http_host, http_port, effective, events_log))
+        out = _declare_outputs(
+            session,
+            config,
+            HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority),
+        )
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
@@ -325,18 +314,19 @@ def cli(argv: list[str] | None = None) -> None:
         listen = args.zenoh_listen or ([] if args.zenoh_connect else [DEFAULT_ENDPOINT])
         http_host = args.http_host or config.gateway.http_host
         http_port = args.http_port if args.http_port is not None else config.gateway.http_port
-        code = run_gateway(
-            config,
-            node,
-            listen,
-            args.zenoh_connect,
-            http_host,
-            http_port,
-            stop,
-            wake,
-            zenoh_options=zenoh_options,
-            events_log=args.events_log,
-        )
+        with logging_through_a_queue(config.gateway.io_realtime_priority):  # the loop thread never writes a line
+            code = run_gateway(
+                config,
+                node,
+                listen,
+                args.zenoh_connect,
+                http_host,
+                http_port,
+                stop,
+                wake,
+                zenoh_options=zenoh_options,
+                events_log=args.events_log,
+            )
         if recorder is not None:
             _close_recording(recorder)
     sys.exit(code)

@@ -274,19 +274,19 @@ class GatewayConfig(_Frozen):
         description="Linux SCHED_FIFO priority of the safety loop's thread (1-99; needs root or CAP_SYS_NICE; "
         "the gateway starts anyway and logs a warning if it is refused); 0 = normal scheduling.",
     )
-    input_realtime_priority: Annotated[int, Field(ge=0, le=98)] = Field(
+    io_realtime_priority: Annotated[int, Field(ge=0, le=98)] = Field(
         0,
-        description="Linux SCHED_FIFO priority of the threads that receive inputs (Zenoh's callback threads), "
-        "below loop_realtime_priority; 0 = normal scheduling. With several robots, the loop waits for the "
-        "Python lock that a receiving thread holds; at normal priority that thread can be descheduled by "
-        "any other program while holding it, which makes the loop late (a priority inversion).",
+        description="Linux SCHED_FIFO priority of the gateway's I/O threads (Zenoh's threads that receive inputs, "
+        "the thread that feeds the HTTP child, the log writer), below loop_realtime_priority; 0 = normal "
+        "scheduling. They share Python's interpreter lock with the loop: at normal priority any other program can "
+        "deschedule one while it holds the lock, and the loop waits (a priority inversion, seen with many robots).",
     )
 
     @model_validator(mode="after")
-    def _inputs_below_the_loop(self) -> GatewayConfig:
-        if self.input_realtime_priority and not 0 < self.input_realtime_priority < self.loop_realtime_priority:
+    def _io_below_the_loop(self) -> GatewayConfig:
+        if self.io_realtime_priority and not 0 < self.io_realtime_priority < self.loop_realtime_priority:
             raise ValueError(
-                f"input_realtime_priority = {self.input_realtime_priority} with loop_realtime_priority = "
+                f"io_realtime_priority = {self.io_realtime_priority} with loop_realtime_priority = "
                 f"{self.loop_realtime_priority}; allowed: 0 (off), or 1 to loop_realtime_priority - 1 (the loop "
                 "must be able to preempt the receiving threads)"
             )

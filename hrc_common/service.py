@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
+import logging.handlers
 import math
 import os
+import queue
 import signal
 import threading
 import time
@@ -181,6 +183,60 @@ def stop_on_signals() -> Iterator[StopEvent]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+
+
+def use_realtime_scheduling(priority: int, thread: str, logger: logging.Logger) -> bool:
+    """Run the calling thread under SCHED_FIFO at ``priority``; log a warning (and go on) if the OS refuses.
+
+    Only this thread: on Linux the scheduling policy of pid 0 is the calling thread's.
+
+    Returns:
+        True if the thread now runs under SCHED_FIFO.
+    """
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:  # not Linux, or no CAP_SYS_NICE
+        logger.warning("could not run %s under SCHED_FIFO priority %d: %s", thread, priority, exc)
+        return False
+    logger.info("%s (thread %d) under SCHED_FIFO priority %d", thread, threading.get_native_id(), priority)
+    return True
+
+
+class _LogWriter(logging.handlers.QueueListener):
+    """A queue listener whose thread first puts itself under SCHED_FIFO at ``realtime_priority`` (0: not)."""
+
+    def __init__(
+        self, records: queue.SimpleQueue[logging.LogRecord], realtime_priority: int, *handlers: logging.Handler
+    ):
+        super().__init__(records, *handlers, respect_handler_level=True)
+        self.realtime_priority = realtime_priority
+
+    def _monitor(self) -> None:
+        if self.realtime_priority:
+            use_realtime_scheduling(self.realtime_priority, "the log writer thread", logging.getLogger("hrc"))
+        super()._monitor()  # type: ignore[misc]  # QueueListener's thread body
+
+
+@contextmanager
+def logging_through_a_queue(realtime_priority: int = 0) -> Iterator[None]:
+    """Meanwhile, a thread that logs only puts the record in a queue; one writer thread formats and writes it.
+
+    For a real-time loop: writing a line to a file or the journal can block for milliseconds, and the handler's
+    lock is shared by every thread that logs. ``realtime_priority`` > 0: the writer runs under SCHED_FIFO (it
+    shares Python's interpreter lock with the loop, see ``gateway.io_realtime_priority``). On exit every queued
+    record is written and the handlers are put back.
+    """
+    root = logging.getLogger()
+    handlers = root.handlers[:]
+    records: queue.SimpleQueue[logging.LogRecord] = queue.SimpleQueue()
+    writer = _LogWriter(records, realtime_priority, *handlers)
+    root.handlers = [logging.handlers.QueueHandler(records)]
+    writer.start()
+    try:
+        yield
+    finally:
+        writer.stop()
+        root.handlers = handlers
 
 
 def freeze_startup_heap() -> None:

@@ -78,11 +78,11 @@ def test_http_child_lowers_its_cpu_priority(cell_config: CellConfig) -> None:
 
 
 def test_input_priority_must_stay_below_the_loop() -> None:
-    assert GatewayConfig(loop_realtime_priority=10, input_realtime_priority=9).input_realtime_priority == 9
-    assert GatewayConfig(loop_realtime_priority=0, input_realtime_priority=0).input_realtime_priority == 0
+    assert GatewayConfig(loop_realtime_priority=10, io_realtime_priority=9).io_realtime_priority == 9
+    assert GatewayConfig(loop_realtime_priority=0, io_realtime_priority=0).io_realtime_priority == 0
     for loop, inputs in ((10, 10), (10, 11), (0, 5)):
-        with pytest.raises(ValidationError, match="input_realtime_priority"):
-            GatewayConfig(loop_realtime_priority=loop, input_realtime_priority=inputs)
+        with pytest.raises(ValidationError, match="io_realtime_priority"):
+            GatewayConfig(loop_realtime_priority=loop, io_realtime_priority=inputs)
 
 
 class _Payload:
@@ -138,12 +138,28 @@ def _thread_priorities(pid: int) -> list[tuple[int, int]]:
 @pytest.mark.e2e
 @pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
 def test_running_gateway_has_its_loop_and_receiving_threads_under_fifo(tmp_path: Path) -> None:
-    """The shipped cell: the loop at priority 10, the threads that received inputs at 5, every other at normal."""
+    """The shipped cell: the loop at priority 10, the threads that received inputs and the HTTP feed thread at 5,
+    every other at normal."""
     with running_cell(tmp_path) as cell:
         cell.wait_until(lambda s: s["delta"] > 0.0, 60.0, "the robot moving (inputs received)")
         priorities = _thread_priorities(cell.gateway.pid)
     fifo = sorted(p for policy, p in priorities if policy == os.SCHED_FIFO)
     assert fifo.count(10) == 1, priorities
-    assert fifo.count(5) >= 1, priorities
+    assert fifo.count(5) >= 2, priorities  # the HTTP feed thread and the receiving threads
     assert set(fifo) == {5, 10}, priorities
     assert any(policy == os.SCHED_OTHER for policy, _ in priorities), priorities
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_the_http_feed_thread_runs_under_fifo_when_asked(cell_config: CellConfig) -> None:
+    for priority, policy in ((3, os.SCHED_FIFO), (0, os.SCHED_OTHER)):
+        http = HttpServerProcess("127.0.0.1", free_port(), effective_config(cell_config), None, priority)
+        try:
+            native_id = http._writer.native_id
+            assert native_id is not None
+            deadline = time.monotonic() + 10.0
+            while os.sched_getscheduler(native_id) != policy and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert (os.sched_getscheduler(native_id), os.sched_getparam(native_id).sched_priority) == (policy, priority)
+        finally:
+            http.close()

@@ -6,6 +6,7 @@ and the tick schedule is checked by its arithmetic, not by the clock.
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import threading
@@ -13,7 +14,7 @@ import time
 
 import pytest
 
-from hrc_common.service import RateLoop, StopEvent, stop_on_signals
+from hrc_common.service import RateLoop, StopEvent, logging_through_a_queue, stop_on_signals
 
 LONG_S = 30.0  # a period no test waits for: returning at all proves the wait was cut short
 
@@ -211,3 +212,38 @@ def test_no_event_cycle_when_the_tick_is_due_within_a_recent_cycles_length() -> 
     assert rate.sleep(stop, wake)
     assert not rate.last_was_event
     assert rate.wakes_served_by_tick == 1
+
+
+class _Collect(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: list[tuple[str, int, int]] = []  # message, policy and priority of the writing thread
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append((record.getMessage(), os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+
+def _may_use_fifo() -> bool:
+    return hasattr(os, "SCHED_FIFO") and os.geteuid() == 0
+
+
+@pytest.mark.parametrize("priority", [0, pytest.param(2, marks=pytest.mark.skipif(not _may_use_fifo(), reason="root"))])
+def test_logging_through_a_queue_writes_every_record_on_its_own_thread(priority: int) -> None:
+    root = logging.getLogger()
+    collect = _Collect()
+    before = root.handlers[:]
+    root.handlers = [collect]
+    try:
+        with logging_through_a_queue(priority):
+            assert root.handlers != [collect]  # the caller's records go into the queue
+            logging.getLogger("hrc.test").warning("one %d", 1)
+            other = threading.Thread(target=lambda: logging.getLogger("hrc.test").warning("two"))
+            other.start()
+            other.join()
+        assert root.handlers == [collect]  # put back
+    finally:
+        root.handlers = before
+    messages = [m for m, _, _ in collect.lines if not m.startswith("the log writer thread")]
+    assert sorted(messages) == ["one 1", "two"]  # every record written by the time the block ends
+    policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
+    assert all((p, prio) == (policy, priority) for m, p, prio in collect.lines if m in messages)

@@ -23,6 +23,7 @@ import dataclasses
 import json
 import math
 import multiprocessing
+import signal
 import sys
 import time
 from collections.abc import Callable, Generator
@@ -404,8 +405,8 @@ def run_sweep(
 ) -> tuple[SweepSummary, list[CaseResult]]:
     """Run a sweep and sum it up; results sorted by case number.
 
-    Ctrl-C (KeyboardInterrupt) after some cases ends the sweep there: the summary covers the cases done and says
-    ``interrupted`` (a long sweep on a shared machine still gives its figure).
+    Ctrl-C (KeyboardInterrupt; the command maps SIGTERM to it too) after some cases ends the sweep there: the
+    summary covers the cases done and says ``interrupted`` (a long sweep on a shared machine still gives its figure).
     """
     human_speed_mps = variant.apply(load_cell_config(config_path)).safety.human_speed_mps
     started_s = time.perf_counter()
@@ -518,6 +519,10 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
         Path(args.json).write_text(json.dumps(doc, indent=1))
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def cli(argv: list[str] | None = None) -> None:
     parser = _parser()
     args = parser.parse_args(argv)
@@ -533,9 +538,13 @@ def cli(argv: list[str] | None = None) -> None:
         print(f"hrc-sweep: invalid configuration: {reason}", file=sys.stderr)
         sys.exit(2)
     progress = _progress_printer(args.scenarios, args.quiet)
-    summary, results = run_sweep(
-        args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress
-    )
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends the sweep like Ctrl-C: table of the cases done
+    try:
+        summary, results = run_sweep(
+            args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress
+        )
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     _report(args, variant, summary, results)
     sys.exit(exit_code(summary))
 

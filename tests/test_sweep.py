@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import re
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -145,6 +148,30 @@ def test_ctrl_c_ends_the_sweep_with_the_cases_done() -> None:
     assert summary.scenarios == 2
     assert summary.interrupted
     assert exit_code(summary) == 130
+
+
+def test_sigterm_ends_the_command_with_the_table_of_the_cases_done(tmp_path: Path) -> None:
+    """The real command, stopped by SIGTERM after two cases: prints the table of those, writes the JSON, exits 130."""
+    out = tmp_path / "sweep.json"
+    argv = ["--scenarios", "500", "--workers", "1", "--duration-s", "1", "--seed", "3", "--json", str(out)]
+    with subprocess.Popen(
+        [sys.executable, "-m", "sim.sweep", *argv],
+        cwd=REPO_ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as proc:
+        assert proc.stderr is not None
+        for line in proc.stderr:  # progress lines; ends at EOF if the command dies
+            if line.startswith("[2/500]"):
+                proc.send_signal(signal.SIGTERM)
+                break
+        stdout, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stdout
+    assert "INTERRUPTED" in stdout
+    doc = json.loads(out.read_text())
+    assert doc["summary"]["interrupted"]
+    assert 2 <= doc["summary"]["scenarios"] < 500
 
 
 def test_cell_variant(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -276,12 +276,14 @@ def iter_sweep(
     duration_s: float,
     config_path: str | None = None,
     variant: CellVariant = CellVariant(),
+    first_case: int = 0,
 ) -> Generator[CaseResult, None, None]:
-    """Run the cases ``0 .. scenarios-1`` of sweep ``seed``; yields results as they finish (any order).
+    """Run the cases ``first_case .. first_case + scenarios - 1`` of sweep ``seed``; yields results as they finish
+    (any order). A case's scenario depends only on ``seed`` and its number, so a sweep can be run in parts.
 
     With ``workers`` = 1 everything runs in this process; otherwise in a pool of ``spawn`` processes.
     """
-    tasks = [(seed, index, duration_s) for index in range(scenarios)]
+    tasks = [(seed, index, duration_s) for index in range(first_case, first_case + scenarios)]
     if workers <= 1:
         _init_worker(config_path, variant)
         for task in tasks:
@@ -388,7 +390,10 @@ def format_table(summary: SweepSummary, workers: int) -> str:
         *_group_rows("within K", summary.within_k),
         *_group_rows("faster than K (no guarantee)", summary.beyond_k),
         ("simulated time [s]", f"{summary.simulated_s:.0f}"),
-        ("wall time [s]", f"{summary.wall_s:.1f} ({workers} workers, {speed:.1f}x real time)"),
+        (
+            "wall time [s]",
+            f"{summary.wall_s:.1f} ({f'{workers} workers' if workers else 'sum of the parts'}, {speed:.1f}x real time)",
+        ),
     ]
     width = max(len(name) for name, _ in rows)
     return "\n".join(f"{name:<{width}}  {value}" for name, value in rows)
@@ -402,6 +407,7 @@ def run_sweep(
     config_path: str | None = None,
     variant: CellVariant = CellVariant(),
     progress: Callable[[int, CaseResult], None] | None = None,
+    first_case: int = 0,
 ) -> tuple[SweepSummary, list[CaseResult]]:
     """Run a sweep and sum it up; results sorted by case number.
 
@@ -411,7 +417,7 @@ def run_sweep(
     human_speed_mps = variant.apply(load_cell_config(config_path)).safety.human_speed_mps
     started_s = time.perf_counter()
     results: list[CaseResult] = []
-    cases = iter_sweep(scenarios, seed, workers, duration_s, config_path, variant)
+    cases = iter_sweep(scenarios, seed, workers, duration_s, config_path, variant, first_case)
     interrupted = False
     try:
         for result in cases:
@@ -463,6 +469,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--method", default=None, help="safety.method of the gateway, if not the cell's")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    parser.add_argument(
+        "--first-case",
+        type=int,
+        default=0,
+        help="run cases N .. N + scenarios - 1 (continue a sweep that was interrupted; see --merge)",
+    )
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        default=None,
+        metavar="JSON",
+        help="run nothing: the table of the cases of these --json files together (same seed, duration and variant)",
+    )
     return parser
 
 
@@ -523,9 +542,42 @@ def _interrupt(signum: int, frame: object) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+def merge_sweeps(docs: list[dict[str, Any]]) -> tuple[SweepSummary, list[CaseResult]]:
+    """The summary of the cases of several sweep JSON documents (``--json``) together.
+
+    Raises:
+        ValueError: they differ in seed, case duration or variant, or hold a case twice.
+    """
+    setups = {json.dumps([d["sweep"]["seed"], d["sweep"]["duration_s"], d["variant"]], sort_keys=True) for d in docs}
+    if len(setups) != 1:
+        raise ValueError("the sweeps differ in seed, case duration or variant; only parts of one sweep can be merged")
+    results = sorted((CaseResult(**case) for d in docs for case in d["cases"]), key=lambda r: r.index)
+    indices = [r.index for r in results]
+    if len(set(indices)) != len(indices):
+        raise ValueError("a case is in more than one file")
+    human_speed_mps = docs[0]["summary"].get("human_speed_mps", math.nan)
+    return summarize(results, sum(d["summary"]["wall_s"] for d in docs), human_speed_mps), results
+
+
+def _merge_cli(paths: list[str]) -> None:
+    try:
+        summary, results = merge_sweeps([json.loads(Path(p).read_text()) for p in paths])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"hrc-sweep: cannot merge {', '.join(paths)}: {exc}", file=sys.stderr)
+        sys.exit(2)
+    indices = [r.index for r in results]
+    print(f"merged {len(paths)} sweep file(s): cases {min(indices)}..{max(indices)}, {len(indices)} in all")
+    print(format_table(summary, 0))
+    sys.exit(exit_code(summary))
+
+
 def cli(argv: list[str] | None = None) -> None:
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.merge:
+        _merge_cli(args.merge)
+    if args.first_case < 0:
+        parser.error("--first-case must be >= 0")
     if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
         parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
     variant = CellVariant(
@@ -541,7 +593,7 @@ def cli(argv: list[str] | None = None) -> None:
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends the sweep like Ctrl-C: table of the cases done
     try:
         summary, results = run_sweep(
-            args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress
+            args.scenarios, args.seed, args.workers, args.duration_s, args.config, variant, progress, args.first_case
         )
     finally:
         signal.signal(signal.SIGTERM, previous)

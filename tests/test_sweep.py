@@ -8,12 +8,23 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from hrc_common.config import REPO_ROOT, UNSAFE_ENV_VAR, CellConfig, ConfigError
 from hrc_common.robot_model import load_robot_model
-from sim.sweep import CaseResult, CellVariant, cli, exit_code, format_table, run_case, run_sweep, summarize
+from sim.sweep import (
+    CaseResult,
+    CellVariant,
+    cli,
+    exit_code,
+    format_table,
+    merge_sweeps,
+    run_case,
+    run_sweep,
+    summarize,
+)
 
 MEASURED_MODEL = REPO_ROOT / "configs" / "robots" / "ur5_measured.toml"
 
@@ -200,3 +211,39 @@ def test_command_refuses_a_missing_robot_model(capsys: pytest.CaptureFixture[str
         cli(["--scenarios", "1", "--workers", "1", "--robot-model", "configs/robots/nope.toml", "--quiet"])
     assert exit_info.value.code == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def _sweep_json(tmp_path: Path, name: str, *args: str) -> dict[str, Any]:
+    out = tmp_path / name
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["--workers", "1", "--duration-s", "0.5", "--seed", "3", "--json", str(out), "--quiet", *args])
+    assert exit_info.value.code == 0
+    doc: dict[str, Any] = json.loads(out.read_text())
+    return doc
+
+
+def test_a_sweep_run_in_parts_merges_to_the_whole(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    whole = _sweep_json(tmp_path, "whole.json", "--scenarios", "3")
+    first = _sweep_json(tmp_path, "first.json", "--scenarios", "1")
+    rest = _sweep_json(tmp_path, "rest.json", "--scenarios", "2", "--first-case", "1")
+    assert [c["index"] for c in rest["cases"]] == [1, 2]
+    summary, results = merge_sweeps([first, rest])
+    assert [r.index for r in results] == [0, 1, 2]
+    for merged, alone in zip(results, whole["cases"], strict=True):  # a case depends only on the seed and its number
+        assert (merged.seed, merged.mean_delta, merged.smallest_margin_m) == (
+            alone["seed"],
+            alone["mean_delta"],
+            alone["smallest_margin_m"],
+        )
+    assert summary.scenarios == whole["summary"]["scenarios"] == 3
+    assert summary.mean_delta == pytest.approx(whole["summary"]["mean_delta"])
+    with pytest.raises(ValueError, match="more than one file"):
+        merge_sweeps([first, whole])
+    other_seed = _sweep_json(tmp_path, "other.json", "--scenarios", "1", "--first-case", "5", "--seed", "4")
+    with pytest.raises(ValueError, match="differ"):
+        merge_sweeps([first, other_seed])
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_info:
+        cli(["--merge", str(tmp_path / "first.json"), str(tmp_path / "rest.json")])
+    assert exit_info.value.code == 0
+    assert "cases 0..2, 3 in all" in capsys.readouterr().out

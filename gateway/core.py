@@ -192,11 +192,8 @@ class SafetyCore:
             topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
             age = age_s(frame, now_mono_ns)
             ages[topic] = age
-            if frame is None or age is None or age > max_age_s:  # no data yet counts as data at the limit
-                oldest_s = max(oldest_s, max_age_s if age is None else age)
-                faults += tracker_faults(tracker, frame, age, max_age_s)
-            elif age > oldest_s:
-                oldest_s = age
+            oldest_s = max(oldest_s, max_age_s if age is None else age)  # no data yet counts as data at the limit
+            faults += tracker_faults(tracker, frame, age, max_age_s)
             if topic in inputs.faults:
                 faults.append(inputs.faults[topic])
             if frame is not None:
@@ -235,8 +232,7 @@ class SafetyCore:
         joint_age = age_s(joint, now.mono_ns)
         path = inputs.override_path[state.name]
         faults = list(humans.faults)
-        if joint is None or joint_age is None or joint_age > max_age_s:
-            faults += joint_faults(state.name, joint, joint_age, max_age_s)
+        faults += joint_faults(state.name, joint, joint_age, max_age_s)
         if state.topic in inputs.faults:
             faults.append(inputs.faults[state.topic])
         faults += override_path_faults(path, now.mono_ns, max_age_s)

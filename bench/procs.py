@@ -34,7 +34,7 @@ import httpx
 import zenoh
 
 from hrc_common import keys
-from hrc_common.config import REPO_ROOT, CellConfig, ConfigError, load_cell_config
+from hrc_common.config import REPO_ROOT, UNSAFE_ENV_VAR, CellConfig, ConfigError, load_cell_config
 from hrc_common.errors import HrcError
 from hrc_common.status_models import GatewayStatus, RobotStatusResponse
 from hrc_common.zenoh_session import PLAIN_TCP_ENV_VAR, session_config
@@ -166,6 +166,21 @@ def with_gateway_rate(
 
 
 # -- programs -------------------------------------------------------------------------------------
+
+
+@contextmanager
+def unsafe_test_settings(*settings: str) -> Iterator[None]:
+    """Within the block, this process and the programs it starts accept the named test-only settings (they are
+    refused unless ``HRC_ALLOW_UNSAFE`` names them); the environment is restored after."""
+    before = os.environ.get(UNSAFE_ENV_VAR)
+    os.environ[UNSAFE_ENV_VAR] = ",".join(filter(None, (before, *settings)))
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[UNSAFE_ENV_VAR]
+        else:
+            os.environ[UNSAFE_ENV_VAR] = before
 
 
 def program_env(plain_tcp: bool = True) -> dict[str, str]:

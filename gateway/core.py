@@ -23,6 +23,7 @@ from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
 from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.metric import decision_clearance_m
+from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
@@ -75,11 +76,19 @@ class RobotDecision(NamedTuple):
     links: LinkEnds | None = None
 
 
+class TrackReset(NamedTuple):
+    """An operator's reset, judged at the door (``GatewayNode``): release the lost track ``track`` (``*``: all)."""
+
+    track: str
+    operator: str
+
+
 class HumansView(NamedTuple):
     """What every robot's decision shares in one cycle: the merged capsules, their age and the shared faults.
 
     Attributes:
-        capsules: all trackers' capsules merged.
+        capsules: every person the decision must keep clear of: the capsules of every tracker's newest frame
+            (the seen tracks) and of every lost track, radii grown by its reach.
         columns: ``capsules`` as the compiled rows take them.
         age_s: the oldest tracker's data age (a tracker without data counts at the age limit) [s].
         ages_s: per tracker topic, its data age (None without data) [s].
@@ -176,17 +185,52 @@ class SafetyCore:
             capsule_columns(NO_HUMANS),
         )
         self._tracker_topics = {tracker: f"tracker/{tracker}" for tracker in config.trackers}
+        self.tracks = TrackSet(config)
+        self.capsules: HumanCapsules = NO_HUMANS
+        """The people the latest step kept clear of: seen and lost (grown) capsules."""
+        self.track_events: list[TrackEvent] = []
+        """The tracks' changes of the latest step (lost, released), for the event log."""
 
-    def step(self, inputs: InputSnapshot, now: Clocks, gateway_period_s: float) -> dict[str, RobotDecision]:
-        """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s]."""
-        humans = self._humans_view(inputs, now.mono_ns)
+    def step(
+        self,
+        inputs: InputSnapshot,
+        now: Clocks,
+        gateway_period_s: float,
+        resets: tuple[TrackReset, ...] = (),
+    ) -> dict[str, RobotDecision]:
+        """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s];
+        ``resets``: operators' resets of lost tracks received since the previous step."""
+        humans = self._humans_view(inputs, now.mono_ns, resets)
+        self.capsules = humans.capsules
         return {name: self._decide(state, inputs, now, humans, gateway_period_s) for name, state in self.states.items()}
 
-    def _humans_view(self, inputs: InputSnapshot, now_mono_ns: int) -> HumansView:
+    def track_records(self) -> tuple[TrackRecord, ...]:
+        """Every track (seen, lost, recently released), for the status."""
+        return self.tracks.records()
+
+    def _humans_view(self, inputs: InputSnapshot, now_mono_ns: int, resets: tuple[TrackReset, ...] = ()) -> HumansView:
         max_age_s = self.config.safety.max_data_age_s
         faults: list[Fault] = [] if inputs.clock_fault is None else [inputs.clock_fault]
         ages: dict[str, float | None] = {}
         frames: list[HumanCapsules] = []
+        events = self.tracks.update(
+            {
+                tracker: None if frame is None else (frame, frame.capsules, frame.received_mono_ns - frame.transit_ns)
+                for tracker, frame in inputs.humans.items()
+            },
+            now_mono_ns,
+        )
+        for reset in resets:
+            events += self.tracks.reset(reset.track, reset.operator, now_mono_ns)
+        self.track_events = events
+        if self.tracks.overflow:
+            faults.append(
+                Fault(
+                    "tracks_overflow",
+                    f"{len(self.tracks.live)} people tracked (seen or lost), more than {MAX_LIVE_TRACKS}: "
+                    "a tracker reports more people than a cell can hold",
+                )
+            )
         oldest_s = -1.0
         for tracker, frame in inputs.humans.items():
             topic = self._tracker_topics.get(tracker) or self._tracker_topics.setdefault(tracker, f"tracker/{tracker}")
@@ -199,6 +243,10 @@ class SafetyCore:
             if frame is not None:
                 frames.append(frame.capsules)
         capsules, columns = self._merge(tuple(frames))
+        lost = self.tracks.lost_capsules(now_mono_ns)
+        if lost.n_capsules:  # grows every cycle: merged and compiled anew while anyone is lost
+            capsules = merge_humans([capsules, lost])
+            columns = capsule_columns(capsules)
         return HumansView(capsules, columns, max_age_s if oldest_s < 0.0 else oldest_s, ages, tuple(faults))
 
     def _merge(self, frames: tuple[HumanCapsules, ...]) -> tuple[HumanCapsules, npt.NDArray[np.float64]]:

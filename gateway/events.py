@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from gateway.core import Fault, RobotDecision
+from gateway.tracks import TrackEvent
 from gateway.zones import Zone
 from hrc_common.status_models import Event, EventKind
 
@@ -75,14 +76,24 @@ class EventLog:
         """The gateway stops (``why``: e.g. ``"signal"``)."""
         return [self._event(stamp_ns, "stop", f"gateway stopped: {why}")]
 
-    def observe(self, mono_ns: int, stamp_ns: int, decisions: Mapping[str, RobotDecision]) -> list[Event]:
+    def observe(
+        self,
+        mono_ns: int,
+        stamp_ns: int,
+        decisions: Mapping[str, RobotDecision],
+        track_events: Sequence[TrackEvent] = (),
+    ) -> list[Event]:
         """The events of one cycle's decisions (usually none).
 
         Args:
             mono_ns: the cycle's monotonic time, for the zone hold [ns].
             stamp_ns: the wall-clock time written in the events [ns since the Unix epoch].
+            track_events: the cycle's track changes (a person lost, released and by what): logged at once.
         """
-        events: list[Event] = []
+        events: list[Event] = [
+            self._event(stamp_ns, e.kind, e.message, track=e.track, cause=e.cause)  # type: ignore[arg-type]
+            for e in track_events
+        ]
         for name, decision in decisions.items():
             robot = self._robots.get(name)
             if robot is None:

@@ -16,13 +16,23 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple, Protocol
 
-from gateway.core import RobotDecision, SafetyCore
+from gateway.core import RobotDecision, SafetyCore, TrackReset
+from gateway.delay import NS_PER_S
 from gateway.inputs import InputSnapshot, InputStore
+from gateway.tracks import TrackEvent, TrackRecord
 from hrc_common import keys
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
-from hrc_common.messages import Override
+from hrc_common.humans import NO_HUMANS, HumanCapsules
+from hrc_common.messages import MessageError, Override, parse_message
+from hrc_common.messages import TrackReset as TrackResetMessage
 from hrc_common.robot_model import RobotModel
+
+RESET_TOPIC = "operator/track_reset"
+"""The counters' topic of the operators' resets."""
+RESET_MAX_AGE_S = 2.0
+"""A reset stamped longer ago than this is refused (``stale``): a recorded reset replayed later must not release
+people the operator never checked [s]."""
 
 
 class GatewayCycle(NamedTuple):
@@ -33,12 +43,20 @@ class GatewayCycle(NamedTuple):
         decisions: per robot, the decision (what the status shows).
         overrides: per robot, the message to publish on ``hrc/<cell>/robot/<robot>/override``.
         inputs: the snapshot the decisions were made from.
+        track_events: the tracks' changes this cycle (lost, released), in order.
+        tracks: every track after this cycle (seen, lost, recently released).
+        now: the decision time on both clocks.
+        capsules: the people the decisions kept clear of: every seen capsule and every lost track's, grown.
     """
 
     seq: int
     decisions: dict[str, RobotDecision]
     overrides: dict[str, Override]
     inputs: InputSnapshot
+    track_events: tuple[TrackEvent, ...] = ()
+    tracks: tuple[TrackRecord, ...] = ()
+    now: Clocks | None = None
+    capsules: HumanCapsules = NO_HUMANS
 
 
 class NodeRecorder(Protocol):
@@ -82,6 +100,12 @@ class GatewayNode:
         self.core = SafetyCore(config, self.robots)
         self.inputs = InputStore(config, self.robots, on_tracker_change)
         self.seq = 0
+        self._resets: list[TrackReset] = []
+        self._reset_stamp_ns = -1
+        self._reset_lock = threading.Lock()
+        self.reset_counters: Counter[str] = Counter()
+        """Operators' resets: ``accepted`` and refused by reason (parse reasons, ``stamp_in_future``, ``stale``,
+        ``stamp_backwards``)."""
         self._recorder = recorder
         self._order: contextlib.AbstractContextManager[Any] = (
             contextlib.nullcontext() if recorder is None else threading.Lock()
@@ -97,6 +121,45 @@ class GatewayNode:
         """A payload on ``hrc/<cell>/tracker/<tracker>/humans`` arrived at ``received``."""
         self.inputs.on_humans(key, payload, received)
 
+    def on_track_reset(self, payload: bytes, received: Clocks) -> None:
+        """An operator's reset of a lost person (``hrc/<cell>/operator/track_reset``): judged, queued for the next
+        cycle, counted. Only the ``operator`` certificate may put it (access control); here it must also be fresh
+        and newer than the last one accepted (a replayed reset is refused)."""
+        try:
+            msg = parse_message(payload, TrackResetMessage)
+        except MessageError as exc:
+            self._count_reset(exc.reason)
+            return
+        max_future_ns = round(self.config.streams.max_future_stamp_s * NS_PER_S)
+        if msg.stamp_ns > received.wall_ns + max_future_ns:
+            self._count_reset("stamp_in_future")
+        elif msg.stamp_ns < received.wall_ns - round(RESET_MAX_AGE_S * NS_PER_S):
+            self._count_reset("stale")
+        else:
+            with self._reset_lock:
+                if msg.stamp_ns <= self._reset_stamp_ns:
+                    self.reset_counters["stamp_backwards"] += 1
+                    return
+                self._reset_stamp_ns = msg.stamp_ns
+                self._resets.append(TrackReset(msg.track, msg.operator))
+                self.reset_counters["accepted"] += 1
+
+    def _count_reset(self, reason: str) -> None:
+        with self._reset_lock:
+            self.reset_counters[reason] += 1
+
+    def counters(self) -> tuple[dict[str, dict[str, int]], dict[str, int]]:
+        """Rejections per topic and reason, and valid messages per topic (the inputs' and the operators' resets)."""
+        rejected, received = self.inputs.counters()
+        with self._reset_lock:
+            refused = {reason: n for reason, n in self.reset_counters.items() if reason != "accepted"}
+            accepted = self.reset_counters["accepted"]
+        if refused:
+            rejected[RESET_TOPIC] = refused
+        if accepted:
+            received[RESET_TOPIC] = accepted
+        return rejected, received
+
     def on_message(self, key: str, payload: bytes, received: Clocks) -> None:
         """A payload on either input key (routed by the key)."""
         with self._order:
@@ -104,6 +167,8 @@ class GatewayNode:
                 self._recorder.on_input(key, payload, received)
             if keys.name_from_key(key, "tracker") is not None:
                 self.on_humans(key, payload, received)
+            elif key.endswith("/" + RESET_TOPIC):
+                self.on_track_reset(payload, received)
             else:
                 self.on_joint_state(key, payload, received)
 
@@ -126,13 +191,24 @@ class GatewayNode:
         """
         with self._order:
             snapshot = self.inputs.snapshot(now)
-            decisions = self.core.step(snapshot, now, period_s)
+            with self._reset_lock:
+                resets, self._resets = tuple(self._resets), []
+            decisions = self.core.step(snapshot, now, period_s, resets)
             self.seq += 1
             overrides = {}
             for name, decision in decisions.items():
                 overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
                 self.inputs.on_override_sent(name, self.seq, decision.delta, now)
-            cycle = GatewayCycle(self.seq, decisions, overrides, snapshot)
+            cycle = GatewayCycle(
+                self.seq,
+                decisions,
+                overrides,
+                snapshot,
+                tuple(self.core.track_events),
+                self.core.track_records(),
+                now,
+                self.core.capsules,
+            )
             if self._recorder is not None:
                 self._recorder.on_cycle(now, period_s, cycle)
         return cycle
@@ -141,14 +217,3 @@ class GatewayNode:
         """δ = 0 for every robot: the last word on shutdown (their watchdogs would stop them anyway)."""
         self.seq += 1
         return {name: Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=0.0) for name in self.robots}
-
-
-def humans_summary(inputs: InputSnapshot) -> list[dict[str, Any]]:
-    """The status's ``humans``: each human seen, by tracker, with its capsule count."""
-    humans: list[dict[str, Any]] = []
-    for tracker, frame in inputs.humans.items():
-        if frame is None:
-            continue
-        for human_id, count in Counter(frame.capsules.human_ids).items():
-            humans.append({"id": human_id, "tracker": tracker, "capsules": count})
-    return humans

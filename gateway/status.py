@@ -10,6 +10,7 @@ is not finite (absurd input) is shown as null where the model allows it.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -19,7 +20,11 @@ from pydantic import TypeAdapter
 
 from gateway.core import RobotDecision
 from gateway.inputs import InputSnapshot
+from gateway.node import GatewayCycle
+from gateway.tracks import NS_PER_S, TrackRecord, TrackState, reach_speed_mps
 from hrc_common.config import CellConfig
+from hrc_common.humans import HumanCapsules
+from hrc_common.robot_model import RobotModel
 from hrc_common.service import RateLoop
 from hrc_common.status_models import (
     CapsuleStatus,
@@ -31,6 +36,7 @@ from hrc_common.status_models import (
     InputCounters,
     LoopStatus,
     RobotStatus,
+    TrackStatus,
 )
 
 DIGITS = 4
@@ -92,24 +98,55 @@ def link_capsules(
     return _LINK_CAPSULES.validate_python(_link_entries(decision, link_names, link_radius_m))
 
 
-def human_capsules(inputs: InputSnapshot) -> list[HumanCapsuleStatus]:
-    """The capsules of every tracker's newest valid frame (world frame), for the status's ``human_capsules``."""
-    frames = [frame.capsules for frame in inputs.humans.values() if frame is not None and frame.capsules.n_capsules]
-    if not frames:
+def human_capsules(capsules: HumanCapsules) -> list[HumanCapsuleStatus]:
+    """The people a decision kept clear of (world frame): every seen capsule and every lost track's, its radius
+    grown by the track's reach; for the status's ``human_capsules``."""
+    if not capsules.n_capsules:
         return []
-    rows = _capsule_rows(
-        np.concatenate([c.h_a_world for c in frames]),
-        np.concatenate([c.h_b_world for c in frames]),
-        np.concatenate([c.radius_m for c in frames]),
-    )
-    humans = [human for c in frames for human in c.human_ids]
-    names = [name for c in frames for name in c.capsule_names]
+    rows = _capsule_rows(capsules.h_a_world, capsules.h_b_world, capsules.radius_m)
     return _HUMAN_CAPSULES.validate_python(
         [
             {"human": human, "name": name, "a_m": row[0:3], "b_m": row[3:6], "radius_m": row[6]}
-            for human, name, row in zip(humans, names, rows, strict=True)
+            for human, name, row in zip(capsules.human_ids, capsules.capsule_names, rows, strict=True)
         ]
     )
+
+
+def track_entries(
+    records: Sequence[TrackRecord],
+    decisions: Mapping[str, RobotDecision],
+    now_mono_ns: int,
+    reach_speed_mps: float,
+) -> list[dict[str, Any]]:
+    """The status's ``tracks``: each track's state, age, reach, which robots it holds and what to do."""
+    holding: dict[str, list[str]] = {}
+    for name, decision in decisions.items():
+        if decision.closest is not None and decision.delta < 1.0:
+            holding.setdefault(decision.closest.human, []).append(name)
+    entries = []
+    for r in records:
+        age_s = max(0, now_mono_ns - r.last_seen_mono_ns) / NS_PER_S
+        lost = r.state is TrackState.LOST
+        holds = holding.get(r.human, []) if r.state is not TrackState.RELEASED else []
+        action = None
+        if lost:
+            where = f" (holds {', '.join(holds)})" if holds else ""
+            action = f"person {r.label} lost {age_s:.1f} s ago{where}: clear the area and reset"
+        entries.append(
+            {
+                "label": r.label,
+                "tracker": r.tracker,
+                "human": r.human,
+                "state": r.state.value,
+                "last_seen_age_s": _rounded(age_s),
+                "reach_m": _rounded(reach_speed_mps * age_s) if lost else 0.0,
+                "capsules": r.capsules,
+                "holds": holds,
+                "released_by": r.released_by,
+                "action": action,
+            }
+        )
+    return entries
 
 
 def robot_status(
@@ -171,12 +208,14 @@ def status_document(
     received: dict[str, int],
     loop: LoopStatus,
     capsules: Sequence[HumanCapsuleStatus] = (),
+    tracks: Sequence[TrackStatus | Mapping[str, Any]] = (),
 ) -> GatewayStatus:
     """The whole document; serialise it with ``doc.model_dump_json()`` (the same bytes on Zenoh and HTTP).
 
     Args:
         humans: :class:`HumanSeen` entries, or their fields as mappings (validated here).
         capsules: the humans' capsules (:func:`human_capsules`).
+        tracks: :class:`TrackStatus` entries, or their fields (:func:`track_entries`).
     """
     return GatewayStatus(
         cell=cell,
@@ -185,8 +224,59 @@ def status_document(
         humans=list(humans),
         inputs=InputCounters(received=received, rejected=rejected),
         loop=loop,
+        tracks=list(tracks),
         human_capsules=list(capsules),
     )
+
+
+def cycle_status(
+    config: CellConfig,
+    cycle: GatewayCycle,
+    robots: Mapping[str, RobotModel],
+    counters: tuple[dict[str, dict[str, int]], dict[str, int]],
+    loop: LoopStatus,
+    stamp_ns: int,
+) -> GatewayStatus:
+    """The status document of one cycle (what the loop publishes at ``gateway.status_rate_hz``).
+
+    Args:
+        cycle: the cycle it shows.
+        robots: the robots' models (link names and radii).
+        counters: ``(rejected, received)`` of the input store (:meth:`gateway.inputs.InputStore.counters`).
+        loop: the loop's own timing (:func:`loop_status`).
+        stamp_ns: when the document is built [ns since the epoch].
+    """
+    rejected, received = counters
+    return status_document(
+        config.cell,
+        stamp_ns,
+        {
+            name: robot_status(d, cycle.seq, robots[name].link_names, robots[name].link_radius_m)
+            for name, d in cycle.decisions.items()
+        },
+        humans_summary(cycle.inputs),
+        rejected,
+        received,
+        loop,
+        human_capsules(cycle.capsules),
+        track_entries(
+            cycle.tracks,
+            cycle.decisions,
+            cycle.now.mono_ns if cycle.now is not None else 0,
+            reach_speed_mps(config),
+        ),
+    )
+
+
+def humans_summary(inputs: InputSnapshot) -> list[dict[str, Any]]:
+    """The status's ``humans``: each human seen, by tracker, with its capsule count."""
+    humans: list[dict[str, Any]] = []
+    for tracker, frame in inputs.humans.items():
+        if frame is None:
+            continue
+        for human_id, count in Counter(frame.capsules.human_ids).items():
+            humans.append({"id": human_id, "tracker": tracker, "capsules": count})
+    return humans
 
 
 def loop_status(rate: RateLoop, compute_max_s: float, event_driven: bool, event_seqs: list[int]) -> LoopStatus:
@@ -228,6 +318,7 @@ def effective_config(config: CellConfig) -> EffectiveConfig:
         gateway=config.gateway,
         plausibility=config.plausibility,
         streams=config.streams,
+        tracking=config.tracking,
         robots={
             name: EffectiveRobot(
                 urdf=robot.model.urdf,

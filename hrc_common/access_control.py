@@ -34,6 +34,8 @@ FORWARDERS = ("gateway", "router", "relay")
 ``hrc-fault-relay``."""
 TRACKER_EMULATOR = "tracker-emu"
 AUDITOR = "observer-audit"
+OPERATOR = "operator"
+"""The operator station's CN: may put only the reset of a lost person (``hrc.track_reset/1``)."""
 RECORDER = "recorder"
 """``hrc-record``'s CN: a member with no grant, so it reads every topic of the cell and may put on none."""
 
@@ -116,7 +118,8 @@ def grants(policy: CellPolicy) -> tuple[Grant, ...]:
         (*(keys.tracker_humans(cell, t) for t in policy.trackers), keys.truth_humans(cell)),
         (keys.alive(cell, TRACKER_EMULATOR),),
     )
-    own = (gateway, *controllers, *trackers, emulator)
+    operator = Grant((OPERATOR,), (keys.operator_track_reset(cell),), (keys.alive(cell, OPERATOR),))
+    own = (gateway, *controllers, *trackers, emulator, operator)
     every_put = tuple(dict.fromkeys(k for g in own for k in g.puts))
     forwarders = Grant(FORWARDERS, (*every_put, control_key(cell)), (keys.alive(cell, "*"),))
     return (*own, forwarders)

@@ -21,7 +21,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from hrc_common.config import REPO_ROOT
-from hrc_common.messages import Humans, JointState, Override
+from hrc_common.messages import Humans, JointState, Override, TrackReset
 from hrc_common.status_models import (
     EffectiveConfig,
     ErrorResponse,
@@ -45,6 +45,7 @@ MODELS: Mapping[str, type[BaseModel]] = {
     "joint_state": JointState,
     "humans": Humans,
     "override": Override,
+    "track_reset": TrackReset,
     # the status document (Zenoh hrc/<cell>/gateway/status and GET /api/v1/status)
     "gateway_status": GatewayStatus,
     # REST responses

@@ -29,6 +29,11 @@ def gateway_status(cell: str) -> str:
     return f"hrc/{cell}/gateway/status"
 
 
+def operator_track_reset(cell: str) -> str:
+    """Where the operator station puts ``hrc.track_reset/1`` (read by the gateway)."""
+    return f"hrc/{cell}/operator/track_reset"
+
+
 def truth_robot_state(cell: str, robot: str) -> str:
     """Ground truth of the controller emulator (true joint state each cycle); never read by the gateway."""
     return f"hrc/{cell}/truth/robot/{robot}/state"

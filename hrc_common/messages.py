@@ -107,6 +107,21 @@ class Override(_Message):
     delta: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 
 
+class TrackReset(_Message):
+    """An operator's reset of a lost person (docs/contract.md "Tracks"), put on ``hrc/<cell>/operator/track_reset``
+    by the operator station (certificate role ``operator``) after checking the area.
+
+    ``track`` is the label of a lost track as the status lists it (``front/h1``), or ``*`` for every lost track;
+    ``operator`` names the person who checked (logged with the reset).
+    """
+
+    schema_: Literal["hrc.track_reset/1"] = Field(alias="schema", default="hrc.track_reset/1")
+    operator: Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9 ._@-]+$")]
+    seq: Seq
+    stamp_ns: StampNs
+    track: Annotated[str, Field(min_length=1, max_length=160)]
+
+
 M = TypeVar("M", bound=BaseModel)
 
 

@@ -12,6 +12,7 @@ tracker        ``tracker-<name>``     that tracker's humans
 tracker-emu    ``tracker-emu``        every tracker's humans and the humans' ground truth
 observer       ``observer-<name>``    nothing (auditor, dashboards, tests)
 recorder       ``recorder``           nothing: subscribes to every cell topic (``hrc-record``)
+operator       ``operator``           only ``hrc/<cell>/operator/track_reset``: an operator's reset of a lost person
 router         ``router``             forwards what its own access control let in
 relay          ``relay``              forwards (fault injection); controls itself
 =============  =====================  ===========================================================
@@ -57,7 +58,7 @@ CERT_VALIDITY_DAYS = 730
 EXPIRY_WARNING_DAYS = 30
 LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
 
-Role = Literal["gateway", "controller", "tracker", "tracker-emu", "observer", "recorder", "router", "relay"]
+Role = Literal["gateway", "controller", "tracker", "tracker-emu", "observer", "recorder", "operator", "router", "relay"]
 ROLES: tuple[Role, ...] = get_args(Role)
 NAMED_ROLES: tuple[Role, ...] = ("controller", "tracker", "observer")
 """Roles whose common name carries a name: ``<role>-<name>``; the others are the role alone."""

@@ -25,6 +25,7 @@ from hrc_common.config import (
     Pose,
     SafetyConfig,
     StreamsConfig,
+    TrackingConfig,
     ZonesConfig,
 )
 
@@ -157,6 +158,37 @@ class HumanSeen(_Strict):
     capsules: Count = Field(description="Capsules of this human in that frame.")
 
 
+TrackStateName = Literal["seen", "lost", "released"]
+"""A track's state (``gateway.tracks.TrackState``; docs/contract.md "Tracks")."""
+
+
+class TrackStatus(_Strict):
+    """One person as one tracker followed them: seen, lost (never gone) or released, and by what."""
+
+    label: str = Field(description="``<tracker>/<id>``; ``#<n>`` appended when another live track has that label.")
+    tracker: str
+    human: str = Field(
+        description="The id its capsules carry in ``closest`` and ``human_capsules``: ``<tracker>/<id>`` while seen, "
+        "``<label> (lost)`` while lost."
+    )
+    state: TrackStateName
+    last_seen_age_s: NonNegative = Field(description="Time since the frame it was last seen in was captured [s].")
+    reach_m: NonNegative = Field(
+        description="Lost: how far the person may be from where last seen (K × last_seen_age_s); its capsules are "
+        "grown by this in every decision. 0 otherwise [m]."
+    )
+    capsules: Count = Field(description="Capsules of the person as last seen.")
+    holds: list[str] = Field(
+        description="Robots whose closest person this is while their δ is below 1 (who holds which robot)."
+    )
+    released_by: str | None = Field(
+        description="Released: what released it (redetected by <label>, last seen leaving, reset by an operator)."
+    )
+    action: str | None = Field(
+        description="Lost: what to do, for people (e.g. clear the area and reset); null otherwise."
+    )
+
+
 class InputCounters(_Strict):
     """Messages received per input topic (``robot/<robot>``, ``tracker/<tracker>``), since the gateway started."""
 
@@ -205,12 +237,19 @@ class GatewayStatus(_Strict):
     humans: list[HumanSeen] = Field(description="The humans of every tracker's newest valid frame.")
     inputs: InputCounters
     loop: LoopStatus
+    tracks: list[TrackStatus] = Field(
+        default_factory=list,
+        description="Every person tracked: seen, lost (kept, growing at K) and the recently released (docs/contract.md "
+        '"Tracks").',
+    )
     human_capsules: list[HumanCapsuleStatus] = Field(
         default_factory=list, description="The capsules of ``humans`` (world frame), for drawing the cell."
     )
 
 
-EventKind = Literal["start", "stop", "config_loaded", "zone_changed", "fault_raised", "fault_cleared"]
+EventKind = Literal[
+    "start", "stop", "config_loaded", "zone_changed", "fault_raised", "fault_cleared", "track_lost", "track_released"
+]
 """What an :class:`Event` records (contract, "Events")."""
 
 
@@ -227,6 +266,11 @@ class Event(_Strict):
     code: FaultCode | None = Field(default=None, description="``fault_raised`` / ``fault_cleared``: its code.")
     reason: str | None = Field(default=None, description="``fault_raised``: the fault's reason.")
     config_sha256: str | None = Field(default=None, description="``config_loaded``: hex SHA-256 of the config.")
+    track: str | None = Field(default=None, description="``track_lost`` / ``track_released``: the track's label.")
+    cause: str | None = Field(
+        default=None,
+        description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom).",
+    )
 
 
 class EventsResponse(_Strict):
@@ -268,6 +312,7 @@ class EffectiveConfig(_Strict):
     gateway: GatewayConfig
     plausibility: PlausibilityConfig
     streams: StreamsConfig
+    tracking: TrackingConfig
     robots: dict[str, EffectiveRobot]
 
 

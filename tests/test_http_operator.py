@@ -26,7 +26,6 @@ from gateway.delay import DelayBudget
 from gateway.events import EventLog
 from gateway.http_api import StatusBoard, create_app
 from gateway.http_server import EVENT_PREFIX, _feed
-from gateway.inputs import HumanFrame, InputSnapshot
 from gateway.link_ends import LinkEnds
 from gateway.status import effective_config, human_capsules, robot_status
 from gateway.zones import Zone, ZoneThresholds
@@ -84,8 +83,7 @@ def test_the_status_carries_every_human_capsule() -> None:
         ("front/h1", "front/h1"),
         ("torso", "hand_r"),
     )
-    snapshot = InputSnapshot({}, {"front": HumanFrame(1, 1, capsules, 1, 0, 0), "side": None}, {}, {})
-    drawn = human_capsules(snapshot)
+    drawn = human_capsules(capsules)
     assert [(c.human, c.name, c.b_m, c.radius_m) for c in drawn] == [
         ("front/h1", "torso", [2.0, 0.0, 1.5], 0.15),
         ("front/h1", "hand_r", [2.3, 0.2, 1.0], 0.05),

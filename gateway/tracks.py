@@ -1,0 +1,446 @@
+"""People as tracks: a person the trackers stop reporting is *lost*, never gone (docs/contract.md "Tracks").
+
+Separation monitoring rests on one assumption: people move at most at K. A person no longer reported (hidden by
+the robot or by another person, a missed detection, a tracker glitch) is somewhere within ``K · (time since last
+seen)`` of where they were last seen, so the gateway keeps them:
+
+    tracker frame ──update──▶ tracks: seen ──(not in a newer frame of its tracker)──▶ lost ──▶ released
+                                         ◀──(same id, within reach)── lost            (redetected | left | reset)
+
+- **seen**: in its tracker's newest frame; its capsules are that frame's.
+- **lost**: its last capsules, each radius grown by ``K_reach · (now − last seen)`` (K_reach: ISO 13855's close
+  range speed where configured, else K). It enters every robot's decision like a seen person.
+- **released**, only by
+  (a) *redetected*: a detection of **any** tracker, captured after the track was last seen, lies within its
+      reachable set and covers it (:func:`within_reach`, both ways, so that a partial view does not release a
+      whole person); the same id outside the reach is another person and the lost one stays;
+  (b) *left*: when lost, it was last seen within ``tracking.exit_band_m`` of a side face of the covered volume
+      (inside an exit zone where the cell declares them), moving out through that face;
+  (c) *reset*: an operator, after checking the area, released it with an authenticated command.
+  Never by a timeout.
+
+A detection outside a track's reach (a 3 m jump in one frame, an id swap) is not motion: the old track is lost where
+it was and the detection is a new track. Pure: no I/O, no clock; every time is passed in (monotonic [ns]).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from hrc_common.config import CellConfig, TrackingConfig
+from hrc_common.humans import NO_HUMANS, HumanCapsules, merge_humans
+
+FloatArray = npt.NDArray[np.float64]
+NS_PER_S = 1_000_000_000
+
+MAX_LIVE_TRACKS = 1024
+"""More seen + lost tracks than this is a fault (``tracks_overflow``, δ = 0): a hostile tracker inventing people
+must not make the gateway's memory or cycle time grow without bound."""
+RELEASED_KEPT = 32
+"""Released tracks shown in the status (the newest), for the operator to see what released whom."""
+VELOCITY_WINDOW_NS = 400_000_000
+"""A track's centre over this window gives its velocity for the exit rule [ns]."""
+VELOCITY_MIN_SPAN_NS = 60_000_000
+"""At least this span of observations is needed to call a track 'moving out' [ns]."""
+NOISE_SIGMAS = 3.0
+"""A tracker's position noise, ``noise_std_m``, counts this many times in the association margin."""
+
+
+class TrackState(StrEnum):
+    SEEN = "seen"
+    LOST = "lost"
+    RELEASED = "released"
+
+
+class ReleaseCause(StrEnum):
+    REDETECTED = "redetected"
+    LEFT = "left"
+    RESET = "reset"
+    FORGOTTEN = "forgotten_unsafe_test_only"
+
+
+class Detection(NamedTuple):
+    """One human of one tracker frame.
+
+    Attributes:
+        tracker: the tracker's name.
+        human_id: the id the tracker gave (without the tracker prefix).
+        capsules: its capsules (human ids ``<tracker>/<id>``).
+        captured_mono_ns: when the frame was captured, on the gateway's monotonic clock [ns].
+    """
+
+    tracker: str
+    human_id: str
+    capsules: HumanCapsules
+    captured_mono_ns: int
+
+
+class TrackEvent(NamedTuple):
+    """A change of a track's state, for the event log: ``kind`` is ``track_lost`` or ``track_released``."""
+
+    kind: str
+    track: str
+    message: str
+    cause: str | None = None
+
+
+class TrackRecord(NamedTuple):
+    """What the status shows of one track, without the time (the status computes ages at its decision's time).
+
+    Attributes:
+        label: ``<tracker>/<id>`` (``#<serial>`` appended when another live track has that label).
+        tracker: the tracker that saw it.
+        human: the human id its capsules carry in the decisions' closest pair: ``<tracker>/<id>`` while seen,
+            ``<label> (lost)`` while lost.
+        state: seen, lost or released.
+        last_seen_mono_ns: when it was last seen (capture time, gateway's monotonic clock) [ns].
+        capsules: its capsule count.
+        released_by: for a released track, what released it.
+    """
+
+    label: str
+    tracker: str
+    human: str
+    state: TrackState
+    last_seen_mono_ns: int
+    capsules: int
+    released_by: str | None = None
+
+
+@dataclass
+class Track:
+    """One person as one tracker followed them."""
+
+    serial: int
+    label: str
+    tracker: str
+    human_id: str
+    capsules: HumanCapsules
+    last_seen_mono_ns: int
+    state: TrackState = TrackState.SEEN
+    centres: deque[tuple[int, FloatArray]] = field(default_factory=lambda: deque(maxlen=64))
+    released_by: str | None = None
+    released_mono_ns: int = 0
+
+    def observe(self, detection: Detection) -> None:
+        self.capsules = detection.capsules
+        self.last_seen_mono_ns = detection.captured_mono_ns
+        self.state = TrackState.SEEN
+        self.centres.append((detection.captured_mono_ns, centre(detection.capsules)))
+        while self.centres and detection.captured_mono_ns - self.centres[0][0] > VELOCITY_WINDOW_NS:
+            self.centres.popleft()
+
+
+def centre(capsules: HumanCapsules) -> FloatArray:
+    """Mean of all capsule end points [m]."""
+    return np.concatenate((capsules.h_a_world, capsules.h_b_world)).mean(axis=0)  # type: ignore[no-any-return]
+
+
+def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) -> list[Detection]:
+    """A tracker frame's capsules as one detection per human (in the frame's order)."""
+    detections: list[Detection] = []
+    ids = capsules.human_ids
+    start = 0
+    prefix = len(tracker) + 1
+    for end in range(1, len(ids) + 1):
+        if end == len(ids) or ids[end] != ids[start]:
+            part = HumanCapsules(
+                capsules.h_a_world[start:end],
+                capsules.h_b_world[start:end],
+                capsules.radius_m[start:end],
+                ids[start:end],
+                capsules.capsule_names[start:end],
+            )
+            detections.append(Detection(tracker, ids[start][prefix:], part, captured_mono_ns))
+            start = end
+    return detections
+
+
+def point_segment_distances(points: FloatArray, seg_a: FloatArray, seg_b: FloatArray) -> FloatArray:
+    """Distance of every point to every segment, shape (P, S) [m]."""
+    axis = seg_b - seg_a  # (S, 3)
+    length_sq = np.einsum("ij,ij->i", axis, axis)
+    rel = points[:, None, :] - seg_a[None, :, :]  # (P, S, 3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(length_sq > 0.0, np.einsum("psk,sk->ps", rel, axis) / length_sq, 0.0)
+    t = np.clip(t, 0.0, 1.0)
+    nearest = seg_a[None, :, :] + t[:, :, None] * axis[None, :, :]
+    return np.linalg.norm(points[:, None, :] - nearest, axis=2)  # type: ignore[no-any-return]
+
+
+def inside_grown(inner: HumanCapsules, outer: HumanCapsules, grow_m: float) -> bool:
+    """Whether every end-point ball of ``inner`` lies inside ``outer``'s capsules grown by ``grow_m``.
+
+    A ball of radius ρ at p is inside a capsule (segment s, radius R) iff dist(p, s) + ρ ≤ R.
+    """
+    if inner.n_capsules == 0:
+        return True
+    if outer.n_capsules == 0:
+        return False
+    points = np.concatenate((inner.h_a_world, inner.h_b_world))
+    radii = np.concatenate((inner.radius_m, inner.radius_m))
+    slack = point_segment_distances(points, outer.h_a_world, outer.h_b_world) - outer.radius_m[None, :] - grow_m
+    return bool(((slack.min(axis=1) + radii) <= 1e-9).all())
+
+
+def within_reach(track_capsules: HumanCapsules, detection: HumanCapsules, reach_m: float) -> bool:
+    """Whether a detection can be the person of a track: each lies within the other grown by ``reach_m``.
+
+    Both ways: the detection lies in the track's reachable set (it could be them), and it covers the track (no part
+    of where they were is left unexplained: a view of the legs alone does not release a whole person).
+    """
+    return inside_grown(detection, track_capsules, reach_m) and inside_grown(track_capsules, detection, reach_m)
+
+
+def reach_speed_mps(config: CellConfig) -> float:
+    """How fast a lost person's possible positions grow: ISO 13855's close-range speed where configured, else K."""
+    safety = config.safety
+    return safety.human_speed_close_mps if safety.close_speed_below_m > 0.0 else safety.human_speed_mps
+
+
+def leaving_face(track: Track, tracking: TrackingConfig) -> str | None:
+    """The side face of the covered volume through which a track was last seen leaving, or None.
+
+    Its last centre lies within ``exit_band_m`` of the face (and in an exit zone where the cell declares them) and
+    its centre moved out through that face at ``exit_speed_min_mps`` or more over its last observations; a centre
+    already outside the covered volume counts as having left through the nearest face.
+    """
+    if len(track.centres) < 2:
+        return None
+    (t0_ns, c0), (t1_ns, c1) = track.centres[0], track.centres[-1]
+    span_ns = t1_ns - t0_ns
+    if span_ns < VELOCITY_MIN_SPAN_NS:
+        return None
+    velocity = (c1 - c0) / (span_ns / NS_PER_S)
+    if tracking.exit_zones and not any(
+        all(lo <= x <= hi for x, lo, hi in zip(c1, zone.min_m, zone.max_m, strict=True)) for zone in tracking.exit_zones
+    ):
+        return None
+    low, high = tracking.coverage_min_m, tracking.coverage_max_m
+    for axis, name in ((0, "x"), (1, "y")):
+        if c1[axis] - low[axis] <= tracking.exit_band_m and -velocity[axis] >= tracking.exit_speed_min_mps:
+            return f"-{name}"
+        if high[axis] - c1[axis] <= tracking.exit_band_m and velocity[axis] >= tracking.exit_speed_min_mps:
+            return f"+{name}"
+    return None
+
+
+class TrackSet:
+    """Every person the cell's trackers reported, seen or lost, and the ones recently released.
+
+    Args:
+        config: the cell (``tracking``, K, the trackers' noise).
+    """
+
+    def __init__(self, config: CellConfig) -> None:
+        self.tracking = config.tracking
+        self.reach_speed_mps = reach_speed_mps(config)
+        self._noise_m = {name: NOISE_SIGMAS * t.noise_std_m for name, t in config.trackers.items()}
+        self._forget = config.tracking.unsafe_forget_lost_for_tests
+        self.live: list[Track] = []
+        self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
+        self._serial = 0
+        self._frames: dict[str, object] = {}
+        self._lost_cache: tuple[int, HumanCapsules] | None = None
+        self._records: tuple[TrackRecord, ...] | None = None
+
+    # -- updates ------------------------------------------------------------------------------------------
+
+    def update(
+        self, frames: Mapping[str, tuple[object, HumanCapsules, int] | None], now_mono_ns: int
+    ) -> list[TrackEvent]:
+        """Take every tracker frame that is new since the last call.
+
+        Args:
+            frames: per tracker, ``(identity, capsules, captured_mono_ns)`` of its newest valid frame (the identity
+                tells a new frame from the one already taken), or None without one.
+            now_mono_ns: the decision time [ns].
+
+        Returns:
+            The tracks' changes (lost, released), in order.
+        """
+        events: list[TrackEvent] = []
+        new: list[Detection] = []
+        for tracker, frame in frames.items():
+            if frame is None or self._frames.get(tracker) is frame[0]:
+                continue
+            self._frames[tracker] = frame[0]
+            detections = split_frame(tracker, frame[1], frame[2])
+            events += self._take_frame(tracker, detections, frame[2])
+            new += detections
+        if new or events:
+            events += self._release_redetected(new)
+            self._lost_cache = None
+            self._records = None
+        if self._forget:
+            events += self._release_all_lost(now_mono_ns, ReleaseCause.FORGOTTEN, "forgotten (UNSAFE, test only)")
+        return events
+
+    def reset(self, which: str, operator: str, now_mono_ns: int) -> list[TrackEvent]:
+        """An operator's reset: release the lost track labelled ``which`` (``*``: every lost track).
+
+        Returns:
+            The releases; none when no lost track has that label (a seen person cannot be reset: they are there).
+        """
+        targets = [t for t in self.live if t.state is TrackState.LOST and (which in ("*", t.label))]
+        events = [self._release(t, now_mono_ns, ReleaseCause.RESET, f"reset by operator {operator!r}") for t in targets]
+        if events:
+            self._lost_cache = None
+            self._records = None
+        return events
+
+    def _take_frame(self, tracker: str, detections: list[Detection], captured_ns: int) -> list[TrackEvent]:
+        """Match one tracker's frame to its tracks by id within reach; the rest of its seen tracks are lost."""
+        events: list[TrackEvent] = []
+        mine = [t for t in self.live if t.tracker == tracker]
+        by_id: dict[str, list[Track]] = {}
+        for track in mine:
+            by_id.setdefault(track.human_id, []).append(track)
+        observed: set[int] = set()
+        margin_m = self.tracking.association_margin_m + 2.0 * self._noise_m.get(tracker, 0.0)
+        for detection in detections:
+            match = None
+            # the newest track of that id first: after a glitch the lost one stays where it was
+            for track in sorted(by_id.get(detection.human_id, ()), key=lambda t: -t.last_seen_mono_ns):
+                if track.serial in observed or track.last_seen_mono_ns >= captured_ns:
+                    continue
+                reach_m = self.reach_speed_mps * (captured_ns - track.last_seen_mono_ns) / NS_PER_S + margin_m
+                if _continues(track.capsules, detection.capsules, reach_m):
+                    match = track
+                    break
+            if match is None:
+                match = self._new_track(detection)
+            match.observe(detection)
+            observed.add(match.serial)
+        for track in mine:
+            if track.state is TrackState.SEEN and track.serial not in observed:
+                events += self._lose(track, captured_ns)
+        return events
+
+    def _new_track(self, detection: Detection) -> Track:
+        self._serial += 1
+        label = f"{detection.tracker}/{detection.human_id}"
+        if any(t.label == label for t in self.live):
+            label = f"{label}#{self._serial}"
+        track = Track(self._serial, label, detection.tracker, detection.human_id, detection.capsules, 0)
+        self.live.append(track)
+        return track
+
+    def _lose(self, track: Track, now_mono_ns: int) -> list[TrackEvent]:
+        track.state = TrackState.LOST
+        face = leaving_face(track, self.tracking)
+        if face is not None:
+            return [self._release(track, now_mono_ns, ReleaseCause.LEFT, f"last seen leaving through face {face}")]
+        return [TrackEvent("track_lost", track.label, f"person {track.label} lost: no longer reported")]
+
+    def _release_redetected(self, detections: Sequence[Detection]) -> list[TrackEvent]:
+        """Release every lost track that a new detection (any tracker, captured after it was last seen) covers."""
+        events: list[TrackEvent] = []
+        for track in [t for t in self.live if t.state is TrackState.LOST]:
+            track_centre = centre(track.capsules)
+            for detection in detections:
+                dt_ns = detection.captured_mono_ns - track.last_seen_mono_ns
+                if dt_ns <= 0:
+                    continue
+                margin_m = (
+                    self.tracking.association_margin_m
+                    + self._noise_m.get(track.tracker, 0.0)
+                    + self._noise_m.get(detection.tracker, 0.0)
+                )
+                reach_m = self.reach_speed_mps * dt_ns / NS_PER_S + margin_m
+                if float(np.linalg.norm(centre(detection.capsules) - track_centre)) > reach_m + 2.5:
+                    continue  # a person is at most ~2.5 m across: cannot cover the track
+                if within_reach(track.capsules, detection.capsules, reach_m):
+                    by = f"redetected by {detection.tracker}/{detection.human_id}"
+                    events.append(self._release(track, detection.captured_mono_ns, ReleaseCause.REDETECTED, by))
+                    break
+        return events
+
+    def _release_all_lost(self, now_mono_ns: int, cause: ReleaseCause, why: str) -> list[TrackEvent]:
+        lost = [t for t in self.live if t.state is TrackState.LOST]
+        if lost:
+            self._lost_cache = None
+            self._records = None
+        return [self._release(t, now_mono_ns, cause, why) for t in lost]
+
+    def _release(self, track: Track, now_mono_ns: int, cause: ReleaseCause, why: str) -> TrackEvent:
+        track.state = TrackState.RELEASED
+        track.released_by = why
+        track.released_mono_ns = now_mono_ns
+        self.live.remove(track)
+        self.released.append(track)
+        return TrackEvent("track_released", track.label, f"person {track.label} released: {why}", cause.value)
+
+    # -- what the decisions use -----------------------------------------------------------------------------
+
+    @property
+    def overflow(self) -> bool:
+        """More live tracks than :data:`MAX_LIVE_TRACKS` (a fault: δ = 0)."""
+        return len(self.live) > MAX_LIVE_TRACKS
+
+    def lost(self) -> list[Track]:
+        return [t for t in self.live if t.state is TrackState.LOST]
+
+    def reach_m(self, track: Track, now_mono_ns: int) -> float:
+        """How far a lost person may be from where they were last seen at ``now`` [m]."""
+        return self.reach_speed_mps * max(0, now_mono_ns - track.last_seen_mono_ns) / NS_PER_S
+
+    def lost_capsules(self, now_mono_ns: int) -> HumanCapsules:
+        """Every lost track's last capsules, radii grown by its reach at ``now``; human ids ``<label> (lost)``.
+
+        The reach counts from the capture of the frame it was last seen in, so it overlaps the clearance's
+        ``K · human_age_s`` by one frame age: conservative by that much.
+        """
+        lost = self.lost()
+        if not lost:
+            return NO_HUMANS
+        if self._lost_cache is None or self._lost_cache[0] != len(lost):
+            merged = merge_humans(
+                [t.capsules._replace(human_ids=(f"{t.label} (lost)",) * t.capsules.n_capsules) for t in lost]
+            )
+            self._lost_cache = (len(lost), merged)
+        merged = self._lost_cache[1]
+        grow = np.concatenate([np.full(t.capsules.n_capsules, self.reach_m(t, now_mono_ns)) for t in lost])
+        return merged._replace(radius_m=merged.radius_m + grow)
+
+    def records(self) -> tuple[TrackRecord, ...]:
+        """Every live track and the recently released ones (newest last), for the status; the same tuple object
+        while nothing changed, so that the loop can hand it on every cycle for free."""
+        if self._records is None:
+            self._records = tuple(
+                TrackRecord(
+                    t.label,
+                    t.tracker,
+                    f"{t.tracker}/{t.human_id}" if t.state is TrackState.SEEN else f"{t.label} (lost)",
+                    t.state,
+                    t.last_seen_mono_ns,
+                    t.capsules.n_capsules,
+                    t.released_by,
+                )
+                for t in (*self.live, *self.released)
+            )
+        return self._records
+
+
+def _continues(track: HumanCapsules, detection: HumanCapsules, reach_m: float) -> bool:
+    """Whether a detection with the track's id continues it: every capsule the track has is in the detection under
+    the same name, and each end point moved at most ``reach_m`` (a missing part or a jump starts a new track and
+    leaves this one lost, where it was)."""
+    index = {name: i for i, name in enumerate(detection.capsule_names)}
+    rows = [index.get(name, -1) for name in track.capsule_names]
+    if min(rows, default=0) < 0:
+        return False
+    rows_arr = np.asarray(rows, dtype=np.intp)
+    moved_a = np.linalg.norm(detection.h_a_world[rows_arr] - track.h_a_world, axis=1)
+    moved_b = np.linalg.norm(detection.h_b_world[rows_arr] - track.h_b_world, axis=1)
+    grown = detection.radius_m[rows_arr] - track.radius_m
+    limit = reach_m - np.maximum(grown, 0.0)
+    return bool(((moved_a <= limit) & (moved_b <= limit)).all()) and math.isfinite(reach_m)

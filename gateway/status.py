@@ -117,15 +117,25 @@ def track_entries(
     decisions: Mapping[str, RobotDecision],
     now_mono_ns: int,
     reach_speed_mps: float,
+    inputs: InputSnapshot | None = None,
 ) -> list[dict[str, Any]]:
-    """The status's ``tracks``: each track's state, age, reach, which robots it holds and what to do."""
+    """The status's ``tracks``: each track's state, age, reach, which robots it holds and what to do.
+
+    Args:
+        inputs: the snapshot of the decisions: a seen track was last seen in its tracker's newest frame.
+    """
+    seen_ns: dict[str, int] = {}
+    for tracker, frame in (inputs.humans if inputs is not None else {}).items():
+        if frame is not None:
+            seen_ns[tracker] = frame.received_mono_ns - frame.transit_ns
     holding: dict[str, list[str]] = {}
     for name, decision in decisions.items():
         if decision.closest is not None and decision.delta < 1.0:
             holding.setdefault(decision.closest.human, []).append(name)
     entries = []
     for r in records:
-        age_s = max(0, now_mono_ns - r.last_seen_mono_ns) / NS_PER_S
+        last_ns = seen_ns.get(r.tracker, now_mono_ns) if r.last_seen_mono_ns is None else r.last_seen_mono_ns
+        age_s = max(0, now_mono_ns - last_ns) / NS_PER_S
         lost = r.state is TrackState.LOST
         holds = holding.get(r.human, []) if r.state is not TrackState.RELEASED else []
         action = None
@@ -264,6 +274,7 @@ def cycle_status(
             cycle.decisions,
             cycle.now.mono_ns if cycle.now is not None else 0,
             reach_speed_mps(config),
+            cycle.inputs,
         ),
     )
 

@@ -25,6 +25,7 @@ it was and the detection is a new track. Pure: no I/O, no clock; every time is p
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -48,6 +49,8 @@ RELEASED_KEPT = 32
 """Released tracks shown in the status (the newest), for the operator to see what released whom."""
 VELOCITY_WINDOW_NS = 400_000_000
 """A track's centre over this window gives its velocity for the exit rule [ns]."""
+CENTRE_SAMPLE_NS = 50_000_000
+"""A track's centre is remembered at most this often, its newest always [ns]."""
 VELOCITY_MIN_SPAN_NS = 60_000_000
 """At least this span of observations is needed to call a track 'moving out' [ns]."""
 NOISE_SIGMAS = 3.0
@@ -81,6 +84,9 @@ class Detection(NamedTuple):
     human_id: str
     capsules: HumanCapsules
     captured_mono_ns: int
+    frame: HumanCapsules
+    start: int
+    end: int
 
 
 class TrackEvent(NamedTuple):
@@ -101,7 +107,8 @@ class TrackRecord(NamedTuple):
         human: the human id its capsules carry in the decisions' closest pair: ``<tracker>/<id>`` while seen,
             ``<label> (lost)`` while lost.
         state: seen, lost or released.
-        last_seen_mono_ns: when it was last seen (capture time, gateway's monotonic clock) [ns].
+        last_seen_mono_ns: when it was last seen (capture time, gateway's monotonic clock) [ns]; None while seen
+            (then: its tracker's newest frame), so that the records change only when a track changes state.
         capsules: its capsule count.
         released_by: for a released track, what released it.
     """
@@ -110,33 +117,55 @@ class TrackRecord(NamedTuple):
     tracker: str
     human: str
     state: TrackState
-    last_seen_mono_ns: int
+    last_seen_mono_ns: int | None
     capsules: int
     released_by: str | None = None
 
 
-@dataclass
+@dataclass(eq=False)
 class Track:
-    """One person as one tracker followed them."""
+    """One person as one tracker followed them; their capsules are a slice of the frame they were last seen in."""
 
     serial: int
     label: str
     tracker: str
     human_id: str
-    capsules: HumanCapsules
+    frame: HumanCapsules
+    start: int
+    end: int
     last_seen_mono_ns: int
     state: TrackState = TrackState.SEEN
     centres: deque[tuple[int, FloatArray]] = field(default_factory=lambda: deque(maxlen=64))
     released_by: str | None = None
     released_mono_ns: int = 0
+    last_centre: FloatArray | None = None
+    _capsules: HumanCapsules | None = None
 
-    def observe(self, detection: Detection) -> None:
-        self.capsules = detection.capsules
-        self.last_seen_mono_ns = detection.captured_mono_ns
+    @property
+    def capsules(self) -> HumanCapsules:
+        """The capsules it was last seen with (human ids ``<tracker>/<id>``)."""
+        if self._capsules is None:
+            f, a, b = self.frame, self.start, self.end
+            self._capsules = HumanCapsules(
+                f.h_a_world[a:b], f.h_b_world[a:b], f.radius_m[a:b], f.human_ids[a:b], f.capsule_names[a:b]
+            )
+        return self._capsules
+
+    @property
+    def n_capsules(self) -> int:
+        return self.end - self.start
+
+    def observe(self, frame: HumanCapsules, start: int, end: int, captured_ns: int, centre_m: FloatArray) -> None:
+        """Seen in ``frame[start:end]``, captured at ``captured_ns``, its centre at ``centre_m`` [m]."""
+        self.frame, self.start, self.end, self._capsules = frame, start, end, None
+        self.last_seen_mono_ns = captured_ns
         self.state = TrackState.SEEN
-        self.centres.append((detection.captured_mono_ns, centre(detection.capsules)))
-        while self.centres and detection.captured_mono_ns - self.centres[0][0] > VELOCITY_WINDOW_NS:
-            self.centres.popleft()
+        self.last_centre = centre_m
+        centres = self.centres
+        if not centres or captured_ns - centres[-1][0] >= CENTRE_SAMPLE_NS:
+            centres.append((captured_ns, centre_m))
+            if captured_ns - centres[0][0] > VELOCITY_WINDOW_NS:
+                centres.popleft()
 
 
 def centre(capsules: HumanCapsules) -> FloatArray:
@@ -144,24 +173,35 @@ def centre(capsules: HumanCapsules) -> FloatArray:
     return np.concatenate((capsules.h_a_world, capsules.h_b_world)).mean(axis=0)  # type: ignore[no-any-return]
 
 
+def human_starts(capsules: HumanCapsules) -> list[int]:
+    """Index of each human's first capsule (a frame lists each human's capsules together), and the end."""
+    ids = capsules.human_ids
+    n = len(ids)
+    return [0, *(i for i in range(1, n) if ids[i] != ids[i - 1]), n] if n else [0]
+
+
 def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) -> list[Detection]:
     """A tracker frame's capsules as one detection per human (in the frame's order)."""
-    detections: list[Detection] = []
-    ids = capsules.human_ids
-    start = 0
+    starts = human_starts(capsules)
     prefix = len(tracker) + 1
-    for end in range(1, len(ids) + 1):
-        if end == len(ids) or ids[end] != ids[start]:
-            part = HumanCapsules(
+    return [
+        Detection(
+            tracker,
+            capsules.human_ids[start][prefix:],
+            HumanCapsules(
                 capsules.h_a_world[start:end],
                 capsules.h_b_world[start:end],
                 capsules.radius_m[start:end],
-                ids[start:end],
+                capsules.human_ids[start:end],
                 capsules.capsule_names[start:end],
-            )
-            detections.append(Detection(tracker, ids[start][prefix:], part, captured_mono_ns))
-            start = end
-    return detections
+            ),
+            captured_mono_ns,
+            capsules,
+            start,
+            end,
+        )
+        for start, end in itertools.pairwise(starts)
+    ]
 
 
 def point_segment_distances(points: FloatArray, seg_a: FloatArray, seg_b: FloatArray) -> FloatArray:
@@ -213,9 +253,9 @@ def leaving_face(track: Track, tracking: TrackingConfig) -> str | None:
     its centre moved out through that face at ``exit_speed_min_mps`` or more over its last observations; a centre
     already outside the covered volume counts as having left through the nearest face.
     """
-    if len(track.centres) < 2:
+    if not track.centres or track.last_centre is None:
         return None
-    (t0_ns, c0), (t1_ns, c1) = track.centres[0], track.centres[-1]
+    (t0_ns, c0), (t1_ns, c1) = track.centres[0], (track.last_seen_mono_ns, track.last_centre)
     span_ns = t1_ns - t0_ns
     if span_ns < VELOCITY_MIN_SPAN_NS:
         return None
@@ -246,6 +286,8 @@ class TrackSet:
         self._noise_m = {name: NOISE_SIGMAS * t.noise_std_m for name, t in config.trackers.items()}
         self._forget = config.tracking.unsafe_forget_lost_for_tests
         self.live: list[Track] = []
+        self._lost: list[Track] = []
+        self._previous: dict[str, _Previous] = {}
         self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
         self._serial = 0
         self._frames: dict[str, object] = {}
@@ -273,10 +315,10 @@ class TrackSet:
             if frame is None or self._frames.get(tracker) is frame[0]:
                 continue
             self._frames[tracker] = frame[0]
-            detections = split_frame(tracker, frame[1], frame[2])
-            events += self._take_frame(tracker, detections, frame[2])
+            taken, detections = self._take_frame(tracker, frame[1], frame[2])
+            events += taken
             new += detections
-        if new or events:
+        if events or self._lost:
             events += self._release_redetected(new)
             self._lost_cache = None
             self._records = None
@@ -290,52 +332,121 @@ class TrackSet:
         Returns:
             The releases; none when no lost track has that label (a seen person cannot be reset: they are there).
         """
-        targets = [t for t in self.live if t.state is TrackState.LOST and (which in ("*", t.label))]
+        targets = [t for t in self._lost if which in ("*", t.label)]
         events = [self._release(t, now_mono_ns, ReleaseCause.RESET, f"reset by operator {operator!r}") for t in targets]
         if events:
             self._lost_cache = None
             self._records = None
         return events
 
-    def _take_frame(self, tracker: str, detections: list[Detection], captured_ns: int) -> list[TrackEvent]:
-        """Match one tracker's frame to its tracks by id within reach; the rest of its seen tracks are lost."""
-        events: list[TrackEvent] = []
-        mine = [t for t in self.live if t.tracker == tracker]
-        by_id: dict[str, list[Track]] = {}
-        for track in mine:
-            by_id.setdefault(track.human_id, []).append(track)
-        observed: set[int] = set()
+    def _take_frame(
+        self, tracker: str, capsules: HumanCapsules, captured_ns: int
+    ) -> tuple[list[TrackEvent], list[Detection]]:
+        """Match one tracker's frame to its tracks by id within reach; the rest of its seen tracks are lost.
+
+        The common case, the same people with the same parts as in this tracker's previous frame, is decided for the
+        whole frame at once (:func:`moved_within`); any other detection by the general rule (:meth:`_match`).
+
+        Returns:
+            The changes, and the frame's detections that did not simply continue a track (for the releases).
+        """
         margin_m = self.tracking.association_margin_m + 2.0 * self._noise_m.get(tracker, 0.0)
-        for detection in detections:
-            match = None
-            # the newest track of that id first: after a glitch the lost one stays where it was
-            for track in sorted(by_id.get(detection.human_id, ()), key=lambda t: -t.last_seen_mono_ns):
-                if track.serial in observed or track.last_seen_mono_ns >= captured_ns:
-                    continue
-                reach_m = self.reach_speed_mps * (captured_ns - track.last_seen_mono_ns) / NS_PER_S + margin_m
-                if _continues(track.capsules, detection.capsules, reach_m):
-                    match = track
-                    break
-            if match is None:
-                match = self._new_track(detection)
-            match.observe(detection)
-            observed.add(match.serial)
-        for track in mine:
-            if track.state is TrackState.SEEN and track.serial not in observed:
+        previous = self._previous.get(tracker)
+        starts = human_starts(capsules)
+        prefix = len(tracker) + 1
+        observed: set[int] = set()
+        continued = [None] * (len(starts) - 1) if previous is None else _same_people(previous, capsules)
+        centres = (
+            np.add.reduceat(capsules.h_a_world + capsules.h_b_world, starts[:-1], axis=0)
+            / (2.0 * np.diff(starts))[:, None]
+            if len(starts) > 1
+            else np.zeros((0, 3))
+        )
+        if previous is not None and any(t is not None for t in continued):
+            dt_s = (captured_ns - previous.captured_ns) / NS_PER_S
+            ok = moved_within(previous.capsules, capsules, starts, self.reach_speed_mps * dt_s + margin_m)
+            continued = [t if t is not None and ok[k] else None for k, t in enumerate(continued)]
+        detections: list[Detection] = []
+        order: list[Track] = []
+        for k, (start, end) in enumerate(itertools.pairwise(starts)):
+            track = continued[k]
+            if track is None:
+                detection = Detection(
+                    tracker,
+                    capsules.human_ids[start][prefix:],
+                    HumanCapsules(
+                        capsules.h_a_world[start:end],
+                        capsules.h_b_world[start:end],
+                        capsules.radius_m[start:end],
+                        capsules.human_ids[start:end],
+                        capsules.capsule_names[start:end],
+                    ),
+                    captured_ns,
+                    capsules,
+                    start,
+                    end,
+                )
+                detections.append(detection)
+                track = self._match(detection, observed, margin_m, captured_ns) or self._new_track(detection)
+                if track.state is TrackState.LOST:  # the same person, seen again by their tracker within reach
+                    self._lost.remove(track)
+                    self._lost_cache = None
+                self._records = None
+            track.observe(capsules, start, end, captured_ns, centres[k])
+            observed.add(track.serial)
+            order.append(track)
+        events: list[TrackEvent] = []
+        for track in self._seen_of(tracker):
+            if track.serial not in observed:
                 events += self._lose(track, captured_ns)
-        return events
+        self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
+        return events, detections
+
+    def _seen_of(self, tracker: str) -> list[Track]:
+        previous = self._previous.get(tracker)
+        if previous is None:
+            return []
+        return [t for t in previous.tracks if t.state is TrackState.SEEN]
+
+    def _match(self, detection: Detection, observed: set[int], margin_m: float, captured_ns: int) -> Track | None:
+        """The track a detection continues (its tracker, its id, within reach, every part there), or None."""
+        candidates = [
+            t
+            for t in self.live
+            if t.tracker == detection.tracker
+            and t.human_id == detection.human_id
+            and t.serial not in observed
+            and t.last_seen_mono_ns < captured_ns
+        ]
+        # the newest track of that id first: after a glitch the lost one stays where it was
+        for track in sorted(candidates, key=lambda t: -t.last_seen_mono_ns):
+            reach_m = self.reach_speed_mps * (captured_ns - track.last_seen_mono_ns) / NS_PER_S + margin_m
+            if _continues(track.capsules, detection.capsules, reach_m):
+                return track
+        return None
 
     def _new_track(self, detection: Detection) -> Track:
         self._serial += 1
         label = f"{detection.tracker}/{detection.human_id}"
         if any(t.label == label for t in self.live):
             label = f"{label}#{self._serial}"
-        track = Track(self._serial, label, detection.tracker, detection.human_id, detection.capsules, 0)
+        track = Track(
+            self._serial,
+            label,
+            detection.tracker,
+            detection.human_id,
+            detection.frame,
+            detection.start,
+            detection.end,
+            0,
+        )
         self.live.append(track)
         return track
 
     def _lose(self, track: Track, now_mono_ns: int) -> list[TrackEvent]:
         track.state = TrackState.LOST
+        self._lost.append(track)
+        self._records = None
         face = leaving_face(track, self.tracking)
         if face is not None:
             return [self._release(track, now_mono_ns, ReleaseCause.LEFT, f"last seen leaving through face {face}")]
@@ -344,7 +455,7 @@ class TrackSet:
     def _release_redetected(self, detections: Sequence[Detection]) -> list[TrackEvent]:
         """Release every lost track that a new detection (any tracker, captured after it was last seen) covers."""
         events: list[TrackEvent] = []
-        for track in [t for t in self.live if t.state is TrackState.LOST]:
+        for track in list(self._lost):
             track_centre = centre(track.capsules)
             for detection in detections:
                 dt_ns = detection.captured_mono_ns - track.last_seen_mono_ns
@@ -365,13 +476,15 @@ class TrackSet:
         return events
 
     def _release_all_lost(self, now_mono_ns: int, cause: ReleaseCause, why: str) -> list[TrackEvent]:
-        lost = [t for t in self.live if t.state is TrackState.LOST]
+        lost = list(self._lost)
         if lost:
             self._lost_cache = None
             self._records = None
         return [self._release(t, now_mono_ns, cause, why) for t in lost]
 
     def _release(self, track: Track, now_mono_ns: int, cause: ReleaseCause, why: str) -> TrackEvent:
+        if track.state is TrackState.LOST:
+            self._lost.remove(track)
         track.state = TrackState.RELEASED
         track.released_by = why
         track.released_mono_ns = now_mono_ns
@@ -387,7 +500,8 @@ class TrackSet:
         return len(self.live) > MAX_LIVE_TRACKS
 
     def lost(self) -> list[Track]:
-        return [t for t in self.live if t.state is TrackState.LOST]
+        """The lost tracks, in the order they were lost."""
+        return list(self._lost)
 
     def reach_m(self, track: Track, now_mono_ns: int) -> float:
         """How far a lost person may be from where they were last seen at ``now`` [m]."""
@@ -399,7 +513,7 @@ class TrackSet:
         The reach counts from the capture of the frame it was last seen in, so it overlaps the clearance's
         ``K · human_age_s`` by one frame age: conservative by that much.
         """
-        lost = self.lost()
+        lost = self._lost
         if not lost:
             return NO_HUMANS
         if self._lost_cache is None or self._lost_cache[0] != len(lost):
@@ -413,7 +527,8 @@ class TrackSet:
 
     def records(self) -> tuple[TrackRecord, ...]:
         """Every live track and the recently released ones (newest last), for the status; the same tuple object
-        while nothing changed, so that the loop can hand it on every cycle for free."""
+        while no track changed state (a seen track's newest frame does not count), so that the loop can hand it on
+        every cycle for free."""
         if self._records is None:
             self._records = tuple(
                 TrackRecord(
@@ -421,8 +536,8 @@ class TrackSet:
                     t.tracker,
                     f"{t.tracker}/{t.human_id}" if t.state is TrackState.SEEN else f"{t.label} (lost)",
                     t.state,
-                    t.last_seen_mono_ns,
-                    t.capsules.n_capsules,
+                    None if t.state is TrackState.SEEN else t.last_seen_mono_ns,
+                    t.n_capsules,
                     t.released_by,
                 )
                 for t in (*self.live, *self.released)
@@ -444,3 +559,36 @@ def _continues(track: HumanCapsules, detection: HumanCapsules, reach_m: float) -
     grown = detection.radius_m[rows_arr] - track.radius_m
     limit = reach_m - np.maximum(grown, 0.0)
     return bool(((moved_a <= limit) & (moved_b <= limit)).all()) and math.isfinite(reach_m)
+
+
+class _Previous(NamedTuple):
+    """A tracker's previous frame and the tracks its people continued, in the frame's order."""
+
+    capsules: HumanCapsules
+    captured_ns: int
+    tracks: tuple[Track, ...]
+
+
+def _same_people(previous: _Previous, capsules: HumanCapsules) -> list[Track | None]:
+    """Per human of ``capsules``: the track of the same position in the previous frame when both frames list the same
+    people with the same parts in the same order (the steady state of a tracker) and that track is still seen; else
+    None everywhere (decided one by one)."""
+    n = len(previous.tracks)
+    if previous.capsules.human_ids != capsules.human_ids or previous.capsules.capsule_names != capsules.capsule_names:
+        return [None] * len(human_starts(capsules)[:-1]) if capsules.n_capsules else []
+    return [t if t.state is TrackState.SEEN else None for t in previous.tracks[:n]]
+
+
+def moved_within(
+    before: HumanCapsules, after: HumanCapsules, starts: Sequence[int], reach_m: float
+) -> npt.NDArray[np.bool_]:
+    """Per human (``starts``: index of each one's first capsule, and the end) of two frames listing the same capsules
+    in the same order: whether every end point moved at most ``reach_m`` minus the growth of its radius [m]."""
+    if after.n_capsules == 0:
+        return np.zeros(0, dtype=bool)
+    limit = reach_m - np.maximum(after.radius_m - before.radius_m, 0.0)
+    da = after.h_a_world - before.h_a_world
+    db = after.h_b_world - before.h_b_world
+    ok = (np.einsum("ij,ij->i", da, da) <= limit * limit) & (np.einsum("ij,ij->i", db, db) <= limit * limit)
+    ok &= limit >= 0.0
+    return np.logical_and.reduceat(ok, list(starts[:-1]))

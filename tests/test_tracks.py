@@ -348,3 +348,30 @@ def test_a_reset_releases_the_lost_person_and_the_robot_may_move(cell_config: Ce
     assert cycle.decisions["ur5"].closest is None
     assert isinstance(node.core, SafetyCore)
     assert isinstance(node.inputs, InputStore)
+
+
+def test_the_status_lists_the_lost_person_who_holds_the_robot_and_says_what_to_do(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    from gateway.status import cycle_status, loop_status
+    from hrc_common.service import RateLoop
+
+    cell = Cell(cell_config, ur5)
+    node = GatewayNode(cell_config, {"ur5": ur5})
+    node.inputs, node.core = cell.store, cell.core
+    cell.feed(NOW, [hand_at_tool(ur5)])
+    node.cycle(at(NOW), 0.004)
+    cell.feed(NOW + FRAME_NS, [])
+    cycle = node.cycle(at(NOW + S), 0.004)
+    doc = cycle_status(cell_config, cycle, node.robots, node.counters(), loop_status(RateLoop(0.004), 0, True, []), 0)
+    lost = [t for t in doc.tracks if t.state == "lost"]
+    assert [t.label for t in lost] == ["front/h1", "side/h1"]
+    assert all(t.last_seen_age_s == pytest.approx(1.03) for t in lost)  # frames captured 30 ms before NOW
+    assert all(t.reach_m == pytest.approx(1.6 * 1.03) for t in lost)
+    holder = doc.robots["ur5"].closest
+    assert holder is not None
+    assert [t.holds for t in lost if t.human == holder.human] == [["ur5"]]
+    assert all(t.action is not None and "clear the area and reset" in t.action for t in lost)
+    drawn = {c.human for c in doc.human_capsules}
+    assert drawn == {"front/h1 (lost)", "side/h1 (lost)"}
+    assert all(c.radius_m == pytest.approx(0.05 + 1.6 * 1.03) for c in doc.human_capsules)

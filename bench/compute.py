@@ -167,7 +167,7 @@ class Rig:
                 "q": q.tolist(),
                 "qd": (0.8 * qd).tolist(),
                 "qd_nominal": qd.tolist(),
-                "override": 1.0,
+                "override": 0.8,  # qd = override · qd_nominal (sign included) or the state is inconsistent
                 "override_seq": self.override_seq,
                 "mode": "running",
             }

@@ -1,6 +1,10 @@
 """Sustained loop with many robots: ``bench.loop`` on a cell of N copies of the two-arm cell (a UR5 and a Panda
-facing each other, ``configs/cell_two_arms.toml``) side by side along y, one person per copy walking the
+facing each other, ``configs/cell_two_arms.toml``) side by side along x, one person per copy walking the
 ``two_arms_crossing`` path, every robot with its own controller emulator process.
+
+The world and the volume the trackers cover are widened along x to hold every copy; along y they stay the two-arm
+cell's, so that each person enters and leaves through the covered volume's -y face as in the two-arm cell (a person
+who vanished inside it would be lost, not gone, and hold the robots near them: docs/contract.md "Tracks").
 
 The default, 4 copies, is 8 robots × 4 people (each person seen by both trackers, so the gateway merges 8
 humans). The controller emulators run ``--controllers-per-process`` to a process (``bench.controller_host``; the
@@ -28,31 +32,53 @@ NAME = "many_robots"
 TWO_ARMS = DEFAULT_CELL_PATH.parent / "cell_two_arms.toml"
 PERSON_PATH = "two_arms_crossing"
 PAIR_SPACING_M = 6.0
-"""Distance along y between neighbouring copies of the two-arm cell [m]: the crossing path reaches 4 m to -y."""
+"""Distance along x between neighbouring copies of the two-arm cell [m]: each copy (robots and person) spans
+x = -1 … 3.2 m, so that one copy's person never reaches into the next copy."""
 PERSON_SHIFT_S = 0.5
 """Each copy's person starts this much later than the previous one's [s]: all are in the cell at once."""
 SCENARIO = f"{NAME}_people"
 
 
 def pair_offsets_m(pairs: int) -> list[float]:
-    """The y offset of each copy, centred on y = 0 [m]."""
+    """The x offset of each copy, centred on x = 0 [m]."""
     return [(k - (pairs - 1) / 2) * PAIR_SPACING_M for k in range(pairs)]
 
 
+def _widened_along_x(low: Any, high: Any, offsets_m: list[float]) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The box ``low``..``high`` stretched along x to hold its copy at each of ``offsets_m`` [m]."""
+    return (low[0] + min(offsets_m), *low[1:]), (high[0] + max(offsets_m), *high[1:])
+
+
 def many_robot_config(two_arms: CellConfig, pairs: int, scenarios_dir: Path) -> CellConfig:
-    """``pairs`` copies of the two-arm cell's robots (``ur5_k``, ``panda_k``) shifted along y; the world volume
-    widened along y to hold them and their people; the scenarios read from ``scenarios_dir``."""
+    """``pairs`` copies of the two-arm cell's robots (``ur5_k``, ``panda_k``) shifted along x; the world volume and
+    the trackers' covered volume widened along x to hold them and their people; the scenarios read from
+    ``scenarios_dir``."""
     raw = two_arms.model_dump()
+    beyond_robots_x_m = max(robot["base_pose_world"]["xyz"][0] for robot in raw["robots"].values())
+    offsets_m = pair_offsets_m(pairs)
     robots: dict[str, Any] = {}
-    for k, dy in enumerate(pair_offsets_m(pairs), start=1):
+    for k, dx in enumerate(offsets_m, start=1):
         for name, robot in raw["robots"].items():
             x, y, z = robot["base_pose_world"]["xyz"]
-            robots[f"{name}_{k}"] = {**robot, "base_pose_world": {**robot["base_pose_world"], "xyz": (x, y + dy, z)}}
-    half_width_m = max(abs(dy) for dy in pair_offsets_m(pairs)) + 7.0
-    plausibility = raw["plausibility"]
-    plausibility["world_min_m"] = (plausibility["world_min_m"][0], -half_width_m, plausibility["world_min_m"][2])
-    plausibility["world_max_m"] = (plausibility["world_max_m"][0], half_width_m, plausibility["world_max_m"][2])
-    raw.update(robots=robots, plausibility=plausibility, scenarios_dir=str(scenarios_dir), default_scenario=SCENARIO)
+            robots[f"{name}_{k}"] = {**robot, "base_pose_world": {**robot["base_pose_world"], "xyz": (x + dx, y, z)}}
+    plausibility, tracking = raw["plausibility"], raw["tracking"]
+    plausibility["world_min_m"], plausibility["world_max_m"] = _widened_along_x(
+        plausibility["world_min_m"], plausibility["world_max_m"], offsets_m
+    )
+    tracking["coverage_min_m"], tracking["coverage_max_m"] = _widened_along_x(
+        tracking["coverage_min_m"], tracking["coverage_max_m"], offsets_m
+    )
+    for tracker in raw["trackers"].values():  # a sensor beyond the robots along x (the front one) stays beyond them
+        position = tracker.get("position_m")
+        if position is not None and position[0] > beyond_robots_x_m:
+            tracker["position_m"] = (position[0] + max(offsets_m), *position[1:])
+    raw.update(
+        robots=robots,
+        plausibility=plausibility,
+        tracking=tracking,
+        scenarios_dir=str(scenarios_dir),
+        default_scenario=SCENARIO,
+    )
     return CellConfig.model_validate(raw)
 
 
@@ -60,9 +86,9 @@ def people_scenario(path: Scenario, pairs: int) -> Scenario:
     """One person per copy on ``path``'s first person's keyframes, shifted to that copy and in time."""
     (person,) = path.humans
     humans = []
-    for k, dy in enumerate(pair_offsets_m(pairs), start=1):
+    for k, dx in enumerate(pair_offsets_m(pairs), start=1):
         keyframes = [
-            kf.model_copy(update={"t_s": kf.t_s + (k - 1) * PERSON_SHIFT_S, "xy_m": (kf.xy_m[0], kf.xy_m[1] + dy)})
+            kf.model_copy(update={"t_s": kf.t_s + (k - 1) * PERSON_SHIFT_S, "xy_m": (kf.xy_m[0] + dx, kf.xy_m[1])})
             for kf in person.keyframes
         ]
         humans.append(person.model_copy(update={"id": f"p{k}", "keyframes": keyframes}))

@@ -49,6 +49,7 @@ from sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from sim.links import LinkFault, LinkFaults
 from sim.scenarios import COLLABORATIVE_KINDS, SweepCase, generate_case, generate_collaborative_case
 from tracker_emu.scenario import Scenario
+from tracker_emu.sensor import covered_volume
 
 NAME = "productivity"
 METHODS = ("zanchettin2016", "zanchettin2016_speed_aware", "iso15066", "three_zones", "stop_only")
@@ -149,7 +150,14 @@ def _zero_delay(links: LinkFaults) -> LinkFaults:
     )
 
 
-def _case(config: CellConfig, suite_seed: int, index: int, duration_s: float, suite: str = "stress") -> SweepCase:
+def _case(
+    config: CellConfig,
+    suite_seed: int,
+    index: int,
+    duration_s: float,
+    suite: str = "stress",
+    occlusion: bool = False,
+) -> SweepCase:
     generate = generate_collaborative_case if suite == "collaborative" else generate_case
     return generate(
         suite_seed,
@@ -157,6 +165,8 @@ def _case(config: CellConfig, suite_seed: int, index: int, duration_s: float, su
         duration_s,
         config.safety.max_data_age_s,
         watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
+        coverage=covered_volume(config.tracking),
+        occlusion=occlusion,
     )
 
 
@@ -168,9 +178,11 @@ def run_variant(
     duration_s: float,
     variant: str,
     suite: str = "stress",
+    occlusion: bool = False,
 ) -> VariantRun:
-    """Generate case ``index`` of the suite ``suite_seed`` (of :data:`SUITES`) and simulate it with ``variant``."""
-    case = _case(config, suite_seed, index, duration_s, suite)
+    """Generate case ``index`` of the suite ``suite_seed`` (of :data:`SUITES`; its trackers with line of sight if
+    ``occlusion``) and simulate it with ``variant``."""
+    case = _case(config, suite_seed, index, duration_s, suite, occlusion)
     cell = case.config(config)
     scenario = case.scenario
     links = case.links
@@ -219,16 +231,22 @@ def _init_worker(config_path: str | None) -> None:
     _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
 
 
-def _run_in_worker(task: tuple[int, int, float, str, str]) -> VariantRun:
-    suite_seed, index, duration_s, variant, suite = task
-    return run_variant(_WORKER["config"], _WORKER["robots"], suite_seed, index, duration_s, variant, suite)
+def _run_in_worker(task: tuple[int, int, float, str, str, bool]) -> VariantRun:
+    suite_seed, index, duration_s, variant, suite, occlusion = task
+    return run_variant(_WORKER["config"], _WORKER["robots"], suite_seed, index, duration_s, variant, suite, occlusion)
 
 
 def iter_runs(
-    scenarios: int, seed: int, workers: int, duration_s: float, config_path: str | None = None, suite: str = "stress"
+    scenarios: int,
+    seed: int,
+    workers: int,
+    duration_s: float,
+    config_path: str | None = None,
+    suite: str = "stress",
+    occlusion: bool = False,
 ) -> Iterator[VariantRun]:
     """Every variant on cases ``0 .. scenarios-1`` of suite ``seed``; yields runs as they finish (any order)."""
-    tasks = [(seed, index, duration_s, variant, suite) for index in range(scenarios) for variant in VARIANTS]
+    tasks = [(seed, index, duration_s, variant, suite, occlusion) for index in range(scenarios) for variant in VARIANTS]
     if workers <= 1:
         _init_worker(config_path)
         for task in tasks:
@@ -405,6 +423,7 @@ def run(
     config_path: str | None,
     quiet: bool = False,
     suite: str = "stress",
+    occlusion: bool = False,
 ) -> Report:
     """Run the suite and build the report (figures over all cases and over the cases within budget)."""
     report = Report(
@@ -416,11 +435,14 @@ def run(
             "duration_s": duration_s,
             "config": config_path,
             "suite": suite,
+            "occlusion": occlusion,
             "variants": list(VARIANTS),
         },
     )
     started_s = time.perf_counter()
-    runs = _collect(iter_runs(scenarios, seed, workers, duration_s, config_path, suite), scenarios, suite, quiet)
+    runs = _collect(
+        iter_runs(scenarios, seed, workers, duration_s, config_path, suite, occlusion), scenarios, suite, quiet
+    )
     wall_s = time.perf_counter() - started_s
     runs.sort(key=lambda r: (r.index, VARIANTS.index(r.variant)))
     within = {r.index for r in runs if r.beyond_budget is None}
@@ -518,6 +540,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--suite", choices=SUITES, default="stress", help="the case generator (default stress)")
     parser.add_argument(
+        "--occlusion",
+        action="store_true",
+        help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids "
+        "(sim.scenarios.with_occlusion); the same people, links and seeds as without",
+    )
+    parser.add_argument(
         "--plot", type=Path, default=None, help="the PNG plot of cycles/h (default: next to the JSON, .png)"
     )
     parser.add_argument(
@@ -534,8 +562,11 @@ def main(argv: list[str] | None = None) -> int:
     plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     if args.plot_from:
         return _plot_only(args.plot_from, plot_path)
-    print_header(f"productivity: every method on the same seeded scenario suite ({args.suite})")
-    report = run(args.scenarios, args.seed, args.workers, args.duration_s, args.config, args.quiet, args.suite)
+    occluded = ", occlusion" if args.occlusion else ""
+    print_header(f"productivity: every method on the same seeded scenario suite ({args.suite}{occluded})")
+    report = run(
+        args.scenarios, args.seed, args.workers, args.duration_s, args.config, args.quiet, args.suite, args.occlusion
+    )
     doc = report.finish(args.json)
     print_report(doc)
     print(f"\nwrote {args.json}")

@@ -67,9 +67,10 @@ def _draw_panel(ax: Any, doc: dict[str, Any]) -> None:
             if bound is not None:
                 ax.hlines(bound, left, right, colors="black", linestyles=style, label=name if g == 0 else None)
     params = doc.get("parameters", {})
+    occlusion = ", occlusion" if params.get("occlusion") else ""
     ax.set_title(
-        f"{params.get('suite', '?')} suite: {params.get('scenarios', '?')} cases × {params.get('duration_s', '?')} s, "
-        f"seed {params.get('seed', '?')} (within the delay budget)"
+        f"{params.get('suite', '?')} suite{occlusion}: {params.get('scenarios', '?')} cases × "
+        f"{params.get('duration_s', '?')} s, seed {params.get('seed', '?')} (within the delay budget)"
     )
     ax.set_xticks(range(len(groups)), [name for name, _ in groups])
     ax.set_ylabel("program cycles / h")

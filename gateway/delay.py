@@ -6,14 +6,21 @@
 Ages are measured at decision time from the capture stamps (``stamp_ns``) of the newest data. The
 override path is learned from the controller's ``override_seq``: the first joint state that reports a
 new seq, minus the time that override was sent, bounds the path from above.
+
+An echo is evidence only if it could have happened: a state stamped before the override it echoes was sent
+(beyond the clocks' agreement) or echoing a seq this gateway never sent is a fault (:data:`EchoProblem`), never a
+latency of 0; a seq first reported before it was sent can never confirm it later.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 NS_PER_S = 1e9
+
+EchoProblem = Literal["echo_before_send", "echo_never_sent"]
+"""Why a joint state's ``override_seq`` cannot be an echo of what this gateway sent (:meth:`OverridePath.on_state`)."""
 
 
 class DelayBudget(NamedTuple):
@@ -86,7 +93,8 @@ class OverridePath:
         self._history = history
         self._latency_ns = WindowMax(self._window_ns)
         self._cycle_ns = WindowMax(self._window_ns)
-        self._last_ack_seq: int | None = None
+        self._last_echo_seq: int | None = None
+        self._max_sent_seq: int = -1
         self._last_state_stamp_ns: int | None = None
         self.acked_sent_mono_ns: int | None = None
         """Send time of the newest override the controller reported, on the gateway's monotonic clock [ns]."""
@@ -98,25 +106,52 @@ class OverridePath:
         """Record an override sent at ``sent_ns`` (wall clock, compared with the controller's stamps) and
         ``sent_mono_ns`` (this process's monotonic clock, for the age of the newest echo)."""
         self._sent_ns[seq] = (sent_ns, sent_mono_ns)
+        self._max_sent_seq = max(self._max_sent_seq, seq)
         self._sent_order.append(seq)
         while len(self._sent_order) > self._history:
             self._sent_ns.pop(self._sent_order.popleft(), None)
 
-    def on_state(self, override_seq: int, stamp_ns: int) -> None:
-        """Record a joint state's echo of the override seq and its stamp."""
+    def on_state(self, override_seq: int, stamp_ns: int, clock_tolerance_ns: int = 0) -> EchoProblem | None:
+        """Record a joint state's echo of the override seq and its stamp; say why the echo is impossible.
+
+        Only the first state that reports a seq can confirm it: the time from sending it to that state's stamp is
+        the latency. A seq reported before it was sent (another sender, a previous gateway process, a forged state)
+        therefore never confirms it, not even once this gateway sends it.
+
+        Args:
+            override_seq: the seq the controller reports as applied (-1 before any).
+            stamp_ns: the joint state's stamp [ns, the controller's wall clock].
+            clock_tolerance_ns: how far the controller's clock may be behind the gateway's [ns].
+
+        Returns:
+            None, or ``echo_before_send``: the first state reporting a seq is stamped more than
+            ``clock_tolerance_ns`` before that seq was sent; ``echo_never_sent``: a seq above every seq sent, once
+            an echo confirmed the path (before that, a restarted gateway still sees its predecessor's seqs). Neither
+            teaches the latency.
+        """
         changed = False
         if self._last_state_stamp_ns is not None and stamp_ns > self._last_state_stamp_ns:
             self._cycle_ns.push(stamp_ns, stamp_ns - self._last_state_stamp_ns)
             changed = True
         self._last_state_stamp_ns = stamp_ns
+        reason: EchoProblem | None = None
+        first_report = override_seq != self._last_echo_seq
+        self._last_echo_seq = override_seq
         sent = self._sent_ns.get(override_seq)
-        if sent is not None and override_seq != self._last_ack_seq:
-            self._last_ack_seq = override_seq
-            sent_ns, self.acked_sent_mono_ns = sent
-            self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent_ns))
-            changed = True
+        if sent is None:
+            if override_seq > self._max_sent_seq and self.acked_sent_mono_ns is not None:
+                reason = "echo_never_sent"
+        elif first_report:
+            sent_ns, sent_mono_ns = sent
+            if stamp_ns < sent_ns - clock_tolerance_ns:
+                reason = "echo_before_send"
+            else:
+                self.acked_sent_mono_ns = sent_mono_ns
+                self._latency_ns.push(stamp_ns, max(0, stamp_ns - sent_ns))  # ≥ 0 within the clocks' agreement
+                changed = True
         if changed:
             self.estimate = OverridePathEstimate(self.latency_s(), self.controller_cycle_s(), self.acked_sent_mono_ns)
+        return reason
 
     def latency_s(self) -> float | None:
         """Largest override path latency within the window, None before the first echo [s]."""

@@ -47,6 +47,9 @@ STREAM_RECHECK_S = 0.25
 a new document or the stop wakes it at once."""
 EVENTS_LIMIT = 1000
 """At most this many events in one ``GET /api/v1/events`` answer."""
+STREAM_PATH = "/api/v1/stream"
+STATUS_EVENT = "StatusEvent"
+"""The OpenAPI component of one event of the status stream."""
 
 
 class PublishedStatus(NamedTuple):
@@ -78,7 +81,7 @@ class StatusBoard:
         """Set by :meth:`close` when the gateway's input ended: open streams end, so shutdown never waits on them."""
         self._waiters: set[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = set()
         self.events = EventRing()
-        self.metrics = GatewayMetrics()
+        self.metrics = GatewayMetrics(1.0 / effective_config.gateway.rate_hz)
 
     def publish(self, status: GatewayStatus, status_json: bytes | None = None) -> None:
         """Make ``status`` the newest document; ``status_json`` is its serialisation, if the caller has it."""
@@ -228,6 +231,7 @@ def _fresh_version(board: StatusBoard) -> tuple[PublishedStatus | None, int]:
     "/stream",
     response_class=EventSourceResponse,
     summary="The status document at the status rate (server-sent events ``status``)",
+    response_description="Server-sent events (``text/event-stream``), one per status document.",
 )
 async def stream_status(request: Request) -> AsyncIterator[ServerSentEvent]:
     """Each new status document once, as an event ``status`` whose data is the document; nothing while the
@@ -273,8 +277,61 @@ def operator_page() -> HTMLResponse:
     return HTMLResponse(OPERATOR_PAGE.read_bytes())
 
 
+def _status_event_schema() -> dict[str, Any]:
+    """One event of the status stream, as the HTML specification's fields (``event``, ``id``, ``data``); its
+    ``data`` is the status document (JSON Schema's ``contentMediaType``/``contentSchema``)."""
+    return {
+        "title": STATUS_EVENT,
+        "description": "One server-sent event of the status stream: a status document as the gateway published it.",
+        "type": "object",
+        "properties": {
+            "event": {"const": "status"},
+            "id": {
+                "type": "string",
+                "pattern": "^[0-9]+$",
+                "description": "How many status documents the server had received when it sent this one: it "
+                "increases, with gaps where a newer document replaced one before it was sent.",
+            },
+            "data": {
+                "type": "string",
+                "contentMediaType": "application/json",
+                "contentSchema": {"$ref": "#/components/schemas/GatewayStatus"},
+                "description": "The status document, JSON on one line.",
+            },
+        },
+        "required": ["event", "id", "data"],
+        "additionalProperties": False,
+    }
+
+
+def describe_status_stream(openapi: dict[str, Any]) -> dict[str, Any]:
+    """The OpenAPI 3.1.0 document with the status stream described in 3.1's terms (edited in place, idempotent).
+
+    FastAPI describes an event stream with ``itemSchema``, a field of OpenAPI 3.2 that makes a 3.1.0 document
+    invalid, and its events' ``data`` as a bare string. Here the stream's ``schema`` is an array of
+    :data:`STATUS_EVENT` (how the OpenAPI media type registry models ``text/event-stream`` without
+    ``itemSchema``), whose ``data`` refers to ``GatewayStatus``.
+    """
+    content = openapi["paths"][STREAM_PATH]["get"]["responses"]["200"]["content"]["text/event-stream"]
+    content.pop("itemSchema", None)
+    content["schema"] = {
+        "type": "array",
+        "items": {"$ref": f"#/components/schemas/{STATUS_EVENT}"},
+        "description": "The events of the stream, in the order sent; it ends when the gateway stops.",
+    }
+    openapi["components"]["schemas"][STATUS_EVENT] = _status_event_schema()
+    return openapi
+
+
+class GatewayApi(FastAPI):
+    """The gateway's FastAPI app, whose ``/openapi.json`` is a valid OpenAPI 3.1.0 document."""
+
+    def openapi(self) -> dict[str, Any]:
+        return describe_status_stream(super().openapi())
+
+
 def create_app(board: StatusBoard) -> FastAPI:
-    app = FastAPI(
+    app = GatewayApi(
         title="hrc-gateway",
         version="1",
         description="Status of the human-robot collaboration safety gateway (zones, speed override δ, faults). "

@@ -46,6 +46,7 @@ MAX_QUEUED_EVENTS = 10_000
 def _take_event(board: StatusBoard, line: bytes, events_file: EventFile | None) -> None:
     event = Event.model_validate_json(line[len(EVENT_PREFIX) :])
     board.events.add(event)
+    board.metrics.observe_event(event)
     if events_file is not None:
         try:
             events_file.write(event)

@@ -14,9 +14,12 @@ Every input is treated as hostile. A message on a configured topic is rejected, 
 - breaks the stream's order: stamped ahead of this host's clock by more than ``streams.max_future_stamp_s``
   (``stamp_in_future``), stamp or seq not after the newest accepted (``stamp_backwards``, ``seq_backwards``: a
   forged "newer" frame would otherwise hide every genuine one);
-- contradicts what the gateway commanded: joints moving faster than ``override · qd_nominal``
-  (``qd_inconsistent``), or an applied override above every recent command and not braking toward it
-  (``override_above_commanded``, on two joint states in a row, i.e. longer than one controller cycle).
+- contradicts itself or what the gateway commanded: joint velocities other than ``override · qd_nominal``, sign
+  included (``qd_inconsistent``); joints that moved farther since the newest accepted state than their velocity
+  limits allow in the time between the two stamps (``q_jump``); an applied override above every recent command
+  and not braking toward it (``override_above_commanded``, on two joint states in a row, i.e. longer than one
+  controller cycle); an ``override_seq`` first reported before that override was sent, or one never sent
+  (``echo_before_send``, ``echo_never_sent``: :meth:`gateway.delay.OverridePath.on_state`).
 
 A topic fault lasts until a valid message has arrived after it AND ``streams.fault_hold_s`` has passed since its
 last occurrence, so that an attacker interleaving bad frames with good ones keeps the robot stopped instead of
@@ -41,7 +44,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.delay import NS_PER_S, OverridePath, OverridePathEstimate, WindowMax
+from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
 from hrc_common import keys
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
@@ -61,6 +64,10 @@ LIMIT_MARGIN_RAD = 0.01
 VELOCITY_LIMIT_FACTOR = 1.05
 """A joint velocity up to this multiple of its URDF limit is still plausible (interpolation overshoot)."""
 
+JUMP_MARGIN_RAD = LIMIT_MARGIN_RAD
+"""A joint may move this much farther between two states than its velocity limit allows (encoder noise, the
+jitter between a controller's stamp and the instant its position was sampled) [rad]."""
+
 _FAULT_KIND: Mapping[str, str] = {
     "stamp_in_future": "out_of_order",
     "stamp_backwards": "out_of_order",
@@ -71,6 +78,9 @@ _FAULT_KIND: Mapping[str, str] = {
     "q_out_of_limits": "implausible",
     "qd_above_limit": "implausible",
     "qd_inconsistent": "inconsistent",
+    "q_jump": "inconsistent",
+    "echo_before_send": "inconsistent",
+    "echo_never_sent": "inconsistent",
 }
 """Rejection reason → fault kind; any other reason of a configured topic is ``invalid``."""
 
@@ -263,10 +273,6 @@ class InputStore:
         except MessageError as exc:
             self._reject(topic, exc.reason, exc.detail, received)
             return
-        reason, detail = _joint_state_problem(msg, robot, entry, self._qd_tolerance)
-        if reason is not None:
-            self._reject(topic, reason, detail, received)
-            return
         sample = JointSample(
             msg.stamp_ns,
             msg.seq,
@@ -278,11 +284,17 @@ class InputStore:
             max(0, received.wall_ns - msg.stamp_ns),
             received.mono_ns,
         )
-        with self._lock:
+        with self._lock:  # judged under the lock: the newest accepted state is part of the judgement
+            reason, detail = _joint_state_problem(msg, robot, entry, self._qd_tolerance)
+            if reason is not None:
+                self._reject_locked(topic, reason, detail, received)
+                return
             if not self._in_order(topic, msg.seq, msg.stamp_ns, received):
                 return
             previous, entry.sample = entry.sample, sample
-            entry.path.on_state(msg.override_seq, msg.stamp_ns)
+            echo = entry.path.on_state(msg.override_seq, msg.stamp_ns, self._max_future_ns)
+            if echo is not None:
+                self._echo_fault(topic, echo, msg.override_seq, received)
             self._check_override_followed(topic, entry, previous, sample, received)
 
     def on_humans(self, key: str, payload: bytes, received: Clocks) -> None:
@@ -368,10 +380,14 @@ class InputStore:
 
     def _reject(self, topic: str, reason: str, detail: str, received: Clocks) -> None:
         with self._lock:
-            self._rejected[(topic, reason)] += 1
-            stream = self._streams.get(topic)
-            if stream is not None:
-                stream.raise_fault(reason, detail[:200], received.mono_ns)
+            self._reject_locked(topic, reason, detail, received)
+
+    def _reject_locked(self, topic: str, reason: str, detail: str, received: Clocks) -> None:
+        """(lock held) Count a rejection and fault its topic, if configured."""
+        self._rejected[(topic, reason)] += 1
+        stream = self._streams.get(topic)
+        if stream is not None:
+            stream.raise_fault(reason, detail[:200], received.mono_ns)
 
     def _in_order(self, topic: str, seq: int, stamp_ns: int, received: Clocks) -> bool:
         """(lock held) Whether to store this valid message; counts it, or its rejection and fault."""
@@ -411,6 +427,15 @@ class InputStore:
             detail = f"applied {sample.override:.3f}, commanded at most {commanded:.3f} within the path window"
             self._streams[topic].raise_fault("override_above_commanded", detail, received.mono_ns)
 
+    def _echo_fault(self, topic: str, problem: EchoProblem, override_seq: int, received: Clocks) -> None:
+        """(lock held) Fault a robot whose stored state echoes an override seq it cannot have applied."""
+        self._rejected[(topic, problem)] += 1
+        if problem == "echo_before_send":
+            detail = f"override_seq {override_seq} first reported in a state stamped before it was sent"
+        else:
+            detail = f"override_seq {override_seq} was never sent by this gateway"
+        self._streams[topic].raise_fault(problem, detail, received.mono_ns)
+
     def _watch_clock(self, now: Clocks) -> None:
         """(lock held) Raise a clock-step fault when the wall clock moved against the monotonic one."""
         offset_ns = now.wall_ns - now.mono_ns
@@ -426,7 +451,11 @@ class InputStore:
 def _joint_state_problem(
     msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float]
 ) -> tuple[str | None, str]:
-    """Why a parsed joint state cannot be this robot's, or (None, "")."""
+    """(lock held) Why a parsed joint state cannot be this robot's, or (None, "").
+
+    Against the robot (names, joint count, URDF limits), against itself (``qd = override · qd_nominal`` per
+    joint, sign included) and against the newest accepted state (:func:`_jump`).
+    """
     if msg.robot != robot:
         return "name_mismatch", f"robot {msg.robot!r} on the key of {robot!r}"
     if len(msg.q) != entry.n_joints:
@@ -434,14 +463,44 @@ def _joint_state_problem(
     q = np.asarray(msg.q)
     if not ((q >= entry.q_min_rad) & (q <= entry.q_max_rad)).all():
         return "q_out_of_limits", "a joint position beyond its URDF limit"
-    qd = np.abs(np.asarray(msg.qd))
-    qd_nominal = np.abs(np.asarray(msg.qd_nominal))
-    if (qd > entry.qd_max_radps).any() or (qd_nominal > entry.qd_max_radps).any():
+    qd = np.asarray(msg.qd)
+    qd_nominal = np.asarray(msg.qd_nominal)
+    if (np.abs(qd) > entry.qd_max_radps).any() or (np.abs(qd_nominal) > entry.qd_max_radps).any():
         return "qd_above_limit", "a joint velocity above its URDF limit"
     absolute, ratio = qd_tolerance
-    if (qd > msg.override * qd_nominal + absolute + ratio * qd_nominal).any():
-        return "qd_inconsistent", f"qd beyond override {msg.override:.3f} × qd_nominal"
+    # sign included: joints moving against qd_nominal move where the gateway does not look
+    off = np.abs(qd - msg.override * qd_nominal) > absolute + ratio * np.abs(qd_nominal)
+    if off.any():
+        j = int(np.argmax(off))
+        return "qd_inconsistent", (
+            f"qd beyond override {msg.override:.3f} × qd_nominal ± tolerance at joint {j}: qd {qd[j]:+.3f} rad/s, "
+            f"qd_nominal {qd_nominal[j]:+.3f} rad/s"
+        )
+    jump = _jump(entry.sample, msg, entry.qd_max_radps)
+    if jump is not None:
+        return "q_jump", jump
     return None, ""
+
+
+def _jump(previous: JointSample | None, msg: JointState, qd_max_radps: FloatArray) -> str | None:
+    """What joint moved farther since ``previous`` than its velocity limit allows, or None.
+
+    |q − q_prev| ≤ qd_max · (stamp − stamp_prev) + :data:`JUMP_MARGIN_RAD`, per joint, on the controller's stamps:
+    the allowed motion grows with the gap, so a state after a pause (or a restarted controller) passes. Without a
+    previous state, or with a stamp not after it (the stream's order decides those), there is nothing to judge.
+    """
+    if previous is None or msg.stamp_ns <= previous.stamp_ns:
+        return None
+    dt_s = (msg.stamp_ns - previous.stamp_ns) / NS_PER_S
+    moved_rad = np.abs(np.asarray(msg.q) - previous.q_rad)
+    beyond = moved_rad > qd_max_radps * dt_s + JUMP_MARGIN_RAD
+    if not beyond.any():
+        return None
+    j = int(np.argmax(beyond))
+    return (
+        f"joint {j} moved {moved_rad[j]:.3f} rad in {dt_s * 1e3:.1f} ms, at most "
+        f"{qd_max_radps[j] * dt_s + JUMP_MARGIN_RAD:.3f} rad at its velocity limit"
+    )
 
 
 def _nothing() -> None:

@@ -1,9 +1,14 @@
 """The gateway process: Zenoh in, :class:`~gateway.node.GatewayNode` cycles, override and status out, REST in a child.
 
     Zenoh callback ──node.on_joint_state / on_humans──▶ (stored)
-    rate.sleep() ──▶ node.cycle(now) ──▶ publish overrides ──▶ status every ``status_rate_hz`` ──▶ rate.sleep()
+    rate.sleep() ──▶ node.cycle(now, until next) ──▶ publish overrides ──▶ hand the cycle over ──▶ rate.sleep()
+                                                                              │ every ``status_rate_hz``
+    status thread ◀───────────────────────────────────────────────────────────┘
+        └──▶ cycle_status ──▶ JSON ──▶ Zenoh status key and the HTTP child
 
-Only Zenoh, timing, logging and the status live here; every decision is the node's.
+The safety loop's thread decides, publishes and hands over; nothing it does after publishing can delay the next
+decision beyond what that decision budgeted (:class:`DecisionIntervals`). Only Zenoh, timing, logging and the
+status live here; every decision is the node's.
 """
 
 from __future__ import annotations
@@ -11,39 +16,45 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
+import os
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from types import TracebackType
+from typing import Any, NamedTuple
 
 import zenoh
+from pydantic import TypeAdapter
 
 from gateway.core import RobotDecision
+from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
 from gateway.http_server import HttpServerProcess
-from gateway.node import GatewayCycle, GatewayNode, NodeRecorder, humans_summary
-from gateway.status import effective_config, human_capsules, loop_status, robot_status, status_document
+from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
+from gateway.status import cycle_status, effective_config, loop_status
 from hrc_common import keys
 from hrc_common.clocks import read_clocks
 from hrc_common.config import CellConfig, ConfigError, load_cell_config
 from hrc_common.messages import Override, to_payload
-from hrc_common.robot_model import load_robot_model
+from hrc_common.robot_model import RobotModel, load_robot_model
 from hrc_common.sd_notify import LoopNotifier
 from hrc_common.service import (
     RateLoop,
     StopEvent,
     add_config_argument,
     add_zenoh_arguments,
+    collections_paused,
     configure_logging,
     freeze_startup_heap,
     logging_through_a_queue,
     stop_on_signals,
     use_realtime_scheduling,
 )
-from hrc_common.status_models import Event
+from hrc_common.status_models import Event, GatewayStatus, HumanCapsuleStatus, LoopStatus
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from recorder.gateway_log import GatewayRecorder
 from recorder.mcap_sink import RecordingError
@@ -54,6 +65,20 @@ PROGRESS_EVERY_S = 5.0
 
 MAX_EVENT_SEQS_PER_STATUS = 256
 """At most this many event-cycle seqs are listed in one status document (``loop.event_seqs``)."""
+
+DECISION_INTERVAL_WINDOW_S = 10.0
+"""Each decision budgets the longest interval between consecutive decisions measured within this window [s]."""
+
+GIL_SWITCH_INTERVAL_S = 0.0005
+"""Python's switch interval in the gateway [s] (default 5 ms): a thread that waits for the interpreter lock asks
+its holder to drop it after this long. At the default, the loop waking while the status thread built a document
+waited ~5 ms for the lock (p50, measured with a probe thread under SCHED_FIFO); at 0.5 ms, ~0.6 ms."""
+
+STATUS_CAPSULES_PER_CHUNK = 250
+"""The status's ``human_capsules`` are serialised this many at a time: each call holds the interpreter lock (about
+0.2 ms for 250; ~3 ms for 4000 in one call, the loop waiting meanwhile)."""
+
+_HUMAN_CAPSULE_LIST: TypeAdapter[list[HumanCapsuleStatus]] = TypeAdapter(list[HumanCapsuleStatus])
 
 
 def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.Sample], None]:
@@ -90,10 +115,10 @@ def _log_events(events: list[Event]) -> None:
             log.info("%s%s", robot, event.message)
 
 
-def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int) -> None:
+def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int, budget_overruns: int) -> None:
     for name, d in decisions.items():
         log.info(
-            "robot %s: %s δ=%.2f d_min=%s t_delay=%.3f s faults=%s missed_cycles=%d",
+            "robot %s: %s δ=%.2f d_min=%s t_delay=%.3f s faults=%s missed_cycles=%d budget_overruns=%d",
             name,
             d.zone.value,
             d.delta,
@@ -101,6 +126,7 @@ def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int) -> No
             d.delay.total_s,
             ",".join(f.code for f in d.faults) or "none",
             missed_cycles,
+            budget_overruns,
         )
 
 
@@ -119,13 +145,192 @@ def _use_realtime_scheduling(priority: int, thread: str = "the safety loop") -> 
     use_realtime_scheduling(priority, thread, log)
 
 
+class DecisionIntervals:
+    """The time from one decision to the next: budgeted by each decision, checked when the next one starts.
+
+    A decision's delay budget counts the time until the next decision (``gateway_period_s``: its override is in
+    force until then). Each decision budgets the longest start-to-start interval between consecutive decisions
+    (ticks and event cycles alike) measured within the last ``window_s``, and at least the nominal period: what the
+    loop really took lately, stalls included, not the period plus the previous tick's lateness. The next decision
+    checks it: a decision that commanded motion (δ > 0 to some robot) whose successor started later than it
+    budgeted is an overrun, counted in :attr:`overruns` (the status's ``loop.budget_overruns``); the decisions
+    after it budget that longer interval.
+
+    Args:
+        period_s: the loop's nominal period [s].
+        window_s: how long a measured interval is remembered [s].
+
+    Raises:
+        ValueError: ``period_s`` or ``window_s`` is not > 0.
+    """
+
+    def __init__(self, period_s: float, window_s: float = DECISION_INTERVAL_WINDOW_S) -> None:
+        if not (period_s > 0.0 and window_s > 0.0):
+            raise ValueError(f"period_s = {period_s}, window_s = {window_s}; allowed: > 0")
+        self.period_s = period_s
+        self._intervals_ns = WindowMax(round(window_s * NS_PER_S))
+        self._previous_ns: int | None = None
+        self._budget_s = period_s
+        self._moving = False
+        self.overruns = 0
+        """Decisions that commanded δ > 0 and whose next decision started later than they budgeted."""
+        self.worst_overrun_s = 0.0
+        """The longest time by which a next decision came later than budgeted [s]."""
+
+    def start(self, now_mono_ns: int) -> float:
+        """A decision starts at ``now_mono_ns`` [monotonic ns]: check the previous decision's budget, give this one's.
+
+        Returns:
+            The time until the next decision this one must budget [s]: the longest interval within the window
+            (the one that just ended included), at least the period.
+        """
+        if self._previous_ns is not None:
+            interval_ns = max(0, now_mono_ns - self._previous_ns)
+            late_s = interval_ns / NS_PER_S - self._budget_s
+            if self._moving and late_s > 0.0:
+                self.overruns += 1
+                self.worst_overrun_s = max(self.worst_overrun_s, late_s)
+            self._intervals_ns.push(now_mono_ns, interval_ns)
+        self._previous_ns = now_mono_ns
+        longest_ns = self._intervals_ns.max()
+        self._budget_s = self.period_s if longest_ns is None else max(self.period_s, longest_ns / NS_PER_S)
+        self._moving = False
+        return self._budget_s
+
+    def commanded(self, moving: bool) -> None:
+        """What the decision started last commanded: ``moving`` when δ > 0 for some robot (its budget must hold)."""
+        self._moving = moving
+
+
+def status_json(doc: GatewayStatus) -> bytes:
+    """``doc.model_dump_json()``, its ``human_capsules`` serialised :data:`STATUS_CAPSULES_PER_CHUNK` at a time.
+
+    The same bytes; but no single call holds the interpreter lock for long (one call for a crowd of 4000
+    capsules held it ~3 ms, and a loop thread that woke meanwhile waited).
+    """
+    capsules = doc.human_capsules
+    if len(capsules) <= STATUS_CAPSULES_PER_CHUNK:
+        return doc.model_dump_json().encode()
+    empty = b'"human_capsules":[]'
+    head = doc.model_copy(update={"human_capsules": []}).model_dump_json().encode()
+    if head.count(empty) != 1:  # never with the contract's models (keys are unique); then in one call
+        return doc.model_dump_json().encode()
+    chunks = [
+        _HUMAN_CAPSULE_LIST.dump_json(capsules[k : k + STATUS_CAPSULES_PER_CHUNK])[1:-1]
+        for k in range(0, len(capsules), STATUS_CAPSULES_PER_CHUNK)
+    ]
+    return head.replace(empty, b'"human_capsules":[' + b",".join(chunks) + b"]")
+
+
+class StatusJob(NamedTuple):
+    """One cycle to show, with what the loop took for it on its own thread (cheap: references and small counts).
+
+    Attributes:
+        cycle: the cycle the document shows.
+        counters: ``(rejected, received)`` of the input store when the cycle was handed over.
+        loop: the loop's own timing then.
+        stamp_ns: when it was handed over, right after the decision [ns since the epoch].
+    """
+
+    cycle: GatewayCycle
+    counters: tuple[dict[str, dict[str, int]], dict[str, int]]
+    loop: LoopStatus
+    stamp_ns: int
+
+
+class StatusThread:
+    """Builds, serialises and publishes the status documents on a thread of their own, off the safety loop.
+
+    :meth:`offer` never blocks its caller: the job goes into a one-place slot (the newest wins: one not yet taken
+    is replaced) and a counter (an eventfd) wakes the thread; no lock is shared with the loop, so the status thread
+    being descheduled cannot hold the loop up. The thread runs at normal scheduling. What it cannot avoid is
+    Python's interpreter lock: it builds the document under :func:`collections_paused` (a full collection while a
+    document of thousands of capsules is alive held the lock 5–10 ms) and serialises it in chunks (:func:`status_json`).
+    An exception while publishing is logged and counted; the thread goes on.
+
+    Args:
+        publish: builds and publishes one job's document (called on the status thread).
+    """
+
+    JOIN_TIMEOUT_S = 5.0
+
+    def __init__(self, publish: Callable[[StatusJob], None]) -> None:
+        self._publish = publish
+        self._slot: deque[StatusJob] = deque(maxlen=1)
+        self._doorbell = os.eventfd(0)
+        self._closed = False
+        self.published = 0
+        self.errors = 0
+        self._thread = threading.Thread(target=self._run, name="hrc-status", daemon=True)
+        self._thread.start()
+
+    def offer(self, job: StatusJob) -> None:
+        """Hand over the newest cycle to show (never blocks: an eventfd write cannot, below 2⁶⁴ − 1 unread)."""
+        self._slot.append(job)
+        os.eventfd_write(self._doorbell, 1)
+
+    def close(self) -> None:
+        """Stop the thread (a document being built is finished first); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        os.eventfd_write(self._doorbell, 1)
+        self._thread.join(self.JOIN_TIMEOUT_S)
+        if not self._thread.is_alive():  # else it still reads the descriptor: leave it to the process's end
+            os.close(self._doorbell)
+
+    def __enter__(self) -> StatusThread:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        while True:
+            os.eventfd_read(self._doorbell)  # blocks, without the interpreter lock, until an offer or close
+            if self._closed:
+                return
+            try:
+                job = self._slot.pop()
+            except IndexError:  # taken at a previous wake-up
+                continue
+            try:
+                self._publish(job)
+                self.published += 1
+            except Exception:  # the status must never take the gateway down: count it, the loop goes on
+                self.errors += 1
+                log.exception("error while publishing a status document (the loop goes on)")
+
+
+@dataclass(frozen=True)
+class _StatusSink:
+    """Where the status thread puts each document: the Zenoh status key and the HTTP child."""
+
+    config: CellConfig
+    robots: Mapping[str, RobotModel]
+    publisher: Any
+    http: HttpServerProcess
+
+    def publish(self, job: StatusJob) -> None:
+        line = self.line(job)
+        self.publisher.put(line)
+        self.http.offer(line + b"\n")
+
+    def line(self, job: StatusJob) -> bytes:
+        """The job's document as JSON; built and dropped with collections paused (see :class:`StatusThread`)."""
+        with collections_paused():
+            return status_json(cycle_status(self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns))
+
+
 @dataclass
 class _Outputs:
-    """The gateway's publishers, and what the status collects between two documents."""
+    """The gateway's publishers, and what the status collects between two documents (loop thread only)."""
 
     overrides: dict[str, Any]
-    status: Any
     http: HttpServerProcess
+    status_thread: StatusThread
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
     events: EventLog = field(default_factory=EventLog)
@@ -134,39 +339,36 @@ class _Outputs:
         for name, message in messages.items():
             self.overrides[name].put(to_payload(message))
 
-    def publish_status(self, config: CellConfig, cycle: GatewayCycle, rate: RateLoop, node: GatewayNode) -> None:
-        rejected, received = node.inputs.counters()
-        doc = status_document(
-            config.cell,
-            time.time_ns(),
-            {
-                name: robot_status(d, cycle.seq, node.robots[name].link_names, node.robots[name].link_radius_m)
-                for name, d in cycle.decisions.items()
-            },
-            humans_summary(cycle.inputs),
-            rejected,
-            received,
-            loop_status(rate, self.compute_max_s, config.gateway.event_driven, self.event_seqs),
-            human_capsules(cycle.inputs),
-        )
-        line = doc.model_dump_json().encode()
-        self.status.put(line)
-        self.http.offer(line + b"\n")
+    def offer_status(
+        self, config: CellConfig, cycle: GatewayCycle, rate: RateLoop, node: GatewayNode, intervals: DecisionIntervals
+    ) -> None:
+        """Hand ``cycle`` to the status thread with the loop's numbers now (a few µs on the loop thread)."""
+        loop = loop_status(rate, self.compute_max_s, config.gateway.event_driven, self.event_seqs)
+        loop = loop.model_copy(update={"budget_overruns": intervals.overruns})
+        self.status_thread.offer(StatusJob(cycle, node.counters(), loop, time.time_ns()))
         self.compute_max_s = 0.0
         self.event_seqs = []
 
 
-def _declare_outputs(session: zenoh.Session, config: CellConfig, http: HttpServerProcess) -> _Outputs:
-    overrides = {
+def _declare_overrides(session: zenoh.Session, config: CellConfig) -> dict[str, Any]:
+    """One publisher per robot. Congestion control BLOCK: an override that lowers δ is never dropped on the way
+    (DROP would leave the controller at the higher δ until a later one, or its watchdog, arrived, beyond the
+    budget). A put waits only while the link's queue is full; a silent peer's link is closed after the session's
+    lease (1 s), a congested one after Zenoh's ``wait_before_close`` (5 s), which ends the wait; meanwhile the
+    controllers' watchdogs stop the robots and the next decision counts the overrun."""
+    return {
         name: session.declare_publisher(
             keys.robot_override(config.cell, name),
             express=True,
             priority=zenoh.Priority.REAL_TIME,
-            congestion_control=zenoh.CongestionControl.DROP,
+            congestion_control=zenoh.CongestionControl.BLOCK,
         )
         for name in config.robots
     }
-    return _Outputs(overrides, session.declare_publisher(keys.gateway_status(config.cell)), http)
+
+
+def _moving(overrides: Mapping[str, Override]) -> bool:
+    return any(message.delta > 0.0 for message in overrides.values())
 
 
 def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent, wake: threading.Event | None) -> int:
@@ -177,40 +379,51 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S
     freeze_startup_heap()
     rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
+    intervals = DecisionIntervals(period_s)
+    overruns_logged = 0
     service = LoopNotifier.from_environment()  # READY=1, WATCHDOG=1 from this loop, STATUS=, STOPPING=1
     while rate.sleep(stop, wake):
-        started_s = time.monotonic()
-        # Until the next decision: at most the rest of this period plus the lateness of the next tick,
-        # estimated by the last one; an event cycle only comes earlier.
-        cycle = node.cycle(read_clocks(), period_s + rate.last_lateness_s)
+        woke_s = time.monotonic()
+        now = read_clocks()
+        cycle = node.cycle(now, intervals.start(now.mono_ns))
         out.publish_overrides(cycle.overrides)
-        service.cycle_done(started_s, functools.partial(service_status_line, cycle.decisions, rate.missed_cycles))
+        intervals.commanded(_moving(cycle.overrides))
+        service.cycle_done(woke_s, functools.partial(service_status_line, cycle.decisions, rate.missed_cycles))
         service.stall_for_tests(stop)  # TEST ONLY (HRC_TEST_STALL_AFTER_CYCLES): a stalled loop stops the pings
         if rate.last_was_event and len(out.event_seqs) < MAX_EVENT_SEQS_PER_STATUS:
             out.event_seqs.append(cycle.seq)
-        compute_s = time.monotonic() - started_s
-        rate.cycle_took(compute_s)
-        out.compute_max_s = max(out.compute_max_s, compute_s)
-        events = out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions)
+        events = out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions, cycle.track_events)
         if events:
             _log_events(events)
             out.http.offer_events(events)
         if not rate.last_was_event and rate.tick_cycles % status_every == 0:
-            out.publish_status(config, cycle, rate, node)
+            out.offer_status(config, cycle, rate, node, intervals)
             if out.http.exit_code() is not None:
                 log.error("the HTTP server exited (code %s); is its port in use?", out.http.exit_code())
                 service.stopping()
                 return 1
-        if started_s >= next_progress_s:
-            next_progress_s = started_s + PROGRESS_EVERY_S
-            _log_progress(cycle.decisions, rate.missed_cycles)
+        if intervals.overruns and not overruns_logged:
+            overruns_logged = intervals.overruns
+            log.warning(
+                "a decision with δ > 0 was in force %.1f ms longer than its delay budget counted (the loop was "
+                "held up); later decisions budget the longer interval (loop.budget_overruns)",
+                1e3 * intervals.worst_overrun_s,
+            )
+        if woke_s >= next_progress_s:
+            next_progress_s = woke_s + PROGRESS_EVERY_S
+            _log_progress(cycle.decisions, rate.missed_cycles, intervals.overruns)
+        # The whole iteration, from waking to going back to sleep: what can make the next tick late.
+        compute_s = time.monotonic() - woke_s
+        rate.cycle_took(compute_s)
+        out.compute_max_s = max(out.compute_max_s, compute_s)
     service.stopping()
     log.info(
-        "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles)",
+        "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles; %d budget overruns)",
         rate.tick_cycles + rate.event_cycles,
         rate.tick_cycles,
         rate.missed_cycles,
         rate.event_cycles,
+        intervals.overruns,
     )
     return 0
 
@@ -238,14 +451,15 @@ def run_gateway(
     with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
         on_sample = _callback(node, config.gateway.io_realtime_priority)
-        subscribers = [session.declare_subscriber(k, on_sample) for k in (states_key, humans_key)]
+        subscribers = [
+            session.declare_subscriber(k, on_sample)
+            for k in (states_key, humans_key, keys.operator_track_reset(config.cell))
+        ]
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
         effective = effective_config(config)
-        out = _declare_outputs(
-            session,
-            config,
-            HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority),
-        )
+        http = HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority)
+        sink = _StatusSink(config, node.robots, session.declare_publisher(keys.gateway_status(config.cell)), http)
+        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish))
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
@@ -259,10 +473,12 @@ def run_gateway(
         )
         if config.gateway.loop_realtime_priority:
             _use_realtime_scheduling(config.gateway.loop_realtime_priority)
+        sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # the loop gets the interpreter lock soon after it wakes
         try:
             return _loop(config, node, out, stop, wake)
         finally:
             out.publish_overrides(node.stop_overrides(read_clocks()))  # last word to the controllers: stop
+            out.status_thread.close()
             out.http.offer_events(out.events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
             out.http.close()
             del token, subscribers  # undeclared when the session closes

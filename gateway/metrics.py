@@ -1,9 +1,17 @@
 """Prometheus metrics of the gateway (``GET /metrics``), computed in the HTTP child from the status documents.
 
 Nothing here runs in the safety loop: the child observes each status document as it arrives (histograms of the
-loop's timing, faults raised) and reads the newest one when scraped (gauges and counters the gateway already
-counts). Names follow Prometheus' conventions: prefix ``hrc_``, base units (seconds, metres), ``_total`` for
-counters, ratios in 0–1.
+loop's timing, faults raised), each event of the log as it arrives (people released, by cause) and reads the newest
+document when scraped (gauges and counters the gateway already counts, the people tracked). Names follow Prometheus'
+conventions: prefix ``hrc_``, base units (seconds, metres), ``_total`` for counters, ratios in 0–1.
+
+A status document shows the loop at one instant: its mean tick period since the previous document, the longest
+decision and the lateness of the last tick, not each tick's. The period histogram's buckets lie around the
+configured period, so that it shows how far the means stray from it.
+
+Releases are counted from the ``track_released`` events, not from the status: the status keeps only the 32 most
+recent released tracks, a released label may come back (the same person lost and released again), and the child may
+skip status documents; it receives every event once.
 """
 
 from __future__ import annotations
@@ -15,11 +23,17 @@ from prometheus_client import CollectorRegistry, Counter, Histogram, generate_la
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from hrc_common.status_models import GatewayStatus
+from hrc_common.status_models import Event, GatewayStatus
 
 MS_BUCKETS_S = (0.0005, 0.001, 0.002, 0.003, 0.004, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.05, 0.1)
-"""Histogram buckets for the loop's timing: 0.5 ms to 100 ms [s]."""
+"""Histogram buckets for the loop's compute time and lateness: 0.5 ms to 100 ms [s]."""
+PERIOD_BUCKET_RATIOS = (0.5, 0.9, 0.95, 0.98, 0.99, 1.01, 1.02, 1.05, 1.1, 1.25, 1.5, 2.0, 3.0)
+"""Upper edges of the period histogram's buckets, as multiples of the configured tick period."""
 ZONES = ("autonomous", "guarded_distance", "reduced_speed", "safety_exception")
+TRACK_STATES = ("seen", "lost")
+"""The states ``hrc_tracks`` counts (the released ones are a count of events: ``hrc_tracks_released_total``)."""
+RELEASE_CAUSES = ("redetected", "left", "reset")
+"""Causes of ``track_released`` (docs/contract.md "Tracks"), exported at 0 before the first."""
 NS_PER_S = 1e9
 
 
@@ -35,10 +49,16 @@ class _StatusCollector(Collector):
             return
         yield from _robot_metrics(status)
         yield from _input_metrics(status)
+        yield from _track_metrics(status)
         loop = status.loop
         yield CounterMetricFamily("hrc_loop_cycles", "Decisions taken (ticks and event cycles).", value=loop.cycles)
         yield CounterMetricFamily("hrc_loop_missed_cycles", "Ticks skipped after an overrun.", value=loop.missed_cycles)
-        yield GaugeMetricFamily("hrc_loop_rate_hz", "Tick rate of the safety loop [Hz].", value=loop.rate_hz)
+        if loop.rate_hz > 0.0:
+            yield GaugeMetricFamily(
+                "hrc_loop_nominal_period_seconds",
+                "Configured tick period of the safety loop.",
+                value=1.0 / loop.rate_hz,
+            )
 
 
 def _robot_metrics(status: GatewayStatus) -> Iterator[Metric]:
@@ -79,18 +99,52 @@ def _input_metrics(status: GatewayStatus) -> Iterator[Metric]:
     yield rejected
 
 
-class GatewayMetrics:
-    """The metrics registry; :meth:`observe` each status document as it arrives (thread-safe)."""
+def _track_metrics(status: GatewayStatus) -> Iterator[Metric]:
+    tracks = GaugeMetricFamily(
+        "hrc_tracks", "People tracked, by state: seen, or lost (kept, growing at K).", labels=["state"]
+    )
+    for state in TRACK_STATES:
+        tracks.add_metric([state], sum(1 for t in status.tracks if t.state == state))
+    yield tracks
+    yield GaugeMetricFamily(
+        "hrc_track_lost_age_max_seconds",
+        "Time since the longest-lost person was last seen; 0 with nobody lost.",
+        value=max((t.last_seen_age_s for t in status.tracks if t.state == "lost"), default=0.0),
+    )
 
-    def __init__(self) -> None:
+
+def period_buckets(period_s: float) -> tuple[float, ...]:
+    """Bucket edges around the tick period ``period_s`` [s] (:data:`PERIOD_BUCKET_RATIOS` of it, to 1 ns)."""
+    return tuple(round(ratio * period_s, 9) for ratio in PERIOD_BUCKET_RATIOS)
+
+
+def raised_faults(previous: GatewayStatus | None, status: GatewayStatus) -> list[tuple[str, str]]:
+    """``(robot, code)`` of each fault active in ``status`` and not in ``previous`` (all of them in the first)."""
+    raised = []
+    for name, robot in status.robots.items():
+        before = None if previous is None else previous.robots.get(name)
+        codes = set() if before is None else {f.code for f in before.faults}
+        raised += [(name, f.code) for f in robot.faults if f.code not in codes]
+    return raised
+
+
+class GatewayMetrics:
+    """The metrics registry; :meth:`observe` each status document as it arrives (thread-safe).
+
+    Args:
+        period_s: the loop's configured tick period (``1 / gateway.rate_hz``), the centre of the period
+            histogram's buckets [s].
+    """
+
+    def __init__(self, period_s: float) -> None:
         self.registry = CollectorRegistry()
         self.latest: GatewayStatus | None = None
         self._lock = threading.Lock()
         self._previous: GatewayStatus | None = None
         self.period = Histogram(
             "hrc_loop_period_seconds",
-            "Mean tick period between two status documents.",
-            buckets=MS_BUCKETS_S,
+            "Mean tick period over the ticks between two status documents.",
+            buckets=period_buckets(period_s),
             registry=self.registry,
         )
         self.compute = Histogram(
@@ -105,6 +159,15 @@ class GatewayMetrics:
         self.faults_raised = Counter(
             "hrc_faults_raised", "Faults raised, by robot and code.", ["robot", "code"], registry=self.registry
         )
+        self.tracks_released = Counter(
+            "hrc_tracks_released",
+            "People released (no longer lost), by cause: redetected, left or reset.",
+            ["cause"],
+            registry=self.registry,
+        )
+        for cause in RELEASE_CAUSES:
+            self.tracks_released.labels(cause)
+        self._last_event_seq = 0
         self.registry.register(_StatusCollector(self))
 
     def observe(self, status: GatewayStatus) -> None:
@@ -113,17 +176,22 @@ class GatewayMetrics:
             previous, self._previous, self.latest = self._previous, status, status
             self.compute.observe(status.loop.compute_max_s)
             self.lateness.observe(status.loop.last_lateness_s)
+            for name, code in raised_faults(previous, status):
+                self.faults_raised.labels(name, code).inc()
             if previous is None:
                 return
             ticks = status.loop.tick_cycles - previous.loop.tick_cycles
             if ticks > 0 and status.stamp_ns > previous.stamp_ns:
                 self.period.observe((status.stamp_ns - previous.stamp_ns) / NS_PER_S / ticks)
-            for name, robot in status.robots.items():
-                before = previous.robots.get(name)
-                codes = set() if before is None else {f.code for f in before.faults}
-                for fault in robot.faults:
-                    if fault.code not in codes:
-                        self.faults_raised.labels(name, fault.code).inc()
+
+    def observe_event(self, event: Event) -> None:
+        """One event of the log arrived; an event of a seq already observed is not counted again."""
+        with self._lock:
+            if event.seq <= self._last_event_seq:
+                return
+            self._last_event_seq = event.seq
+            if event.kind == "track_released":
+                self.tracks_released.labels(event.cause or "unknown").inc()
 
     def exposition(self) -> bytes:
         """The Prometheus text format."""

@@ -187,7 +187,8 @@ class GatewayNode:
 
         Args:
             now: the decision time on both clocks.
-            period_s: at most the time until the next decision (the loop's period plus its lateness) [s].
+            period_s: the time until the next decision the delay budget counts: the loop's worst recent interval
+                between decisions, at least its period [s].
         """
         with self._order:
             snapshot = self.inputs.snapshot(now)

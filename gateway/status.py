@@ -98,18 +98,25 @@ def link_capsules(
     return _LINK_CAPSULES.validate_python(_link_entries(decision, link_names, link_radius_m))
 
 
+VALIDATE_CHUNK = 250
+"""Capsules validated per call: one pydantic call holds Python's interpreter lock throughout (4000 capsules at once
+held it 11–13 ms, longer than the safety loop's period); between chunks the loop thread can take it."""
+
+
 def human_capsules(capsules: HumanCapsules) -> list[HumanCapsuleStatus]:
     """The people a decision kept clear of (world frame): every seen capsule and every lost track's, its radius
-    grown by the track's reach; for the status's ``human_capsules``."""
+    grown by the track's reach; for the status's ``human_capsules``. Validated :data:`VALIDATE_CHUNK` at a time."""
     if not capsules.n_capsules:
         return []
     rows = _capsule_rows(capsules.h_a_world, capsules.h_b_world, capsules.radius_m)
-    return _HUMAN_CAPSULES.validate_python(
-        [
-            {"human": human, "name": name, "a_m": row[0:3], "b_m": row[3:6], "radius_m": row[6]}
-            for human, name, row in zip(capsules.human_ids, capsules.capsule_names, rows, strict=True)
-        ]
-    )
+    entries = [
+        {"human": human, "name": name, "a_m": row[0:3], "b_m": row[3:6], "radius_m": row[6]}
+        for human, name, row in zip(capsules.human_ids, capsules.capsule_names, rows, strict=True)
+    ]
+    out: list[HumanCapsuleStatus] = []
+    for start in range(0, len(entries), VALIDATE_CHUNK):
+        out += _HUMAN_CAPSULES.validate_python(entries[start : start + VALIDATE_CHUNK])
+    return out
 
 
 def track_entries(

@@ -310,14 +310,14 @@ class TrackSet:
             The tracks' changes (lost, released), in order.
         """
         events: list[TrackEvent] = []
-        new: list[Detection] = []
+        new: list[_People] = []
         for tracker, frame in frames.items():
             if frame is None or self._frames.get(tracker) is frame[0]:
                 continue
             self._frames[tracker] = frame[0]
-            taken, detections = self._take_frame(tracker, frame[1], frame[2])
+            taken, people = self._take_frame(tracker, frame[1], frame[2])
             events += taken
-            new += detections
+            new.append(people)
         if events or self._lost:
             events += self._release_redetected(new)
             self._lost_cache = None
@@ -339,16 +339,15 @@ class TrackSet:
             self._records = None
         return events
 
-    def _take_frame(
-        self, tracker: str, capsules: HumanCapsules, captured_ns: int
-    ) -> tuple[list[TrackEvent], list[Detection]]:
+    def _take_frame(self, tracker: str, capsules: HumanCapsules, captured_ns: int) -> tuple[list[TrackEvent], _People]:
         """Match one tracker's frame to its tracks by id within reach; the rest of its seen tracks are lost.
 
         The common case, the same people with the same parts as in this tracker's previous frame, is decided for the
         whole frame at once (:func:`moved_within`); any other detection by the general rule (:meth:`_match`).
 
         Returns:
-            The changes, and the frame's detections that did not simply continue a track (for the releases).
+            The changes, and the frame's people (for the releases: any of them, continuing a track or not, may be a
+            lost person seen again).
         """
         margin_m = self.tracking.association_margin_m + 2.0 * self._noise_m.get(tracker, 0.0)
         previous = self._previous.get(tracker)
@@ -366,7 +365,6 @@ class TrackSet:
             dt_s = (captured_ns - previous.captured_ns) / NS_PER_S
             ok = moved_within(previous.capsules, capsules, starts, self.reach_speed_mps * dt_s + margin_m)
             continued = [t if t is not None and ok[k] else None for k, t in enumerate(continued)]
-        detections: list[Detection] = []
         order: list[Track] = []
         for k, (start, end) in enumerate(itertools.pairwise(starts)):
             track = continued[k]
@@ -386,7 +384,6 @@ class TrackSet:
                     start,
                     end,
                 )
-                detections.append(detection)
                 track = self._match(detection, observed, margin_m, captured_ns) or self._new_track(detection)
                 if track.state is TrackState.LOST:  # the same person, seen again by their tracker within reach
                     self._lost.remove(track)
@@ -400,7 +397,7 @@ class TrackSet:
             if track.serial not in observed:
                 events += self._lose(track, captured_ns)
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
-        return events, detections
+        return events, _People(tracker, capsules, starts, centres, captured_ns)
 
     def _seen_of(self, tracker: str) -> list[Track]:
         previous = self._previous.get(tracker)
@@ -452,26 +449,33 @@ class TrackSet:
             return [self._release(track, now_mono_ns, ReleaseCause.LEFT, f"last seen leaving through face {face}")]
         return [TrackEvent("track_lost", track.label, f"person {track.label} lost: no longer reported")]
 
-    def _release_redetected(self, detections: Sequence[Detection]) -> list[TrackEvent]:
-        """Release every lost track that a new detection (any tracker, captured after it was last seen) covers."""
+    def _release_redetected(self, frames: Sequence[_People]) -> list[TrackEvent]:
+        """Release every lost track that a person of a new frame (any tracker, captured after it was last seen,
+        whether that person continues a track or not) covers."""
         events: list[TrackEvent] = []
         for track in list(self._lost):
             track_centre = centre(track.capsules)
-            for detection in detections:
-                dt_ns = detection.captured_mono_ns - track.last_seen_mono_ns
-                if dt_ns <= 0:
+            released = None
+            for people in frames:
+                dt_ns = people.captured_ns - track.last_seen_mono_ns
+                if dt_ns <= 0 or not len(people.centres):
                     continue
                 margin_m = (
                     self.tracking.association_margin_m
                     + self._noise_m.get(track.tracker, 0.0)
-                    + self._noise_m.get(detection.tracker, 0.0)
+                    + self._noise_m.get(people.tracker, 0.0)
                 )
                 reach_m = self.reach_speed_mps * dt_ns / NS_PER_S + margin_m
-                if float(np.linalg.norm(centre(detection.capsules) - track_centre)) > reach_m + 2.5:
-                    continue  # a person is at most ~2.5 m across: cannot cover the track
-                if within_reach(track.capsules, detection.capsules, reach_m):
-                    by = f"redetected by {detection.tracker}/{detection.human_id}"
-                    events.append(self._release(track, detection.captured_mono_ns, ReleaseCause.REDETECTED, by))
+                # a person is at most ~2.5 m across: one whose centre is farther cannot cover the track
+                near = np.flatnonzero(np.linalg.norm(people.centres - track_centre, axis=1) <= reach_m + 2.5)
+                for k in near:
+                    person = people.person(int(k))
+                    if within_reach(track.capsules, person, reach_m):
+                        by = f"redetected by {person.human_ids[0]}"
+                        released = self._release(track, people.captured_ns, ReleaseCause.REDETECTED, by)
+                        break
+                if released is not None:
+                    events.append(released)
                     break
         return events
 
@@ -559,6 +563,23 @@ def _continues(track: HumanCapsules, detection: HumanCapsules, reach_m: float) -
     grown = detection.radius_m[rows_arr] - track.radius_m
     limit = reach_m - np.maximum(grown, 0.0)
     return bool(((moved_a <= limit) & (moved_b <= limit)).all()) and math.isfinite(reach_m)
+
+
+class _People(NamedTuple):
+    """The people of one new tracker frame: the frame, each one's first capsule (and the end), their centres [m]."""
+
+    tracker: str
+    capsules: HumanCapsules
+    starts: list[int]
+    centres: FloatArray
+    captured_ns: int
+
+    def person(self, k: int) -> HumanCapsules:
+        """The capsules of the frame's k-th person (human ids ``<tracker>/<id>``)."""
+        c, a, b = self.capsules, self.starts[k], self.starts[k + 1]
+        return HumanCapsules(
+            c.h_a_world[a:b], c.h_b_world[a:b], c.radius_m[a:b], c.human_ids[a:b], c.capsule_names[a:b]
+        )
 
 
 class _Previous(NamedTuple):

@@ -362,6 +362,31 @@ class TrackerConfig(_Frozen):
     noise_std_m: NonNegativeFloat = 0.01
     drop_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.0
     latency_s: NonNegativeFloat = Field(0.0, description="Capture-to-publish latency [s].")
+    position_m: tuple[Finite, Finite, Finite] | None = Field(
+        None, description="Where the sensor sees from, world frame [m]; required with occlusion."
+    )
+    occlusion: bool = Field(
+        False,
+        description="The emulated sensor reports only what it sees from position_m: a body capsule whose line of "
+        "sight is blocked by the robots' links, the scenario's fixtures and other people is left out, a person with "
+        "none visible is not reported (tracker_emu/occlusion.py).",
+    )
+    miss_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = Field(
+        0.0, description="Probability that the emulated sensor misses a person in a frame (each person, each frame)."
+    )
+    id_swap_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = Field(
+        0.0,
+        description="Probability per frame that two people the emulated sensor reports exchange their ids, "
+        "from that frame on.",
+    )
+
+    @model_validator(mode="after")
+    def _occlusion_needs_a_position(self) -> TrackerConfig:
+        if self.occlusion and self.position_m is None:
+            raise ValueError(
+                "occlusion = true needs the sensor's position_m; allowed: occlusion = false, or a position"
+            )
+        return self
 
 
 Vector3 = tuple[Finite, Finite, Finite]
@@ -430,7 +455,8 @@ class StreamsConfig(_Frozen):
     )
     qd_tolerance_radps: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
         0.01,
-        description="Reported q̇ may exceed override · q̇_nominal by this plus qd_tolerance_ratio · |q̇_nominal| "
+        description="Reported q̇ may differ from override · q̇_nominal (per joint, sign included) by this plus "
+        "qd_tolerance_ratio · |q̇_nominal| "
         "before it is a fault [rad/s]. At most 0.1 rad/s (0.1 m/s at 1 m reach) of unnoticed extra speed.",
     )
     qd_tolerance_ratio: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
@@ -443,6 +469,74 @@ class StreamsConfig(_Frozen):
     )
 
 
+class Box(_Frozen):
+    """An axis-aligned box in the world frame [m]."""
+
+    min_m: Vector3
+    max_m: Vector3
+
+    @model_validator(mode="after")
+    def _is_a_volume(self) -> Box:
+        for axis, lo, hi in zip("xyz", self.min_m, self.max_m, strict=True):
+            if not lo < hi:
+                raise ValueError(f"min_m {axis} = {lo} is not below max_m {axis} = {hi}; allowed: min < max per axis")
+        return self
+
+
+class TrackingConfig(_Frozen):
+    """People as tracks (``gateway/tracks.py``, docs/contract.md "Tracks"): what the trackers cover, where people
+    may leave, and how a track is matched. A person no longer seen is *lost*, never gone: only a detection within
+    their reachable set, leaving through the coverage boundary, or an operator's reset releases them."""
+
+    coverage_min_m: Vector3 = Field(
+        (-5.5, -5.5, -0.2),
+        description="Lower corner of the volume the cell's trackers cover together (world frame) [m]. People enter "
+        "and leave only through its boundary; a person lost inside it stays (lost) until released.",
+    )
+    coverage_max_m: Vector3 = Field((5.5, 5.5, 2.6), description="Upper corner of the covered volume [m].")
+    exit_band_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.4,
+        description="A track last seen with its centre within this of a side face of the covered volume, moving out "
+        "through that face, has left [m]. At most 2 m: deeper inside, a person who is lost has not left.",
+    )
+    exit_speed_min_mps: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.2,
+        description="Outward speed of the track's centre (over its last observations) above which it counts as "
+        "moving out [m/s]; noise of a standing person stays below it.",
+    )
+    exit_zones: list[Box] = Field(
+        default_factory=list,
+        description="Doors and walkways (boxes): when given, a person leaves only through them; empty = anywhere "
+        "on the side faces of the covered volume.",
+    )
+    association_margin_m: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = Field(
+        0.1,
+        description="Added to a track's reach when matching a detection to it: the tracker's stated position "
+        "uncertainty beyond 3 × noise_std_m [m]. At most 0.5 m: a looser match lets one person's detection "
+        "release another's track.",
+    )
+    unsafe_forget_lost_for_tests: bool = Field(
+        False,
+        description="TEST ONLY: a person no longer seen is forgotten at once (the classic fail-open), to show that "
+        f"the sweep's auditor catches it. Refused unless {UNSAFE_ENV_VAR} names it.",
+    )
+
+    @field_validator("unsafe_forget_lost_for_tests")
+    @classmethod
+    def _unsafe_only_when_named(cls, value: bool) -> bool:
+        if value and not unsafe_allowed("unsafe_forget_lost_for_tests"):
+            raise ValueError(
+                "true is refused: a test-only setting (lost people are forgotten) that makes the gateway unsafe; "
+                f"allowed: false, or true with {UNSAFE_ENV_VAR}=unsafe_forget_lost_for_tests"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _coverage_is_a_volume(self) -> TrackingConfig:
+        Box(min_m=self.coverage_min_m, max_m=self.coverage_max_m)  # raises with the axis that is not a volume
+        return self
+
+
 class CellConfig(_Frozen):
     cell: Name
     safety: SafetyConfig = SafetyConfig()
@@ -450,6 +544,7 @@ class CellConfig(_Frozen):
     gateway: GatewayConfig = GatewayConfig()
     plausibility: PlausibilityConfig = PlausibilityConfig()
     streams: StreamsConfig = StreamsConfig()
+    tracking: TrackingConfig = TrackingConfig()
     robots: dict[Name, RobotConfig]
     trackers: dict[Name, TrackerConfig]
     default_scenario: str = "walk_in_reach_leave"

@@ -79,7 +79,10 @@ class DelayBudgetStatus(_Strict):
         description="Override path latency, learnt from the ``override_seq`` the controller echoes [s]."
     )
     controller_cycle_s: NonNegative = Field(description="Controller cycle, measured from its joint states [s].")
-    gateway_period_s: NonNegative = Field(description="Until the gateway's next decision: period + lateness [s].")
+    gateway_period_s: NonNegative = Field(
+        description="Until the gateway's next decision: the longest interval between decisions of the last 10 s, at "
+        "least the period [s]."
+    )
 
 
 class ThresholdsStatus(_Strict):
@@ -217,11 +220,17 @@ class LoopStatus(_Strict):
     missed_cycles: Count = Field(description="Ticks skipped after an overrun.")
     last_lateness_s: NonNegative = Field(description="Lateness of the last tick [s].")
     compute_max_s: NonNegative = Field(
-        description="Longest decision (input snapshot to overrides sent) since the previous status [s]."
+        description="Longest loop iteration (from waking to going back to sleep: the decision, publishing, hand-offs) "
+        "since the previous status [s]."
     )
     event_seqs: list[Count] = Field(
         description="Override seqs of the event cycles since the previous status; complete when as many as "
         "the growth of ``event_cycles`` (capped at 256)."
+    )
+    budget_overruns: Count = Field(
+        0,
+        description="Decisions that commanded δ > 0 whose next decision started later than the "
+        "``delay_budget_s.gateway_period_s`` they counted, since the gateway started (the loop was held up).",
     )
 
 

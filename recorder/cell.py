@@ -13,9 +13,11 @@ unchanged, ``log_time`` = its arrival on this host's wall clock), on a channel n
 - joint states and ground-truth joint states (``hrc.joint_state``), overrides (``hrc.override``), tracker
   frames and ground-truth humans (``hrc.humans``), the gateway status (``hrc.gateway_status``);
 - the gateway's event log (``hrc.event``, ``/hrc/<cell>/gateway/events``), polled from its REST API
-  (``GET /api/v1/events?since=…``, the gateway publishes no events on Zenoh);
+  (``GET /api/v1/events?since=…``, the gateway publishes no events on Zenoh): ``log_time`` is when the poll
+  answered, like every other message's arrival (the first poll brings the events since the gateway started,
+  which can be long before the recorder); when each was logged is its ``stamp_ns``;
 - ``foxglove.SceneUpdate`` on ``/scene/humans/<tracker>`` (each frame's people) and ``/scene/robots`` (the
-  links of each status, coloured by zone);
+  links of each status, coloured by zone), with Foxglove's own schema (:func:`recorder.scene.foxglove_schema`);
 - payloads that are not a valid message of their key on ``/hrc/<cell>/rejected`` (``hrc.rejected``), so a
   hostile input is kept as evidence without breaking a reader that trusts the schemas.
 
@@ -60,7 +62,7 @@ OVERRIDE = model_channel("hrc.override", Override)
 HUMANS = model_channel("hrc.humans", Humans)
 STATUS = model_channel("hrc.gateway_status", GatewayStatus)
 EVENT = model_channel("hrc.event", Event)
-SCENE = model_channel(scene.SCHEMA_NAME, scene.SceneUpdate)
+SCENE = ChannelSpec(scene.SCHEMA_NAME, scene.foxglove_schema())
 
 
 class RejectedPayload(BaseModel):
@@ -165,9 +167,10 @@ class CellRecorder:
         if update is not None and topic.scene_topic is not None:
             self.sink.offer(topic.scene_topic, SCENE, received_ns, _encode_model, update)
 
-    def on_events(self, events: Sequence[Event]) -> None:
+    def on_events(self, events: Sequence[Event], received_ns: int) -> None:
+        """Record the events of one poll of the gateway's log, answered at ``received_ns`` (their ``log_time``)."""
         for event in events:
-            self.sink.offer(f"/hrc/{self.cell}/gateway/events", EVENT, event.stamp_ns, _encode_model, event)
+            self.sink.offer(f"/hrc/{self.cell}/gateway/events", EVENT, received_ns, _encode_model, event)
 
 
 _EVENTS = TypeAdapter(EventsResponse)
@@ -264,11 +267,11 @@ def run_recorder(
         poller = _EventPoller(events_url)
         next_progress_s = time.monotonic() + PROGRESS_EVERY_S
         while not stop.wait(EVENTS_POLL_S):
-            recorder.on_events(poller.poll())
+            recorder.on_events(poller.poll(), time.time_ns())
             if time.monotonic() >= next_progress_s:
                 next_progress_s += PROGRESS_EVERY_S
                 log.info("recording %s: %d dropped so far", output, sink.dropped)
-        recorder.on_events(poller.poll())
+        recorder.on_events(poller.poll(), time.time_ns())
         for subscriber in subscribers:
             subscriber.undeclare()  # type: ignore[no-untyped-call]  # zenoh stub
     summary = sink.close()

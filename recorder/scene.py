@@ -5,15 +5,19 @@ ends and a ``SpherePrimitive`` at each end; a point capsule (``a == b``) is one 
 trackers' frames (one entity per person, per tracker), robots from the gateway's status (one entity per robot,
 its links coloured by zone). Entities carry a short lifetime so that whoever leaves the cell vanishes.
 
-The models below are the subset of the Foxglove schema this module fills, field for field (JSON encoding:
-times as ``{sec, nsec}``); the 3D panel recognises the channel by the schema name ``foxglove.SceneUpdate``.
-Pure: no I/O, every time is passed in.
+The channel's schema is Foxglove's own (:func:`foxglove_schema`, vendored from ``@foxglove/schemas``), so
+whatever passes it, Foxglove reads; the 3D panel recognises the channel by the schema name
+``foxglove.SceneUpdate``. The models below build the messages (JSON encoding: times as ``{sec, nsec}``); they fill
+a part of that schema and every message they make is valid against it (``tests/test_recording.py``). Pure: no
+I/O but reading the vendored schema, every time is passed in.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Sequence
+from importlib import resources
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
@@ -22,6 +26,12 @@ from hrc_common.messages import Humans
 from hrc_common.status_models import CapsuleStatus, GatewayStatus, ZoneName
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
+FOXGLOVE_SCHEMAS_VERSION = "2.1.0"
+"""The version of the npm package ``@foxglove/schemas`` (MIT) that :data:`FOXGLOVE_SCHEMA_FILE` comes from."""
+FOXGLOVE_SCHEMA_FILE = "schemas/foxglove.SceneUpdate.json"
+"""Foxglove's JSON Schema of ``foxglove.SceneUpdate``, in this package (``recorder/schemas/README.md``)."""
+FOXGLOVE_SCHEMA_SHA256 = "bc563208a8b4bb2eaecd17713405ef2d9ba87264ac73ae375ba5ab30368c8991"
+"""SHA-256 of :data:`FOXGLOVE_SCHEMA_FILE` as vendored (the tests check it: the file is not edited by hand)."""
 WORLD_FRAME = "world"
 """The cell's world frame (``frame_id`` of every entity)."""
 HUMAN_LIFETIME_S = 0.3
@@ -32,8 +42,19 @@ NS_PER_S = 1_000_000_000
 PARALLEL_EPS = 1e-12
 
 
+def foxglove_schema_bytes() -> bytes:
+    """The vendored file :data:`FOXGLOVE_SCHEMA_FILE`, as it is."""
+    return resources.files("recorder").joinpath(FOXGLOVE_SCHEMA_FILE).read_bytes()
+
+
+def foxglove_schema() -> dict[str, Any]:
+    """Foxglove's JSON Schema of ``foxglove.SceneUpdate`` (``@foxglove/schemas`` :data:`FOXGLOVE_SCHEMAS_VERSION`)."""
+    schema: dict[str, Any] = json.loads(foxglove_schema_bytes())
+    return schema
+
+
 class _Fox(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_serialization_defaults_required=True)
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class Time(_Fox):
@@ -115,8 +136,6 @@ class SceneEntityDeletion(_Fox):
 
 class SceneUpdate(_Fox):
     """An update to the entities displayed in a 3D scene (``foxglove.SceneUpdate``)."""
-
-    model_config = ConfigDict(title=SCHEMA_NAME)
 
     deletions: list[SceneEntityDeletion] = Field(default_factory=list)
     entities: list[SceneEntity] = Field(default_factory=list)

@@ -29,3 +29,15 @@ if ! command -v chromium >/dev/null 2>&1 || ! command -v chromedriver >/dev/null
     echo "bootstrap: chromium/chromedriver missing and not root with apt: the browser test will skip" >&2
   fi
 fi
+# promtool (tests/test_http_operator.py checks /metrics with it) from Debian's prometheus package: only the tool is
+# unpacked into .venv/bin, the server is not installed (no service). Elsewhere that test skips and says why.
+if ! command -v promtool >/dev/null 2>&1 && [ ! -x .venv/bin/promtool ] && command -v apt-get >/dev/null 2>&1; then
+  echo "bootstrap: unpacking promtool from Debian's prometheus package into .venv/bin" >&2
+  promdir="$(mktemp -d)"
+  if ! { { [ "$(id -u)" != "0" ] || apt-get update -qq; } && (cd "$promdir" && apt-get download prometheus) \
+      && dpkg-deb -x "$promdir"/prometheus_*.deb "$promdir/x" && cp "$promdir/x/usr/bin/promtool" .venv/bin/promtool; } \
+      >/tmp/hrc-bootstrap-promtool.log 2>&1; then
+    echo "bootstrap: could not unpack promtool (see /tmp/hrc-bootstrap-promtool.log); the promtool test will skip" >&2
+  fi
+  rm -rf "$promdir"
+fi

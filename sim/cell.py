@@ -33,6 +33,7 @@ from controller_emu.node import ControllerNode
 from controller_emu.program import Trajectory, load_trajectory
 from gateway.core import RobotDecision
 from gateway.node import GatewayNode
+from gateway.tracks import TrackEvent
 from hrc_common import keys
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
@@ -41,7 +42,9 @@ from hrc_common.robot_model import RobotModel
 from sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
 from sim.truth import true_humans
 from tracker_emu.emulator import TrackerEmulator
+from tracker_emu.robot_links import RobotAt, robots_capsules
 from tracker_emu.scenario import Scenario
+from tracker_emu.sensor import covered_volume
 
 EPOCH_NS = 1_790_000_000_000_000_000
 """Wall-clock stamp of simulated time 0 [ns since the Unix epoch]."""
@@ -68,6 +71,9 @@ class RunResult:
         controller_rejected: overrides rejected by the controllers, per reason.
         duration_s: simulated time [s].
         wall_s: wall-clock time the run took (not deterministic; left out of :meth:`to_dict`) [s].
+        tracks: the gateway's track changes: ``track_lost``, and ``released_<cause>`` per release cause
+            (gateway/tracks.py).
+        lost_at_end: tracks still lost when the run ended.
     """
 
     audit: AuditSummary
@@ -83,6 +89,8 @@ class RunResult:
     controller_rejected: Mapping[str, int]
     duration_s: float
     wall_s: float = field(compare=False)
+    tracks: Mapping[str, int] = field(default_factory=dict)
+    lost_at_end: int = 0
 
     @property
     def speedup(self) -> float:
@@ -104,6 +112,8 @@ class RunResult:
             "rejected": {t: dict(sorted(r.items())) for t, r in sorted(self.rejected.items())},
             "controller_rejected": dict(sorted(self.controller_rejected.items())),
             "duration_s": self.duration_s,
+            "tracks": dict(sorted(self.tracks.items())),
+            "lost_at_end": self.lost_at_end,
         }
 
 
@@ -176,6 +186,10 @@ class _GatewayTally:
     decisions: int = 0
     fault_decisions: int = 0
     faults: Counter[str] = field(default_factory=Counter)
+    tracks: Counter[str] = field(default_factory=Counter)
+
+    def count_tracks(self, events: Iterable[TrackEvent]) -> None:
+        self.tracks.update(e.kind if e.cause is None else f"released_{e.cause}" for e in events)
 
     def count(self, decision: RobotDecision) -> None:
         self.decisions += 1
@@ -211,7 +225,9 @@ class _SimCell:
         self.tracker_links: dict[str, SimLink[Payload]] = {
             name: SimLink(links.tracker_to_gateway, _rng(seed, "link-tracker", name)) for name in config.trackers
         }
-        self.emulator = TrackerEmulator(scenario, config.trackers, seed, start_s=0.0)
+        self.emulator = TrackerEmulator(
+            scenario, config.trackers, seed, start_s=0.0, coverage=covered_volume(config.tracking)
+        )
         self.tracker_next_ns = _ceil_ns(self.emulator.next_event_s())
         self.truth = (-1, true_humans(scenario, 0.0))
         self.tally = _GatewayTally()
@@ -235,7 +251,15 @@ class _SimCell:
                 self.gateway_next_ns += self.gateway_period_ns
 
     def _tracker_frames(self, now_ns: int) -> None:
-        for tracker, message in self.emulator.step(now_ns / NS_PER_S, EPOCH_NS + now_ns):
+        now_s = now_ns / NS_PER_S
+        robot_links = (  # the true robots, for the sensors with occlusion
+            robots_capsules(
+                RobotAt(c.robot, c.data, c.trajectory.sample(c.state.tau_s)[0]) for c in self.controllers.values()
+            )
+            if self.emulator.occludes and self.emulator.capture_due(now_s)
+            else None
+        )
+        for tracker, message in self.emulator.step(now_s, EPOCH_NS + now_ns, robot_links):
             key = keys.tracker_humans(self.config.cell, tracker)
             self.tracker_links[tracker].send((key, to_payload(message)), now_ns)
         self.tracker_next_ns = max(now_ns + 1, _ceil_ns(self.emulator.next_event_s()))
@@ -273,6 +297,7 @@ class _SimCell:
         """The gateway node's cycle, exactly the process's: what arrived, then ``cycle``, then the overrides out."""
         _deliver_to_gateway(self.gateway, self.controllers.values(), self.tracker_links.values(), now_ns)
         cycle = self.gateway.cycle(_clocks(now_ns), self.gateway_period_ns / NS_PER_S)
+        self.tally.count_tracks(cycle.track_events)
         for name, decision in cycle.decisions.items():
             self.tally.count(decision)
             ctrl = self.controllers[name]
@@ -303,6 +328,8 @@ class _SimCell:
             controller_rejected=MappingProxyType(dict(controller_rejected)),
             duration_s=end_ns / NS_PER_S,
             wall_s=wall_s,
+            tracks=MappingProxyType(dict(self.tally.tracks)),
+            lost_at_end=len(self.gateway.core.tracks.lost()),
         )
 
 

@@ -3,7 +3,13 @@
     python -m sim.sweep --scenarios 1000 --seed 0 --workers 2 --duration-s 10 --json sweep.json
 
 Each case (:func:`sim.scenarios.generate_case`) runs in :func:`sim.cell.simulate` with the cell's
-configuration and that case's trackers and link faults. Workers are processes of the ``spawn`` context;
+configuration and that case's trackers and link faults. People enter and leave through the boundary of the covered
+volume (``[tracking]``). With ``--occlusion`` the trackers see with line of sight (robot links, other people, low
+fixtures), miss people and swap ids, drawn per case (:func:`sim.scenarios.with_occlusion`): the gateway keeps whom it
+no longer sees as lost tracks, and the auditor, on the truth, must find no violation within K. Two test-only switches
+show that the auditor has teeth: ``--unsafe-ignore-delay`` (t_delay = 0) and ``--unsafe-forget-lost`` (a person no
+longer reported is forgotten at once; with ``--occlusion`` it violates), each refused unless ``HRC_ALLOW_UNSAFE``
+names it. Workers are processes of the ``spawn`` context;
 each loads the configuration and the robot models once. The command prints the table (and the first
 violating cases with their seed and parameters).
 
@@ -26,6 +32,7 @@ import multiprocessing
 import signal
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Generator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -38,6 +45,7 @@ from hrc_common.robot_model import RobotModel, load_robot_model
 from sim.cell import simulate
 from sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from sim.scenarios import generate_case
+from tracker_emu.sensor import covered_volume
 
 DEFAULT_DURATION_S = 10.0
 
@@ -63,6 +71,8 @@ class CaseResult:
         duration_s: simulated time [s]; wall_s: wall-clock time [s].
         fastest_approach_mps: the fastest approach of any person of the case (:mod:`sim.human_speed`) [m/s].
         beyond_k: someone approaches faster than the K the case ran with (outside the guarantee).
+        tracks: the gateway's track changes (``track_lost``, ``released_<cause>``); lost_at_end: tracks still lost
+            when the case ended.
     """
 
     index: int
@@ -88,6 +98,8 @@ class CaseResult:
     wall_s: float
     fastest_approach_mps: float = 0.0
     beyond_k: bool = False
+    tracks: dict[str, int] = dataclasses.field(default_factory=dict)
+    lost_at_end: int = 0
 
 
 @dataclass(frozen=True)
@@ -129,6 +141,8 @@ class SweepSummary:
         within_k, beyond_k: the cases whose people approach no faster than K (the guarantee: 0 violations), and
             those where someone approaches faster (outside it).
         interrupted: the sweep was stopped (Ctrl-C) before all its cases ran: the figures cover those done.
+        tracks: the gateway's track changes over all cases (``track_lost``, ``released_<cause>``).
+        cases_lost_at_end: cases that ended with a lost track (someone the gateway still kept where nobody was seen).
     """
 
     scenarios: int
@@ -149,6 +163,8 @@ class SweepSummary:
     within_k: SpeedGroup
     beyond_k: SpeedGroup
     interrupted: bool = False
+    tracks: dict[str, int] = dataclasses.field(default_factory=dict)
+    cases_lost_at_end: int = 0
 
 
 # -- one case (in a worker) ---------------------------------------------------------------------------
@@ -168,6 +184,10 @@ class CellVariant:
         robot_model: a robot model file (links, braking times) for every robot instead of the cell's, e.g.
             ``configs/robots/ur5_measured.toml`` (the stopping times measured by commissioning).
         method: ``safety.method``, if not the configured one.
+        occlusion: the cases' trackers see with line of sight, miss people and swap ids
+            (:func:`sim.scenarios.with_occlusion`); a change of the cases, not of the cell.
+        unsafe_forget_lost: TEST ONLY: the gateway forgets a person as soon as no tracker reports them (the classic
+            fail-open); ``apply`` refuses it unless ``HRC_ALLOW_UNSAFE`` names ``unsafe_forget_lost_for_tests``.
     """
 
     unsafe_ignore_delay: bool = False
@@ -175,6 +195,8 @@ class CellVariant:
     human_speed_mps: float | None = None
     robot_model: str | None = None
     method: str | None = None
+    occlusion: bool = False
+    unsafe_forget_lost: bool = False
 
     def apply(self, config: CellConfig) -> CellConfig:
         """``config`` with these changes (validated)."""
@@ -182,6 +204,8 @@ class CellVariant:
         safety = raw["safety"]
         if self.unsafe_ignore_delay:
             safety["unsafe_ignore_delay_for_tests"] = True
+        if self.unsafe_forget_lost:
+            raw["tracking"]["unsafe_forget_lost_for_tests"] = True
         if self.human_speed_mps is not None:
             safety["human_speed_mps"] = self.human_speed_mps
             safety["human_speed_close_mps"] = max(safety["human_speed_close_mps"], self.human_speed_mps)
@@ -214,18 +238,28 @@ def _init_worker(config_path: str | None, variant: CellVariant) -> None:
     config = variant.apply(load_cell_config(config_path))
     _WORKER["config"] = config
     _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
+    _WORKER["occlusion"] = variant.occlusion
 
 
 def run_case(
-    config: CellConfig, robots: dict[str, RobotModel], sweep_seed: int, index: int, duration_s: float
+    config: CellConfig,
+    robots: dict[str, RobotModel],
+    sweep_seed: int,
+    index: int,
+    duration_s: float,
+    *,
+    occlusion: bool = False,
 ) -> CaseResult:
-    """Generate case ``index`` of the sweep ``sweep_seed`` and simulate it."""
+    """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``) and
+    simulate it."""
     case = generate_case(
         sweep_seed,
         index,
         duration_s,
         config.safety.max_data_age_s,
         watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
+        coverage=covered_volume(config.tracking),
+        occlusion=occlusion,
     )
     result = simulate(case.config(config), robots, case.scenario, case.links, duration_s, case.seed)
     audit = result.audit
@@ -254,12 +288,14 @@ def run_case(
         wall_s=result.wall_s,
         fastest_approach_mps=round(approach_mps, 4),
         beyond_k=beyond_k(approach_mps, config.safety.human_speed_mps),
+        tracks=dict(result.tracks),
+        lost_at_end=result.lost_at_end,
     )
 
 
 def _run_in_worker(task: tuple[int, int, float]) -> CaseResult:
     sweep_seed, index, duration_s = task
-    return run_case(_WORKER["config"], _WORKER["robots"], sweep_seed, index, duration_s)
+    return run_case(_WORKER["config"], _WORKER["robots"], sweep_seed, index, duration_s, occlusion=_WORKER["occlusion"])
 
 
 def _finite(value: float) -> float | None:
@@ -338,6 +374,8 @@ def summarize(results: list[CaseResult], wall_s: float, human_speed_mps: float =
         human_speed_mps=human_speed_mps,
         within_k=speed_group([r for r in results if not r.beyond_k]),
         beyond_k=speed_group([r for r in results if r.beyond_k]),
+        tracks=dict(sorted(sum((Counter(r.tracks) for r in results), Counter()).items())),
+        cases_lost_at_end=sum(1 for r in results if r.lost_at_end),
     )
 
 
@@ -367,6 +405,11 @@ def _group_rows(name: str, group: SpeedGroup) -> list[tuple[str, str]]:
     ]
 
 
+def _tracks_text(tracks: dict[str, int]) -> str:
+    released = ", ".join(f"{k.removeprefix('released_')} {v}" for k, v in tracks.items() if k.startswith("released_"))
+    return f"{tracks.get('track_lost', 0)} lost / released: {released or 'none'}"
+
+
 def format_table(summary: SweepSummary, workers: int) -> str:
     """The sweep's table as text: every case, then the cases within K and those beyond it, apart."""
     speed = summary.simulated_s / summary.wall_s if summary.wall_s > 0 else math.inf
@@ -387,6 +430,8 @@ def format_table(summary: SweepSummary, workers: int) -> str:
             f"{summary.beyond_budget} ({summary.beyond_budget_stopped} stopped on stale data)",
         ),
         ("human speed K [m/s]", f"{summary.human_speed_mps:g}"),
+        ("tracks lost / released", _tracks_text(summary.tracks)),
+        ("scenarios ending with a lost track", str(summary.cases_lost_at_end)),
         *_group_rows("within K", summary.within_k),
         *_group_rows("faster than K (no guarantee)", summary.beyond_k),
         ("simulated time [s]", f"{summary.simulated_s:.0f}"),
@@ -455,6 +500,18 @@ def _parser() -> argparse.ArgumentParser:
         "environment variable HRC_ALLOW_UNSAFE=unsafe_ignore_delay_for_tests is set)",
     )
     parser.add_argument(
+        "--unsafe-forget-lost",
+        action="store_true",
+        help="TEST ONLY: the gateway forgets a person as soon as no tracker reports them (the classic fail-open), to "
+        "show the auditor's teeth (refused unless HRC_ALLOW_UNSAFE=unsafe_forget_lost_for_tests is set)",
+    )
+    parser.add_argument(
+        "--occlusion",
+        action="store_true",
+        help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids; "
+        "their poses and rates drawn per case from the seed",
+    )
+    parser.add_argument(
         "--tight-braking",
         action="store_true",
         help="the gateway assumes the controller's real braking time for every joint (no slack in the braking model)",
@@ -503,6 +560,10 @@ def _progress_printer(total: int, quiet: bool) -> Callable[[int, CaseResult], No
 def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummary, results: list[CaseResult]) -> None:
     if args.unsafe_ignore_delay:
         print("UNSAFE: gateway ran with unsafe_ignore_delay_for_tests = true (t_delay = 0)")
+    if args.unsafe_forget_lost:
+        print("UNSAFE: gateway ran with unsafe_forget_lost_for_tests = true (a person no longer reported is forgotten)")
+    if args.occlusion:
+        print("occlusion: the trackers saw with line of sight, missed people and swapped ids (drawn per case)")
     if args.tight_braking:
         print("tight braking: the gateway assumed the controllers' real braking time for every joint")
     if args.human_speed_mps is not None:
@@ -581,7 +642,13 @@ def cli(argv: list[str] | None = None) -> None:
     if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
         parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
     variant = CellVariant(
-        args.unsafe_ignore_delay, args.tight_braking, args.human_speed_mps, args.robot_model, args.method
+        args.unsafe_ignore_delay,
+        args.tight_braking,
+        args.human_speed_mps,
+        args.robot_model,
+        args.method,
+        occlusion=args.occlusion,
+        unsafe_forget_lost=args.unsafe_forget_lost,
     )
     try:
         variant.apply(load_cell_config(args.config))

@@ -171,7 +171,7 @@ class Cell:
                 "seq": self.joint_seq,
                 "stamp_ns": stamp,
                 "q": list(q),
-                "qd": [0.0] * 6,
+                "qd": list(qd_nominal),  # override 1 · qd_nominal
                 "qd_nominal": list(qd_nominal),
                 "override": 1.0,
                 "override_seq": echoed,

@@ -23,8 +23,8 @@ from tracker_emu.scenario import load_scenario, scenario_path
 def test_eight_robots_and_four_people_fit_the_cell(tmp_path: Path) -> None:
     config = load_cell_config(write_cell(4, tmp_path))
     assert sorted(config.robots) == sorted([f"ur5_{k}" for k in range(1, 5)] + [f"panda_{k}" for k in range(1, 5)])
-    bases_y = sorted({config.robots[name].base_pose_world.xyz[1] for name in config.robots})
-    assert np.diff(bases_y).min() >= 6.0  # one copy's person never reaches into the next copy
+    ur5_x = sorted(config.robots[f"ur5_{k}"].base_pose_world.xyz[0] for k in range(1, 5))
+    assert np.diff(ur5_x).min() >= 6.0  # one copy's person never reaches into the next copy
     scenario = load_scenario(scenario_path(config.scenarios_dir, SCENARIO))
     assert [h.id for h in scenario.humans] == ["p1", "p2", "p3", "p4"]
     assert config.default_scenario == SCENARIO
@@ -32,6 +32,15 @@ def test_eight_robots_and_four_people_fit_the_cell(tmp_path: Path) -> None:
     xy = np.array([kf.xy_m for h in scenario.humans for kf in h.keyframes])
     assert np.all(xy >= np.array(lo[:2]) + 1.0), "a person's floor position is within 1 m of the world's edge"
     assert np.all(xy <= np.array(hi[:2]) - 1.0), "a person's floor position is within 1 m of the world's edge"
+    # The trackers cover every robot, and every person enters and leaves through the covered volume's boundary (a
+    # person who vanished inside it would be lost there, not gone, and hold the robots near them).
+    low, high = np.array(config.tracking.coverage_min_m[:2]), np.array(config.tracking.coverage_max_m[:2])
+    bases = np.array([robot.base_pose_world.xyz[:2] for robot in config.robots.values()])
+    assert np.all((bases >= low + 1.0) & (bases <= high - 1.0)), "a robot outside the trackers' view"
+    for human in scenario.humans:
+        first, last = np.array(human.keyframes[0].xy_m), np.array(human.keyframes[-1].xy_m)
+        assert np.any((first < low) | (first > high)), f"{human.id} appears inside the covered volume"
+        assert np.any((last < low) | (last > high)), f"{human.id} vanishes inside the covered volume"
 
 
 @pytest.mark.e2e

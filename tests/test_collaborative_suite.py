@@ -31,7 +31,8 @@ def test_people_where_the_kind_says() -> None:
             assert 1.4 <= table["distance_m"] <= 1.8  # the worker's arm reaches the tool (x up to 0.64 m)
             assert table["handovers"] >= 3  # every 2–5 s over 30 s
             worker = case.scenario.humans[0]
-            for t in range(30):
+            assert 2.5 < table["arrives_s"] < 5.5  # walks in from beyond the covered volume at 1.0-1.5 m/s
+            for t in range(math.ceil(table["arrives_s"]), 30):
                 pose = pose_at(worker, float(t))
                 assert pose is not None
                 assert math.hypot(pose.x_m, pose.y_m) == pytest.approx(table["distance_m"], abs=1e-3)

@@ -24,6 +24,7 @@ from hrc_common.status_models import ControllerMode, ZoneName
 CONTRACT = REPO_ROOT / "docs" / "contract.md"
 EMITTING_SOURCES = [
     "gateway/core.py",
+    "gateway/delay.py",
     "gateway/inputs.py",
     "gateway/node.py",
     "gateway/main.py",

@@ -90,12 +90,51 @@ def test_send_history_is_bounded() -> None:
     assert path.latency_s() == pytest.approx(0.008)
 
 
-def test_latency_never_negative() -> None:
-    # a controller clock behind the gateway's: the state stamp precedes the send time
+def test_an_echo_within_the_clock_tolerance_is_a_latency_of_zero() -> None:
+    # a controller clock up to the tolerance behind the gateway's: the state stamp precedes the send time
     path = OverridePath()
     path.on_sent(1, T0 + 10 * MS, mono(T0 + 10 * MS))
-    path.on_state(1, T0)
+    assert path.on_state(1, T0 + 5 * MS, clock_tolerance_ns=5 * MS) is None
     assert path.latency_s() == 0.0
+    assert path.acked_sent_mono_ns == mono(T0 + 10 * MS)
+
+
+def test_an_echo_before_its_send_beyond_the_tolerance_teaches_nothing() -> None:
+    """Issue 17: it was clipped to a latency of 0 and confirmed the path."""
+    path = OverridePath()
+    path.on_sent(1, T0 + 10 * MS, mono(T0 + 10 * MS))
+    assert path.on_state(1, T0 + 5 * MS - 1, clock_tolerance_ns=5 * MS) == "echo_before_send"
+    assert path.estimate == (None, None, None)
+    assert path.on_state(1, T0 + 14 * MS, clock_tolerance_ns=5 * MS) is None  # the same seq again: no news
+    assert path.latency_s() is None
+    assert path.acked_sent_mono_ns is None
+    path.on_sent(2, T0 + 20 * MS, mono(T0 + 20 * MS))
+    assert path.on_state(2, T0 + 26 * MS, clock_tolerance_ns=5 * MS) is None  # the next override confirms
+    assert path.latency_s() == pytest.approx(0.006)
+
+
+def test_a_seq_above_every_seq_sent_is_never_sent_once_confirmed() -> None:
+    path = OverridePath()
+    path.on_sent(1, T0, mono(T0))
+    assert path.on_state(3, T0 + 2 * MS) is None  # before the first confirmation: a previous gateway's seq
+    assert path.on_state(1, T0 + 6 * MS) is None
+    assert path.on_state(2, T0 + 10 * MS) == "echo_never_sent"
+    assert path.on_state(2, T0 + 14 * MS) == "echo_never_sent"  # every state that reports it
+    assert path.on_state(-1, T0 + 18 * MS) is None  # below every seq sent (a restarted controller): unknown
+    assert path.acked_sent_mono_ns == mono(T0)
+    assert path.latency_s() == pytest.approx(0.006)
+
+
+def test_a_seq_reported_before_it_was_sent_never_confirms_it() -> None:
+    path = OverridePath()
+    path.on_state(2, T0)
+    path.on_sent(1, T0 + 1 * MS, mono(T0 + 1 * MS))
+    path.on_sent(2, T0 + 5 * MS, mono(T0 + 5 * MS))
+    assert path.on_state(2, T0 + 8 * MS) is None  # still 2: reported before it was sent, no news
+    assert path.latency_s() is None
+    path.on_sent(3, T0 + 9 * MS, mono(T0 + 9 * MS))
+    assert path.on_state(3, T0 + 12 * MS) is None
+    assert path.latency_s() == pytest.approx(0.003)
 
 
 def test_controller_cycle_from_stamp_differences() -> None:

@@ -11,11 +11,16 @@ them while a fault lasted, not on one sample.
   every robot.
 - Zones per robot: a person beside the UR5 puts the UR5, not the Panda, into reduced speed / safety exception,
   and the other way round; the operator page (in a headless browser) shows both robots and follows the same.
+
+The person walks (never jumps: a jump is not believed) and leaves by walking out of the covered volume: a person
+who vanished inside it would be lost there, not gone, and keep the robots near them stopped (docs/contract.md
+"Tracks").
 """
 
 from __future__ import annotations
 
 import json
+import math
 import signal
 import threading
 import time
@@ -52,6 +57,12 @@ AT_UR5 = (-0.5, -0.9)
 """Floor position beside the UR5 (base at the origin): about 0.8 m from its links, about 2 m from the Panda's."""
 AT_PANDA = (2.7, -0.9)
 """Floor position beside the Panda (base at x = 2.2 m): about 0.8 m from its links, about 2 m from the UR5's."""
+EXIT_Y_M = load_cell_config(CONFIG).tracking.coverage_min_m[1] - 0.7
+"""Where the person walks out to: beyond the covered volume's -y face [m]."""
+STEP_M = 0.03
+"""How far the walking person moves per frame [m] (1.5 m/s at 50 Hz, within K): a step per frame, not per second,
+so that a late frame never makes a jump."""
+WALK_S = 30.0
 
 Snapshot = dict[str, tuple[str, float, frozenset[str]]]
 """Per robot: zone, δ and the codes of its active faults, as one status document gave them."""
@@ -69,19 +80,47 @@ def _person(xy_m: tuple[float, float]) -> Human:
 
 
 class _TrackerPlayer:
-    """Publishes both trackers' frames at 50 Hz from a thread: nobody, or one person at a given floor position."""
+    """Publishes both trackers' frames at 50 Hz from a thread: nobody, or one person at a given floor position, who
+    may walk (:meth:`walk_to`, :meth:`walk_out`) a step per frame."""
 
     def __init__(self, session: zenoh.Session) -> None:
         self.where: tuple[float, float] | None = None
+        self._path: list[tuple[float, float] | None] = []
+        self._lock = threading.Lock()
         self._pubs = {t: session.declare_publisher(keys.tracker_humans(CELL, t)) for t in TRACKERS}
         self._seq = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
 
+    def walk_to(self, xy_m: tuple[float, float], then_gone: bool = False) -> None:
+        """The person walks from where they are to ``xy_m`` (appears there if nobody is in the cell); ``then_gone``:
+        and is no longer reported from there on."""
+        with self._lock:
+            if self.where is None:
+                self._path = [xy_m]
+            else:
+                (x0, y0), (x1, y1) = self.where, xy_m
+                steps = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / STEP_M))
+                self._path = [(x0 + (x1 - x0) * k / steps, y0 + (y1 - y0) * k / steps) for k in range(1, steps + 1)]
+            if then_gone:
+                self._path.append(None)
+
+    def walk_out(self) -> None:
+        """The person, if any, walks straight out of the covered volume (to -y) and is gone: seen leaving."""
+        if self.where is not None:
+            self.walk_to((self.where[0], EXIT_Y_M), then_gone=True)
+
+    def walking(self) -> bool:
+        with self._lock:
+            return bool(self._path)
+
     def _run(self) -> None:
         while not self._stop.wait(TRACKER_PERIOD_S):
             self._seq += 1
+            with self._lock:
+                if self._path:
+                    self.where = self._path.pop(0)
             humans = [] if self.where is None else [_person(self.where)]
             for tracker, pub in self._pubs.items():
                 pub.put(to_payload(Humans(tracker=tracker, seq=self._seq, stamp_ns=time.time_ns(), humans=humans)))
@@ -174,6 +213,16 @@ class TwoArms:
     def wait_healthy(self, timeout_s: float = RECOVER_S) -> int:
         return self.wait(lambda s: all(_running(s, r) for r in ROBOTS), timeout_s, "both robots moving, no fault")
 
+    def walk(self, xy_m: tuple[float, float]) -> None:
+        """The person walks to ``xy_m`` (a step per frame); wait until they are there."""
+        self.player.walk_to(xy_m)
+        self.cell.wait(lambda: not self.player.walking(), WALK_S, f"the person walking to {xy_m}")
+
+    def walk_out(self) -> None:
+        """The person, if any, walks out of the covered volume; wait until they are gone."""
+        self.player.walk_out()
+        self.cell.wait(lambda: not self.player.walking(), WALK_S, "the person walking out of the covered volume")
+
 
 def _running(snap: Snapshot, robot: str) -> bool:
     """The robot has no fault and a positive δ."""
@@ -237,7 +286,7 @@ def two_arms(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TwoArms]:
 @pytest.fixture
 def arms(two_arms: TwoArms) -> TwoArms:
     """The cell with nobody in it and both robots moving fault-free (whatever the previous test left)."""
-    two_arms.player.where = None
+    two_arms.walk_out()
     two_arms.wait_healthy()
     return two_arms
 
@@ -298,7 +347,7 @@ def test_an_invalid_tracker_frame_stops_every_robot(arms: TwoArms) -> None:
 def test_each_robot_zone_follows_the_person_near_it(
     arms: TwoArms, where: tuple[float, float], near: str, far: str
 ) -> None:
-    arms.player.where = where
+    arms.walk(where)
     slowed = ("reduced_speed", "safety_exception")
     start = arms.wait(lambda s: s[near][0] in slowed, ZONE_S, f"{near} slowed by the person beside it")
     # Then a second (25 status documents) of the person standing there: the robot near stays slowed, the far
@@ -308,7 +357,7 @@ def test_each_robot_zone_follows_the_person_near_it(
     assert all(s[near][0] in slowed and not s[near][2] for s in snaps), [s[near] for s in snaps]
     far_seen = {(s[far][0], s[far][1], s[far][2]) for s in snaps}
     assert all(z in ("autonomous", "guarded_distance") and d == 1.0 and not f for z, d, f in far_seen), far_seen
-    arms.player.where = None
+    arms.walk_out()
 
 
 # -- a joint state that contradicts the program ------------------------------------------------------------------
@@ -483,8 +532,8 @@ def test_the_operator_page_shows_both_robots_each_zone_following_its_person(arms
                 raise AssertionError(f"the page showed {seen[-1] if seen else None}\n{exc}") from None
 
         wait_page({"ur5": ("autonomous",), "panda": ("autonomous",)}, False, "the page: both robots, nobody")
-        arms.player.where = AT_UR5
+        arms.walk(AT_UR5)
         wait_page({"ur5": SLOWED, "panda": FULL_SPEED}, True, "the page: the UR5 slowed by the person beside it")
-        arms.player.where = AT_PANDA
+        arms.walk(AT_PANDA)
         wait_page({"ur5": FULL_SPEED, "panda": SLOWED}, True, "the page: the Panda slowed by the person beside it")
-        arms.player.where = None
+        arms.walk_out()

@@ -1,21 +1,32 @@
-"""CPU scheduling of the gateway: the safety loop under SCHED_FIFO when allowed, the HTTP child niced."""
+"""CPU scheduling of the gateway: the safety loop under SCHED_FIFO when allowed, the HTTP child niced; the loop's
+timing (what each decision budgets until the next one) and the status built off the loop's thread."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+import status_examples as ex
+import zenoh
 from pydantic import ValidationError
 
 from bench.procs import free_port, running_cell
 from gateway import main as gateway_main
 from gateway.http_server import NICENESS_INCREMENT, HttpServerProcess
+from gateway.node import GatewayCycle, GatewayNode
 from gateway.status import effective_config
+from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig, GatewayConfig
+from hrc_common.service import StopEvent
+from hrc_common.status_models import HumanCapsuleStatus
+from hrc_common.zenoh_session import session_config
 
 
 def _may_use_fifo() -> bool:
@@ -163,3 +174,212 @@ def test_the_http_feed_thread_runs_under_fifo_when_asked(cell_config: CellConfig
             assert (os.sched_getscheduler(native_id), os.sched_getparam(native_id).sched_priority) == (policy, priority)
         finally:
             http.close()
+
+
+# -- the loop's timing: the interval to the next decision, the status off the loop thread --------------------
+
+MS = 1_000_000
+
+
+def test_each_decision_budgets_the_longest_recent_interval_at_least_the_period() -> None:
+    intervals = gateway_main.DecisionIntervals(0.004, window_s=1.0)
+    starts_ms = [0, 4, 8, 20, 24, 28]  # a decision held up 8 ms (8 → 20)
+    budgets_s = [intervals.start(t * MS) for t in starts_ms]
+    assert budgets_s == pytest.approx([0.004, 0.004, 0.004, 0.012, 0.012, 0.012])
+    # Shorter intervals (event cycles) never lower it below the worst within the window, nor below the period.
+    assert intervals.start(29 * MS) == pytest.approx(0.012)
+    # Once the 12 ms interval has left the window, the budget comes back down to what the loop takes now.
+    t_ms = 29
+    while t_ms < 20 + 1000 + 4:
+        t_ms += 4
+        budget_s = intervals.start(t_ms * MS)
+    assert budget_s == pytest.approx(0.004)
+
+
+def test_a_moving_decision_whose_successor_came_later_than_budgeted_is_an_overrun() -> None:
+    intervals = gateway_main.DecisionIntervals(0.004)
+    intervals.start(0)
+    intervals.commanded(False)
+    intervals.start(10 * MS)  # 10 ms after a decision with δ = 0 everywhere: late, but no motion was budgeted
+    intervals.commanded(True)
+    assert intervals.overruns == 0
+    intervals.start(19 * MS)  # within the 10 ms budgeted
+    intervals.commanded(True)
+    assert intervals.overruns == 0
+    intervals.start(33 * MS)  # 14 ms after a moving decision that budgeted 10 ms
+    assert intervals.overruns == 1
+    assert intervals.worst_overrun_s == pytest.approx(0.004)
+
+
+def test_decision_intervals_refuse_a_period_or_window_that_is_not_positive() -> None:
+    for period_s, window_s in ((0.0, 1.0), (0.004, 0.0), (-1.0, 1.0)):
+        with pytest.raises(ValueError, match="allowed: > 0"):
+            gateway_main.DecisionIntervals(period_s, window_s)
+
+
+def _job(seq: int) -> gateway_main.StatusJob:
+    return gateway_main.StatusJob(seq, ({}, {}), None, seq)  # type: ignore[arg-type]  # only carried through
+
+
+def test_offering_a_status_never_waits_for_the_status_thread_and_the_newest_wins() -> None:
+    started, release = threading.Event(), threading.Event()
+    published: list[int] = []
+
+    def publish(job: gateway_main.StatusJob) -> None:
+        started.set()
+        release.wait()
+        published.append(job.stamp_ns)
+
+    with gateway_main.StatusThread(publish) as status:
+        status.offer(_job(1))
+        assert started.wait(10.0)
+        for seq in (2, 3, 4):  # the thread is stuck in publishing 1: each offer still returns
+            status.offer(_job(seq))
+        release.set()
+        deadline = time.monotonic() + 10.0
+        while status.published < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert published == [1, 4]
+
+
+def test_an_error_while_publishing_a_status_is_counted_and_the_thread_goes_on() -> None:
+    published: list[int] = []
+
+    def publish(job: gateway_main.StatusJob) -> None:
+        if job.stamp_ns == 1:
+            raise RuntimeError("boom")
+        published.append(job.stamp_ns)
+
+    with gateway_main.StatusThread(publish) as status:
+        status.offer(_job(1))
+        deadline = time.monotonic() + 10.0
+        while status.errors < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        status.offer(_job(2))
+        while status.published < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert (status.errors, published) == (1, [2])
+
+
+def test_the_status_line_is_the_documents_json_serialised_in_chunks(cell_config: CellConfig) -> None:
+    capsule = {"human": "front/h", "name": "torso", "a_m": [0.5, 1.0, 0.9], "b_m": [0.5, 1.0, 1.4], "radius_m": 0.2}
+    doc = ex.gateway_status(ur5=ex.near_robot_status())
+    for count in (0, 3, gateway_main.STATUS_CAPSULES_PER_CHUNK + 1, 4000):
+        capsules = [HumanCapsuleStatus.model_validate({**capsule, "human": f"front/h{k}"}) for k in range(count)]
+        crowded = doc.model_copy(update={"human_capsules": capsules})
+        assert gateway_main.status_json(crowded) == crowded.model_dump_json().encode(), count
+
+
+STALL_S = 0.05
+"""One iteration of the loop is held up this long after its overrides went out."""
+
+GIVE_UP_AFTER_CYCLES = 2500
+"""The loop of the test stops after this many decisions (10 s at 250 Hz) if it has not seen its statuses by then."""
+
+
+class _Publisher:
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.payloads.append(payload)
+
+
+class _Http:
+    """The HTTP child's side the loop and the status thread use; the first exit check stalls (after publishing)."""
+
+    def __init__(self) -> None:
+        self.lines: list[bytes] = []
+        self.checks = 0
+
+    def offer(self, line: bytes) -> None:
+        self.lines.append(line)
+
+    def offer_events(self, events: object) -> None:
+        pass
+
+    def exit_code(self) -> int | None:
+        self.checks += 1
+        if self.checks == 1:
+            time.sleep(STALL_S)
+        return None
+
+
+class _TimedNode:
+    """A gateway node that records when each decision started and what it budgeted until the next one."""
+
+    def __init__(self, node: GatewayNode) -> None:
+        self._node = node
+        self.starts_ns: list[int] = []
+        self.budgets_s: list[float] = []
+
+    def cycle(self, now: Clocks, period_s: float) -> GatewayCycle:
+        self.starts_ns.append(now.mono_ns)
+        self.budgets_s.append(period_s)
+        return self._node.cycle(now, period_s)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._node, name)
+
+
+class _RecordingStatusThread(gateway_main.StatusThread):
+    def __init__(self, publish: Callable[[gateway_main.StatusJob], None]) -> None:
+        self.offered: list[gateway_main.StatusJob] = []
+        self.publishing_threads: set[str] = set()
+
+        def recorded(job: gateway_main.StatusJob) -> None:
+            self.publishing_threads.add(threading.current_thread().name)
+            publish(job)
+
+        super().__init__(recorded)
+
+    def offer(self, job: gateway_main.StatusJob) -> None:
+        self.offered.append(job)
+        super().offer(job)
+
+
+def test_the_loop_budgets_what_it_really_took_and_publishes_the_status_off_its_thread(cell_config: CellConfig) -> None:
+    """The real loop and node, fake outputs: a hold-up after publishing (the first check of the HTTP child, at
+    the first status) is budgeted by every later decision, counted in compute_max_s, and no document is built or
+    serialised on the loop's thread."""
+    node = _TimedNode(gateway_main.build_node(cell_config, None))
+    http, status_key = _Http(), _Publisher()
+    sink = gateway_main._StatusSink(cell_config, node.robots, status_key, http)  # type: ignore[arg-type]
+    stop = StopEvent()
+    status_thread = _RecordingStatusThread(sink.publish)
+
+    class _StopAfterStatuses(_Publisher):
+        def put(self, payload: bytes) -> None:
+            super().put(payload)
+            enough = len(status_thread.offered) >= 4 and status_thread.published >= 2
+            if enough or len(self.payloads) >= GIVE_UP_AFTER_CYCLES:  # the assertions below tell which
+                stop.set()
+
+    out = gateway_main._Outputs({"ur5": _StopAfterStatuses()}, http, status_thread)  # type: ignore[arg-type]
+    with status_thread:
+        assert gateway_main._loop(cell_config, node, out, stop, None) == 0  # type: ignore[arg-type]
+
+    starts_ns = np.array(node.starts_ns)
+    intervals_s = np.diff(starts_ns) / 1e9
+    assert intervals_s.max() >= STALL_S  # the hold-up happened between two decisions
+    period_s = 1.0 / cell_config.gateway.rate_hz
+    for k, budget_s in enumerate(node.budgets_s):
+        worst_so_far_s = intervals_s[:k].max() if k else 0.0  # the run is shorter than the window
+        assert budget_s >= max(period_s, worst_so_far_s) - 1e-9, k
+    assert max(job.loop.compute_max_s for job in status_thread.offered) >= STALL_S
+    assert status_thread.publishing_threads == {"hrc-status"}
+    assert threading.current_thread().name != "hrc-status"
+    docs = [json.loads(line) for line in status_key.payloads]
+    assert len(docs) >= 2
+    assert all(doc["loop"]["budget_overruns"] == 0 for doc in docs)
+    assert http.lines == [line + b"\n" for line in status_key.payloads]
+
+
+def test_overrides_are_published_with_congestion_control_block(cell_config: CellConfig) -> None:
+    """An override that lowers δ must reach the controller: never dropped on a full queue."""
+    with zenoh.open(session_config(listen=[f"tcp/127.0.0.1:{free_port()}"])) as session:
+        publishers = gateway_main._declare_overrides(session, cell_config)
+        assert set(publishers) == set(cell_config.robots)
+        for publisher in publishers.values():
+            assert publisher.congestion_control == zenoh.CongestionControl.BLOCK
+            assert publisher.priority == zenoh.Priority.REAL_TIME

@@ -5,21 +5,25 @@ Every body is parsed with the contract's models (``hrc_common.status_models``), 
 
 from __future__ import annotations
 
+import asyncio
 import io
 import json
 import math
 import re
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import pytest
 import status_examples as ex
 from fastapi.testclient import TestClient
+from jsonschema import Draft202012Validator
+from openapi_spec_validator import OpenAPIV31SpecValidator
 from pydantic import ValidationError
 
 from gateway.core import ClosestPair, Fault, RobotDecision
 from gateway.delay import DelayBudget
-from gateway.http_api import StatusBoard, create_app
+from gateway.http_api import STATUS_EVENT, StatusBoard, create_app, stream_status
 from gateway.http_server import _feed
 from gateway.status import effective_config, robot_status, status_document
 from gateway.zones import Zone, ZoneThresholds
@@ -239,6 +243,50 @@ def test_openapi_documents_every_response_with_its_model(client: TestClient) -> 
     robot = openapi["components"]["schemas"]["RobotStatus"]
     assert robot["additionalProperties"] is False
     assert {"zone", "delta", "faults", "override_seq", "delay_budget_s"} <= set(robot["required"])
+
+
+def test_openapi_is_a_valid_openapi_3_1_document(client: TestClient) -> None:
+    """Judged by openapi-spec-validator (FastAPI describes an event stream with 3.2's ``itemSchema``)."""
+    openapi = client.get("/openapi.json").json()
+    assert openapi["openapi"] == "3.1.0"
+    errors = [
+        f"{'/'.join(map(str, e.absolute_path))}: {e.message}" for e in OpenAPIV31SpecValidator(openapi).iter_errors()
+    ]
+    assert errors == []
+
+
+def _validator(openapi: dict[str, Any], component: str) -> Draft202012Validator:
+    """A JSON Schema validator of one component, its ``#/components/...`` references resolved in the document."""
+    return Draft202012Validator({"$ref": f"#/components/schemas/{component}", "components": openapi["components"]})
+
+
+def _first_stream_event(board: StatusBoard) -> dict[str, str]:
+    """The first server-sent event of ``GET /api/v1/stream`` as its fields (the route's generator, driven here)."""
+    request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(board=board)))
+
+    async def first() -> dict[str, str]:
+        events = stream_status(request)  # type: ignore[arg-type]
+        event = await anext(events)  # the rest of the generator is closed by asyncio.run
+        return {"event": str(event.event), "id": str(event.id), "data": str(event.raw_data)}
+
+    return asyncio.run(first())
+
+
+def test_the_stream_is_documented_as_events_carrying_the_status_document(
+    board: StatusBoard, client: TestClient
+) -> None:
+    openapi = client.get("/openapi.json").json()
+    content = openapi["paths"]["/api/v1/stream"]["get"]["responses"]["200"]["content"]["text/event-stream"]
+    assert content["schema"]["items"] == {"$ref": f"#/components/schemas/{STATUS_EVENT}"}
+    data = openapi["components"]["schemas"][STATUS_EVENT]["properties"]["data"]
+    assert data["contentMediaType"] == "application/json"
+    assert data["contentSchema"] == {"$ref": "#/components/schemas/GatewayStatus"}
+    # an event the route really sends is valid against what the document says, and so is the status it carries
+    board.publish(ex.gateway_status(ur5=ex.near_robot_status()))
+    event = _first_stream_event(board)
+    _validator(openapi, STATUS_EVENT).validate(event)
+    _validator(openapi, "GatewayStatus").validate(json.loads(event["data"]))
+    assert not _validator(openapi, STATUS_EVENT).is_valid({**event, "event": "other"})
 
 
 # -- the document the gateway builds (gateway/status.py) ------------------------------------------

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from gateway.inputs import InputStore, age_s
+from gateway.inputs import JUMP_MARGIN_RAD, VELOCITY_LIMIT_FACTOR, InputStore, age_s
 from hrc_common import keys
 from hrc_common.clocks import Clocks
 from hrc_common.config import CellConfig
@@ -81,6 +81,12 @@ def store(cell_config: CellConfig, ur5: RobotModel) -> InputStore:
 
 def rejected(store: InputStore, topic: str) -> dict[str, int]:
     return store.counters()[0].get(topic, {})
+
+
+def stored_seq(store: InputStore, t_ns: int = NOW) -> int | None:
+    """The seq of the joint state the store keeps for the UR5, None without one."""
+    sample = store.snapshot(at(t_ns)).joint["ur5"]
+    return None if sample is None else sample.seq
 
 
 def fault_codes(store: InputStore, t_ns: int = NOW) -> dict[str, str]:
@@ -158,6 +164,8 @@ JOINT_BAD: list[tuple[str, bytes, str]] = [
     ("q_out_of_limits", enc(js(seq=2, q=[0.0, -1.2, 1.5, 0.1, 0.2, 1e6])), "q_out_of_limits"),
     ("qd_above_limit", enc(js(seq=2, qd_nominal=[50.0] * 6)), "qd_above_limit"),
     ("qd_inconsistent", enc(js(seq=2, qd=[0.0, 0.0, 0.0, 0.0, 0.0, 0.4], qd_nominal=[0.0] * 6)), "qd_inconsistent"),
+    ("qd_against_nominal", enc(js(seq=2, qd=[-0.5] * 6, override=1.0)), "qd_inconsistent"),
+    ("q_jump", enc(js(seq=2, stamp_ns=NOW - 3 * MS, q=[0.0, -1.2, 1.5, 0.1, 0.2, 0.5])), "q_jump"),
 ]
 
 HUMANS_BAD: list[tuple[str, bytes, str]] = [
@@ -410,16 +418,133 @@ def test_moving_joints_with_zero_nominal_speed_fault_the_robot(store: InputStore
 
 
 def test_qd_at_override_times_nominal_is_consistent(store: InputStore) -> None:
-    state = js(seq=1, qd=[0.31, -0.2, 0.0, 0.0, 0.0, 0.0], qd_nominal=[0.5, -0.4, 0.0, 0.0, 0.0, 0.0], override=0.6)
+    state = js(seq=1, qd=[0.31, -0.25, 0.0, 0.0, 0.0, 0.0], qd_nominal=[0.5, -0.4, 0.0, 0.0, 0.0, 0.0], override=0.6)
     store.on_joint_state(JOINT_KEY, enc(state), at())
     assert store.snapshot(at()).faults == {}
+
+
+@pytest.mark.parametrize(
+    ("qd", "qd_nominal", "override"),
+    [
+        ([-0.5] * 6, [0.5] * 6, 1.0),  # honest qd toward the person, qd_nominal claiming away (issue 17)
+        ([0.0, 0.0, 0.3, 0.0, 0.0, 0.0], [0.0, 0.0, -0.5, 0.0, 0.0, 0.0], 0.6),  # one joint reversed
+        ([0.0] * 6, [0.5] * 6, 1.0),  # still while the program says it moves at full speed
+    ],
+)
+def test_qd_other_than_override_times_nominal_faults_the_robot(
+    store: InputStore, qd: list[float], qd_nominal: list[float], override: float
+) -> None:
+    """Sign included: a magnitude check let a reversed qd_nominal through and δ rose from 0.13 to 1."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, qd=qd, qd_nominal=qd_nominal, override=override)), at())
+    assert fault_codes(store) == {"robot/ur5": "joint_state_inconsistent"}
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+    assert store.snapshot(at()).joint["ur5"] is None
+
+
+def test_qd_tolerance_is_absolute_plus_ratio_of_nominal_either_side(store: InputStore, cell_config: CellConfig) -> None:
+    streams = cell_config.streams
+    nominal = [0.5, -0.5, 2.0, -2.0, 0.0, 0.0]
+    room = [streams.qd_tolerance_radps + streams.qd_tolerance_ratio * abs(v) for v in nominal]
+    inside = [0.6 * v + 0.999 * r * (-1) ** j for j, (v, r) in enumerate(zip(nominal, room, strict=True))]
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, qd=inside, qd_nominal=nominal, override=0.6)), at())
+    assert store.snapshot(at()).faults == {}
+    outside = [*inside[:3], -0.6 * 2.0 - 1.001 * room[3], *inside[4:]]
+    store.on_joint_state(
+        JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 3 * MS, qd=outside, qd_nominal=nominal, override=0.6)), at()
+    )
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+
+
+# -- continuity of the joint positions ------------------------------------------------------------
+
+Q0 = [0.0, -1.2, 1.5, 0.1, 0.2, 0.3]
+
+
+def _moved(joint: int, by_rad: float) -> list[float]:
+    q = list(Q0)
+    q[joint] += by_rad
+    return q
+
+
+def _allowed_rad(ur5: RobotModel, joint: int, dt_ns: int) -> float:
+    """The motion a joint may show in ``dt_ns`` between two stamps: its velocity limit (×1.05) plus the margin."""
+    return float(ur5.velocity_limit_radps[joint]) * VELOCITY_LIMIT_FACTOR * dt_ns / 1e9 + JUMP_MARGIN_RAD
+
+
+def test_a_pose_jump_between_two_states_faults_the_robot(store: InputStore, ur5: RobotModel) -> None:
+    """Issue 17: a q that moved farther than the velocity limit allows since the last state (a pose jump)."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, q=Q0)), at())
+    jump_rad = 1.01 * _allowed_rad(ur5, 2, 4 * MS)
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(2, -jump_rad))), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("q_jump: joint 2 moved")
+    assert stored_seq(store) == 1  # the jumped pose is not believed
+    assert rejected(store, "robot/ur5") == {"q_jump": 1}
+
+
+def test_motion_within_the_velocity_limit_is_continuous(store: InputStore, ur5: RobotModel) -> None:
+    stamp_ns = NOW - 40 * MS
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=stamp_ns, q=Q0)), at())
+    q = list(Q0)
+    for k in range(2, 10):  # every joint at 0.99 of what its limit allows, 4 ms apart
+        q = [v + 0.99 * _allowed_rad(ur5, j, 4 * MS) * (-1) ** j for j, v in enumerate(q)]
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=stamp_ns + (k - 1) * 4 * MS, q=q)), at())
+    assert store.snapshot(at()).faults == {}
+    assert stored_seq(store) == 9
+
+
+def test_the_allowed_motion_grows_with_the_gap_between_stamps(store: InputStore, ur5: RobotModel) -> None:
+    """A state after a long gap (a paused stream) may show the motion of that whole gap."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 700 * MS, q=Q0)), at(NOW - 699 * MS))
+    moved = 0.99 * _allowed_rad(ur5, 0, 696 * MS)  # about 2.3 rad
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(0, moved))), at())
+    assert store.snapshot(at()).faults == {}
+    assert stored_seq(store) == 2
+
+
+def test_the_first_state_may_be_anywhere(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, q=[3.0, -3.0, 3.0, -3.0, 3.0, -3.0])), at())
+    assert store.snapshot(at()).faults == {}
+
+
+def test_a_restarted_controller_is_judged_against_the_newest_state(store: InputStore) -> None:
+    """A restart (seq from 0, newer stamp) is a seq_backwards fault, and no pose jump when the robot stood still
+    or the restart took long enough; a restart that shows a jump is one."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=500, stamp_ns=NOW - 400 * MS, q=Q0)), at(NOW - 399 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=0, stamp_ns=NOW - 8 * MS, q=_moved(1, 1.0))), at(NOW - 7 * MS))
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1}  # 1 rad in 0.39 s is within the limit
+    assert stored_seq(store) == 0
+    store.on_joint_state(JOINT_KEY, enc(js(seq=0, stamp_ns=NOW - 4 * MS, q=_moved(1, 2.0))), at())
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1, "q_jump": 1}  # another restart, 1 rad in 4 ms
+
+
+def test_states_after_a_rejected_jump_are_judged_against_the_last_accepted(store: InputStore) -> None:
+    """One forged pose does not become the reference: the genuine states after it are continuous, and the fault
+    clears after the hold."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, q=Q0)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 6 * MS, q=_moved(4, 1.5))), at())
+    for k in range(3, 6):
+        t = NOW + (k - 3) * 4 * MS
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 4 * MS, q=_moved(4, 0.001 * k))), at(t))
+    assert rejected(store, "robot/ur5") == {"q_jump": 1}
+    assert stored_seq(store, NOW + 8 * MS) == 5
+    assert fault_codes(store, NOW + 8 * MS) == {"robot/ur5": "joint_state_inconsistent"}
+    assert fault_codes(store, NOW + HOLD_NS) == {}
+
+
+def test_a_repeated_stamp_is_judged_by_the_order_not_as_a_jump(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS, q=Q0)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(0, 2.0))), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS, q=Q0)), at())  # a duplicate
+    assert rejected(store, "robot/ur5") == {"stamp_backwards": 1, "duplicate": 1}
 
 
 def _applied(store: InputStore, overrides: list[float], commanded: float) -> None:
     store.on_override_sent("ur5", 1, commanded, at(NOW - 20 * MS))
     for k, applied in enumerate(overrides):
         t = NOW + 4 * k * MS
-        raw = js(seq=1 + k, stamp_ns=t - 2 * MS, override=applied, override_seq=1, qd=[0.0] * 6)
+        raw = js(seq=1 + k, stamp_ns=t - 2 * MS, override=applied, override_seq=1, qd=[0.5 * applied] * 6)
         store.on_joint_state(JOINT_KEY, enc(raw), at(t))
 
 
@@ -468,6 +593,58 @@ def test_rejected_states_do_not_teach_the_override_path(store: InputStore) -> No
     store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW + 900 * MS, override_seq=1)), at())  # future
     store.on_joint_state(JOINT_KEY, enc(js(seq=1, robot="ur10", override_seq=1)), at())
     assert store.snapshot(at()).override_path["ur5"].latency_s is None
+
+
+def test_an_echo_stamped_before_its_override_was_sent_is_a_fault(store: InputStore) -> None:
+    """Issue 17: an echo stamped before the override it reports was sent is not a latency of 0."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 4 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS - FUTURE_NS - 1, override_seq=1)), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("echo_before_send: override_seq 1")
+    assert snap.override_path["ur5"] == (None, None, None)  # nothing learned
+    assert stored_seq(store) == 1  # the state itself is in order and stored, the robot stopped by the fault
+    assert rejected(store, "robot/ur5") == {"echo_before_send": 1}
+    # the same seq in the next states, now stamped after the send, does not confirm it either
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW, override_seq=1)), at(NOW + 1 * MS))
+    assert store.snapshot(at(NOW + 1 * MS)).override_path["ur5"].latency_s is None
+
+
+def test_an_echo_within_the_clocks_agreement_is_a_latency_of_zero(store: InputStore) -> None:
+    """The controller's clock may be behind the gateway's by streams.max_future_stamp_s."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 4 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS - FUTURE_NS, override_seq=1)), at())
+    snap = store.snapshot(at())
+    assert snap.faults == {}
+    assert snap.override_path["ur5"].latency_s == 0.0
+    assert snap.override_path["ur5"].acked_sent_mono_ns == at(NOW - 4 * MS).mono_ns
+
+
+def test_an_echo_of_a_seq_never_sent_is_a_fault(store: InputStore) -> None:
+    """Once the path is confirmed, a seq above every one sent is another sender's (or forged): a fault, and
+    the newest confirmed override stays the one this gateway sent."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 20 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, override_seq=1)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, override_seq=9)), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("echo_never_sent: override_seq 9")
+    assert snap.override_path["ur5"].acked_sent_mono_ns == at(NOW - 20 * MS).mono_ns
+    assert rejected(store, "robot/ur5") == {"echo_never_sent": 1}
+
+
+def test_a_seq_reported_before_it_was_sent_never_confirms_it(store: InputStore) -> None:
+    """A controller that keeps reporting seq 5 (a previous gateway's, or frozen) while this gateway starts: no
+    fault before the first confirmation (a restart looks the same), and no confirmation when this gateway's own
+    seq 5 goes out: the controller reported it before it existed."""
+    for k in range(1, 8):
+        t = NOW + k * 4 * MS
+        store.on_override_sent("ur5", k, 0.0, at(t - 2 * MS))
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 1 * MS, override_seq=5)), at(t))
+    snap = store.snapshot(at(NOW + 28 * MS))
+    assert snap.faults == {}
+    assert snap.override_path["ur5"].latency_s is None  # the core: override_path_unconfirmed, δ = 0
+    assert store.counters()[0] == {}
 
 
 # -- never raises ---------------------------------------------------------------------------------

@@ -30,12 +30,20 @@ SCENARIO_LOOP_S = 30.0
 
 VIEW_JS = """
 const robot = document.querySelector('.robot[data-robot="ur5"] .zone');
+const ends = sel => [...document.querySelectorAll(sel)].flatMap(
+  l => [[+l.getAttribute('x1'), +l.getAttribute('y1')], [+l.getAttribute('x2'), +l.getAttribute('y2')]]);
 return {conn: document.getElementById('conn').textContent,
         zone: robot ? robot.textContent : null,
         humans: document.querySelectorAll('#top line.human').length,
         links: document.querySelectorAll('#top line.link').length,
-        closest: document.querySelectorAll('#top line.closest').length};
+        closest: document.querySelectorAll('#top line.closest').length,
+        seen: [...document.querySelectorAll('#people .track.seen')].map(t => t.dataset.track),
+        drawn: ends('#top line.human, #top line.link, #side line.human, #side line.link'),
+        px_per_m: +document.getElementById('top').getAttribute('data-px-per-m'),
+        headings: [...document.querySelectorAll('h2')].map(h => h.innerText)};
 """
+READABLE_PX_PER_M = 70.0
+"""A person close to the robot and the robot are drawn at least at this scale (the views are 400 px wide)."""
 
 
 @pytest.fixture
@@ -59,7 +67,7 @@ def test_the_page_follows_a_person_walking_in_and_says_stale_when_the_gateway_st
 
         def nobody(s: dict[str, Any]) -> bool:
             # the cell running with nobody in it; not the start-up, when faults hold the robot in safety exception
-            return s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0 and s["zone"] == "autonomous"
+            return bool(s["conn"] == "LIVE" and s["humans"] == 0 and s["links"] > 0 and s["zone"] == "autonomous")
 
         def nobody_then_someone() -> bool:
             state = view()
@@ -69,11 +77,18 @@ def test_the_page_follows_a_person_walking_in_and_says_stale_when_the_gateway_st
         after = seen[-1]
         assert after["zone"] in ("guarded distance", "reduced speed", "safety exception")
         assert after["closest"] == 1, "the closest pair is drawn once someone is seen"
+        assert after["seen"], "the People panel lists the person seen"
         close = ("reduced speed", "safety exception")
         wait_for(lambda: view()["zone"] in close and seen[-1]["humans"] > 0, SCENARIO_LOOP_S, "the person comes close")
         shot = SCREENSHOT if os.environ.get("HRC_UPDATE_SCREENSHOT") == "1" else tmp_path / SCREENSHOT.name
+        wait_for(lambda: view()["px_per_m"] >= READABLE_PX_PER_M, 5.0, "the views zoom in on the person and the robot")
         shot.write_bytes(browser.get_screenshot_as_png())
         assert shot.stat().st_size > 10_000  # a real rendering, not an empty page
+        shown = seen[-1]
+        assert all(0.0 <= x <= 400.0 and 0.0 <= y <= 400.0 for x, y in shown["drawn"]), "person and robot in view"
+        plot = next(h for h in shown["headings"] if h.lower().startswith("last 30 s of"))  # as rendered
+        assert "δ commanded" in plot, plot
+        assert "δ applied" in plot, plot
         events = EventsResponse.model_validate_json(cell.get("/api/v1/events").content).events
         sha = EffectiveConfig.model_validate_json(cell.get("/api/v1/config").content).config_sha256
         assert [e.kind for e in events[:2]] == ["start", "config_loaded"]

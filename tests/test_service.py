@@ -6,6 +6,7 @@ and the tick schedule is checked by its arithmetic, not by the clock.
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import signal
@@ -14,13 +15,17 @@ import time
 
 import pytest
 
-from hrc_common.service import RateLoop, StopEvent, logging_through_a_queue, stop_on_signals
+from hrc_common.service import RateLoop, StopEvent, collections_paused, logging_through_a_queue, stop_on_signals
 
 LONG_S = 30.0  # a period no test waits for: returning at all proves the wait was cut short
 
 
 def _set_later(event: threading.Event, after_s: float = 0.05) -> threading.Thread:
-    thread = threading.Thread(target=lambda: (time.sleep(after_s), event.set()), daemon=True)
+    def set_it() -> None:
+        time.sleep(after_s)
+        event.set()
+
+    thread = threading.Thread(target=set_it, daemon=True)
     thread.start()
     return thread
 
@@ -247,3 +252,26 @@ def test_logging_through_a_queue_writes_every_record_on_its_own_thread(priority:
     assert sorted(messages) == ["one 1", "two"]  # every record written by the time the block ends
     policy = os.SCHED_FIFO if priority else os.SCHED_OTHER
     assert all((p, prio) == (policy, priority) for m, p, prio in collect.lines if m in messages)
+
+
+# -- garbage collection next to the loop -----------------------------------------------------------------
+
+
+def test_collections_are_paused_meanwhile_and_resume_after_even_on_error() -> None:
+    assert gc.isenabled()
+    with collections_paused():
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), collections_paused():
+        raise RuntimeError("boom")
+    assert gc.isenabled()
+
+
+def test_collections_paused_leaves_them_off_if_they_were_off() -> None:
+    gc.disable()
+    try:
+        with collections_paused():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

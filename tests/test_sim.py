@@ -13,9 +13,17 @@ from hrc_common.config import CellConfig, TrackerConfig
 from hrc_common.robot_model import RobotModel
 from sim.cell import simulate
 from sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
-from sim.scenarios import BEARING_LIMIT_RAD, MAX_SPEED_MPS, generate_case
+from sim.scenarios import (
+    BEARING_LIMIT_RAD,
+    DEFAULT_COVERAGE,
+    MAX_SPEED_MPS,
+    SweepCase,
+    generate_case,
+    generate_collaborative_case,
+)
 from sim.truth import true_humans
 from tracker_emu.scenario import HumanScript, Keyframe, Scenario, humans_at
+from tracker_emu.sensor import centre_m, inside
 
 # -- links --------------------------------------------------------------------------------------------
 
@@ -130,6 +138,77 @@ def test_generated_cases_are_valid_varied_and_reproducible() -> None:
             assert fault.gateway_to_controller.max_delay_s < 0.1
         else:
             assert max(getattr(fault, p).delay_s for p in vars(fault)) > 0.2
+
+
+def _covered_at(case: SweepCase, human_id: str, t_s: float) -> bool:
+    """Whether the trackers' rule (the body's centre in the covered volume) counts the person as covered at t_s."""
+    (human,) = [h for h in humans_at(case.scenario, t_s) if h.id == human_id]
+    return inside(DEFAULT_COVERAGE, centre_m(human))
+
+
+def test_people_enter_and_leave_through_the_coverage_boundary() -> None:
+    """Nobody is inside the covered volume at the start and nobody vanishes inside it: a person who stopped being
+    reported there would be a lost track for the rest of the run (gateway/tracks.py), and the robot would stay
+    stopped. Every person's first keyframe is outside, and so is the last unless the run ends first."""
+    cases = [generate_case(11, i, 10.0, 0.2) for i in range(150)]
+    cases += [generate_collaborative_case(11, i, 30.0, 0.2) for i in range(40)]
+    inside_by_kind: dict[str, int] = {}
+    for case in cases:
+        for human, person in zip(case.scenario.humans, case.params["people"], strict=True):
+            first, last = human.keyframes[0], human.keyframes[-1]
+            assert not _covered_at(case, human.id, first.t_s), (case.index, person)
+            if last.t_s < case.scenario.duration_s:
+                assert not _covered_at(case, human.id, last.t_s), (case.index, person)
+            middle_s = (first.t_s + last.t_s) / 2.0
+            inside_by_kind[person["kind"]] = inside_by_kind.get(person["kind"], 0) + _covered_at(
+                case, human.id, middle_s
+            )
+    # they do come in: every kind is inside the covered volume half-way through its presence, most of the time
+    assert set(inside_by_kind) == {
+        "approach",
+        "cross",
+        "standing",
+        "shared_table",
+        "walk_by",
+        "reach_in",
+        "stand_in_path",
+    }
+    assert all(count > 0 for count in inside_by_kind.values()), inside_by_kind
+
+
+def test_occlusion_changes_only_the_sensors_view() -> None:
+    """With occlusion a case keeps its people, links and simulation seed; its sensors get a pose, line of sight,
+    misses and id swaps, and the scene 0-2 fixtures, drawn per case."""
+    misses = swaps = fixtures = shelves = 0
+    for index in range(60):
+        for generate, duration_s in ((generate_case, 10.0), (generate_collaborative_case, 30.0)):
+            plain = generate(5, index, duration_s, 0.2)
+            occluded = generate(5, index, duration_s, 0.2, occlusion=True)
+            assert occluded.scenario.humans == plain.scenario.humans
+            assert not plain.scenario.fixtures
+            fixtures += len(occluded.scenario.fixtures)
+            for fixture in occluded.scenario.fixtures:  # below every sensor: hides people near the robot only
+                assert fixture.b_m[2] + fixture.radius_m <= 2.0 + 1e-9
+                if fixture.name == "shelf":
+                    shelves += 1
+                else:
+                    assert 0.9 <= math.hypot(*fixture.a_m[:2]) <= 2.2
+            assert (occluded.links, occluded.seed) == (plain.links, plain.seed)
+            assert occluded.trackers.keys() == plain.trackers.keys()
+            for name, tracker in occluded.trackers.items():
+                assert tracker.occlusion
+                assert tracker.position_m is not None
+                assert 2.5 <= math.hypot(*tracker.position_m[:2]) <= 5.0
+                assert 2.2 <= tracker.position_m[2] <= 3.0
+                same = {"occlusion": False, "position_m": None, "miss_probability": 0.0, "id_swap_probability": 0.0}
+                assert tracker.model_copy(update=same) == plain.trackers[name]
+                misses += tracker.miss_probability > 0.0
+                swaps += tracker.id_swap_probability > 0.0
+            assert generate(5, index, duration_s, 0.2, occlusion=True) == occluded
+    assert 20 < misses < 130
+    assert 20 < swaps < 130
+    assert 60 < fixtures < 240
+    assert 10 < shelves < 60
 
 
 # -- whole runs ----------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ from sim.sweep import (
 
 MEASURED_MODEL = REPO_ROOT / "configs" / "robots" / "ur5_measured.toml"
 
-CI_SEED = 2026
+CI_SEED = 2030
 CI_SCENARIOS = 10
 CI_DURATION_S = 8.0
 
@@ -195,6 +195,11 @@ def test_cell_variant(cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch) 
     assert tight.safety.human_speed_mps == 2.2
     assert tight.safety.human_speed_close_mps == 2.2
     assert not cell_config.safety.unsafe_ignore_delay_for_tests  # the original is untouched
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_forget_lost_for_tests")
+    forgetting = CellVariant(unsafe_forget_lost=True, occlusion=True).apply(cell_config)
+    assert forgetting.tracking.unsafe_forget_lost_for_tests
+    assert forgetting.trackers == cell_config.trackers  # occlusion changes the cases' trackers, not the cell's
+    assert not cell_config.tracking.unsafe_forget_lost_for_tests
 
 
 def test_cell_variant_with_measured_stopping_times_and_a_method(cell_config: CellConfig) -> None:
@@ -211,6 +216,31 @@ def test_command_refuses_a_missing_robot_model(capsys: pytest.CaptureFixture[str
         cli(["--scenarios", "1", "--workers", "1", "--robot-model", "configs/robots/nope.toml", "--quiet"])
     assert exit_info.value.code == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_command_with_occlusion_and_the_forgetting_gateway(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--occlusion`` gives the cases' trackers line of sight (and says so, in the table and the JSON);
+    ``--unsafe-forget-lost`` is refused unless HRC_ALLOW_UNSAFE names it, and says UNSAFE when it runs."""
+    monkeypatch.delenv(UNSAFE_ENV_VAR, raising=False)
+    argv = ["--scenarios", "1", "--workers", "1", "--duration-s", "0.5", "--seed", "3", "--quiet", "--occlusion"]
+    with pytest.raises(SystemExit) as exit_info:
+        cli([*argv, "--unsafe-forget-lost"])
+    assert exit_info.value.code == 2
+    assert "unsafe_forget_lost_for_tests" in capsys.readouterr().err
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_forget_lost_for_tests")
+    out = tmp_path / "forget.json"
+    with pytest.raises(SystemExit) as exit_info:
+        cli([*argv, "--unsafe-forget-lost", "--json", str(out)])
+    assert exit_info.value.code == 0
+    printed = capsys.readouterr().out
+    assert "UNSAFE: gateway ran with unsafe_forget_lost_for_tests = true" in printed
+    assert "occlusion: the trackers saw with line of sight" in printed
+    doc = json.loads(out.read_text())
+    assert doc["variant"]["occlusion"]
+    assert doc["variant"]["unsafe_forget_lost"]
+    assert all(t["occlusion"] for t in doc["cases"][0]["params"]["trackers"].values())
 
 
 def _sweep_json(tmp_path: Path, name: str, *args: str) -> dict[str, Any]:

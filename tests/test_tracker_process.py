@@ -1,7 +1,9 @@
-"""The tracker emulator as a process over loopback Zenoh: rates, seq, capture stamps, liveliness, exits."""
+"""The tracker emulator as a process over loopback Zenoh: rates, seq, capture stamps, liveliness, exits; occlusion by
+the robot whose true joint state it follows."""
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import signal
@@ -9,6 +11,7 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +21,7 @@ import zenoh
 from bench.procs import free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 from hrc_common import keys
 from hrc_common.config import REPO_ROOT, load_cell_config
-from hrc_common.messages import Humans, parse_message
+from hrc_common.messages import Humans, JointState, parse_message, to_payload
 from hrc_common.zenoh_session import session_config
 from tracker_emu.scenario import available_scenarios
 
@@ -130,3 +133,105 @@ def test_unknown_tracker_exits_2_listing_the_trackers() -> None:
     assert "unknown tracker 'nope'" in message
     for name in load_cell_config(None).trackers:
         assert name in message
+
+
+BEHIND_ARM_SCENARIO = """description = "one person standing 1.5 m behind the robot"
+duration_s = 60.0
+loop = true
+
+[[humans]]
+id = "h1"
+
+[[humans.keyframes]]
+t_s = 0.0
+xy_m = [-1.5, 0.0]
+heading_rad = 0.0
+
+[[humans.keyframes]]
+t_s = 60.0
+xy_m = [-1.5, 0.0]
+heading_rad = 0.0
+"""
+NEAR_TRACKER = """[trackers.near]
+rate_hz = 30.0
+noise_std_m = 0.0
+position_m = [0.15, 0.0, 1.3]   # 0.15 m in front of the UR5's arm when it points straight up
+occlusion = true
+"""
+Q_ARM_UP_RAD = [0.0, -math.pi / 2, 0.0, -math.pi / 2, 0.0, 0.0]
+Q_ARM_OUT_RAD = [0.0] * 6
+
+
+def cell_with_a_sensor_by_the_arm(tmp_path: Path) -> Path:
+    """A copy of configs/ whose only tracker sees from just in front of the UR5's raised arm, and a scenario
+    ``behind_arm`` with a person standing behind the robot. Returns the cell file."""
+    configs = tmp_path / "configs"
+    shutil.copytree(REPO_ROOT / "configs", configs)
+    cell_path = configs / "cell.toml"
+    text = cell_path.read_text()
+    cell_path.write_text(text[: text.index("[trackers.")] + NEAR_TRACKER)
+    (configs / "scenarios" / "behind_arm.toml").write_text(BEHIND_ARM_SCENARIO)
+    return cell_path
+
+
+def truth_state(q_rad: list[float], seq: int) -> bytes:
+    zeros = [0.0] * len(q_rad)
+    return to_payload(
+        JointState(
+            robot="ur5",
+            seq=seq,
+            stamp_ns=time.time_ns(),
+            q=q_rad,
+            qd=zeros,
+            qd_nominal=zeros,
+            override=0.0,
+            override_seq=-1,
+            mode="stopped",
+        )
+    )
+
+
+def test_the_running_emulator_hides_a_person_behind_the_robot_it_follows(tmp_path: Path) -> None:
+    cell_path = cell_with_a_sensor_by_the_arm(tmp_path)
+    config = load_cell_config(cell_path)
+    endpoint = free_endpoint()
+    log_path = tmp_path / "tracker.log"
+    proc = start_program(
+        "tracker_emu.main",
+        ["--config", str(cell_path), "--scenario", "behind_arm", "--zenoh-listen", endpoint],
+        log_path,
+    )
+    frames: list[Humans] = []
+    seq = 0
+    try:
+        with zenoh.open(session_config(connect=[endpoint])) as session:
+            subscriber = session.declare_subscriber(
+                keys.tracker_humans(config.cell, "near"),
+                lambda sample: frames.append(parse_message(sample.payload.to_bytes(), Humans)),
+            )
+            publisher = session.declare_publisher(keys.truth_robot_state(config.cell, "ur5"))
+
+            def newest_ids_after(q_rad: list[float] | None) -> Callable[[], list[str] | None]:
+                start = len(frames)
+
+                def newest() -> list[str] | None:
+                    nonlocal seq
+                    if q_rad is not None:  # the controller emulator publishes its true state every cycle
+                        seq += 1
+                        publisher.put(truth_state(q_rad, seq))
+                    return [h.id for h in frames[-1].humans] if len(frames) > start + 3 else None
+
+                return newest
+
+            # No robot state yet: the robot hides nothing.
+            nobody_known = newest_ids_after(None)
+            wait_or_fail(lambda: nobody_known() == ["h1"], 10.0, "the person, seen", [log_path], [proc])
+            arm_up = newest_ids_after(Q_ARM_UP_RAD)
+            wait_or_fail(lambda: arm_up() == [], 10.0, "the person, hidden by the raised arm", [log_path], [proc])
+            arm_out = newest_ids_after(Q_ARM_OUT_RAD)
+            wait_or_fail(lambda: arm_out() == ["h1"], 10.0, "the person, seen again", [log_path], [proc])
+            del subscriber  # (the publisher goes with the session)
+        assert stop_program(proc, signal.SIGINT, timeout_s=5.0) == 0
+    finally:
+        stop_all([proc])
+    assert "occlusion from (0.15, 0.0, 1.3)" in log_path.read_text()

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hrc_common.config import REPO_ROOT, ConfigError
+from hrc_common.config import REPO_ROOT, ConfigError, TrackingConfig
 from tracker_emu.body import BodyCapsule
 from tracker_emu.scenario import (
     HumanScript,
@@ -21,6 +21,7 @@ from tracker_emu.scenario import (
     pose_at,
     scenario_path,
 )
+from tracker_emu.sensor import centre_m, covered_volume, inside
 
 SCENARIOS_DIR = REPO_ROOT / "configs" / "scenarios"
 ROBOT_TOOL_AREA_CENTRE_WORLD = np.array([0.0, 0.0, 1.1])
@@ -271,3 +272,44 @@ def test_unknown_scenario_name_lists_the_available_ones() -> None:
         assert name in str(info.value)
     with pytest.raises(ConfigError, match="unknown scenario"):
         scenario_path(SCENARIOS_DIR, "../cell")
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIOS_DIR.glob("*.toml")), ids=lambda p: p.stem)
+def test_people_come_and_go_through_the_boundary_of_the_covered_volume(path: Path) -> None:
+    """Nobody appears or vanishes inside the volume the trackers cover: for the gateway, that is a person lost."""
+    s = load_scenario(path)
+    coverage = covered_volume(TrackingConfig())
+    for human in s.humans:
+        always_there = s.loop and human.start_s == 0.0 and human.end_s == s.duration_s
+        if always_there:  # present through every restart (standing_inside): never appears nor vanishes
+            assert human.keyframes[0].xy_m == human.keyframes[-1].xy_m
+            continue
+        for t_s in (human.start_s, human.end_s):
+            (person,) = [h for h in humans_at(s, t_s) if h.id == human.id]
+            assert not inside(coverage, centre_m(person)), f"{human.id} at t = {t_s} s"
+
+
+def test_fixtures_parse_and_are_checked(tmp_path: Path) -> None:
+    s = scenario("occluded_behind_robot")
+    (cabinet,) = s.fixtures
+    assert cabinet.name == "cabinet"
+    assert cabinet.radius_m > 0.0
+    fixture = '[[fixtures]]\nname = "shelf"\na_m = [1.0, 0.0, 0.0]\nb_m = [1.0, 0.0, 2.0]\nradius_m = 0.3\n'
+    assert load_scenario(write(tmp_path, fixture)).fixtures[0].b_m == (1.0, 0.0, 2.0)
+    with pytest.raises(ConfigError, match=r"radius_m: .*greater than 0"):
+        load_scenario(write(tmp_path, fixture.replace("0.3", "0.0")))
+    with pytest.raises(ConfigError, match="b_m"):
+        load_scenario(write(tmp_path, fixture.replace("[1.0, 0.0, 2.0]", "[1.0, 0.0]")))
+    assert scenario("walk_in_reach_leave").fixtures == []
+
+
+def test_the_occlusion_scenarios_exist_with_their_cells() -> None:
+    from hrc_common.config import load_cell_config
+
+    one = load_cell_config(REPO_ROOT / "configs" / "cell_one_sensor.toml")
+    assert list(one.trackers) == ["front"]
+    assert one.default_scenario == "occluded_behind_robot"
+    assert scenario_path(one.scenarios_dir, "complementary_views").is_file()
+    for cell in ("cell.toml", "cell_two_arms.toml", "cell_one_sensor.toml"):
+        config = load_cell_config(REPO_ROOT / "configs" / cell)
+        assert all(t.occlusion and t.position_m is not None for t in config.trackers.values()), cell

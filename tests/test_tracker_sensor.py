@@ -1,15 +1,18 @@
-"""The sensor model: noise statistics, drop rate, truth without noise, and the wire message it becomes."""
+"""The sensor model: noise statistics, drop rate, truth without noise, the covered volume, missed people, id swaps,
+occlusion, and the wire message it becomes."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
 
-from hrc_common.config import TrackerConfig
+from hrc_common.config import Box, TrackerConfig, TrackingConfig
 from hrc_common.messages import Humans, parse_message, to_payload
 from tracker_emu.body import BodyPose, body_capsules
+from tracker_emu.occlusion import Blockers
 from tracker_emu.scenario import TrackedHuman
-from tracker_emu.sensor import humans_message, measure
+from tracker_emu.sensor import centre_m, covered_volume, humans_message, measure, rename, swap_ids
 
 TRUTH = [
     TrackedHuman("h1", body_capsules(BodyPose(1.35, 0.0, np.pi, reach=1.0))),
@@ -96,3 +99,124 @@ def test_the_frame_becomes_a_valid_contract_message() -> None:
     assert cap.radius == measured[0].capsules[0].radius_m
     empty = parse_message(to_payload(humans_message("side", 1, 0, [])), Humans)
     assert empty.humans == []
+
+
+# -- the covered volume, missed people, id swaps --------------------------------------------------------------------
+
+COVERAGE = Box(min_m=(-5.5, -5.5, -0.2), max_m=(5.5, 5.5, 2.6))
+EXACT = TrackerConfig(noise_std_m=0.0, drop_probability=0.0)
+
+
+def person_at(human_id: str, x_m: float, y_m: float = 0.0) -> TrackedHuman:
+    return TrackedHuman(human_id, body_capsules(BodyPose(x_m, y_m, np.pi)))
+
+
+def test_people_outside_the_covered_volume_are_not_reported() -> None:
+    inside_one = person_at("in", 5.4)
+    outside_x = person_at("out_x", 5.7)
+    outside_y = person_at("out_y", 1.0, -5.6)
+    measured = measure([outside_x, inside_one, outside_y], np.random.default_rng(0), EXACT, coverage=COVERAGE)
+    assert [h.id for h in measured or []] == ["in"]
+    # What decides is the centre (the mean of the capsule end points), not a hand or a foot across the boundary.
+    assert centre_m(inside_one)[0] == pytest.approx(5.4, abs=0.05)
+    everywhere = measure([outside_x, inside_one, outside_y], np.random.default_rng(0), EXACT)
+    assert [h.id for h in everywhere or []] == ["out_x", "in", "out_y"]
+
+
+def test_covered_volume_is_the_cells_tracking_section() -> None:
+    box = covered_volume(TrackingConfig(coverage_min_m=(-1.0, -2.0, 0.0), coverage_max_m=(1.0, 2.0, 2.0)))
+    assert (box.min_m, box.max_m) == ((-1.0, -2.0, 0.0), (1.0, 2.0, 2.0))
+
+
+def test_each_person_is_missed_with_the_configured_probability() -> None:
+    tracker = TrackerConfig(noise_std_m=0.0, drop_probability=0.0, miss_probability=0.2)
+    rng = np.random.default_rng(3)
+    frames = [measure(TRUTH, rng, tracker) or [] for _ in range(4000)]
+    for human_id in ("h1", "h2"):
+        seen = sum(any(h.id == human_id for h in frame) for frame in frames)
+        assert 1.0 - seen / len(frames) == pytest.approx(0.2, abs=0.02)
+    # Misses are per person: both missed in the same frame about 0.2² of the time.
+    assert sum(frame == [] for frame in frames) / len(frames) == pytest.approx(0.04, abs=0.01)
+    # A missed person is missing from a frame that is published (not a dropped frame).
+    assert all(frame is not None for frame in frames)
+
+
+def test_misses_are_the_same_for_the_same_seed() -> None:
+    tracker = TrackerConfig(noise_std_m=0.01, miss_probability=0.3)
+
+    def run(seed: int) -> list[list[str]]:
+        rng = np.random.default_rng(seed)
+        return [[h.id for h in measure(TRUTH, rng, tracker) or []] for _ in range(60)]
+
+    assert run(9) == run(9)
+    assert run(9) != run(10)
+
+
+def test_zero_probabilities_draw_what_the_sensor_drew_before_them() -> None:
+    """Misses, coverage and id swaps off: the random stream (drop, noise) is the one of the plain sensor model."""
+    tracker = TrackerConfig(noise_std_m=0.02, drop_probability=0.1)
+    rng_a, rng_b = np.random.default_rng(5), np.random.default_rng(5)
+    for _ in range(20):
+        plain = measure(TRUTH, rng_a, tracker)
+        full = measure(TRUTH, rng_b, tracker, coverage=COVERAGE)
+        names = swap_ids(full or [], {}, rng_b, tracker.id_swap_probability)
+        assert names == {}
+        assert (plain is None and full is None) or np.array_equal(end_points(plain or []), end_points(full or []))
+    assert rng_a.random() == rng_b.random()
+
+
+def test_id_swaps_happen_at_the_configured_rate_and_persist() -> None:
+    rng = np.random.default_rng(2)
+    names: dict[str, str] = {}
+    swaps = 0
+    for _ in range(2000):
+        new = swap_ids(TRUTH, names, rng, 0.05)
+        swaps += new != names
+        names = new
+        reported = rename(TRUTH, names)
+        assert sorted(h.id for h in reported) == ["h1", "h2"]  # a permutation: ids stay unique
+    assert swaps / 2000 == pytest.approx(0.05, abs=0.015)
+    # With two people every swap exchanges the two: the ids are swapped after an odd number of them.
+    assert [h.id for h in rename(TRUTH, names)] == (["h2", "h1"] if swaps % 2 else ["h1", "h2"])
+
+
+def test_an_id_swap_needs_two_people_and_is_deterministic() -> None:
+    alone = [TRUTH[0]]
+    assert swap_ids(alone, {}, np.random.default_rng(0), 0.99) == {}
+    three = [*TRUTH, person_at("h3", 2.0, 2.0)]
+
+    def run(seed: int) -> list[dict[str, str]]:
+        rng = np.random.default_rng(seed)
+        names: dict[str, str] = {}
+        out = []
+        for _ in range(40):
+            names = swap_ids(three, names, rng, 0.3)
+            out.append(names)
+        return out
+
+    assert run(4) == run(4)
+    assert run(4) != run(5)
+    for names in run(4):
+        assert sorted(names.get(i, i) for i in ("h1", "h2", "h3")) == ["h1", "h2", "h3"]
+
+
+def test_occlusion_needs_the_sensors_position() -> None:
+    with pytest.raises(ValidationError, match="occlusion = true needs the sensor's position_m"):
+        TrackerConfig(occlusion=True)
+    assert TrackerConfig(occlusion=True, position_m=(3.5, 0.0, 2.2)).position_m == (3.5, 0.0, 2.2)
+    with pytest.raises(ValidationError, match="miss_probability"):
+        TrackerConfig(miss_probability=1.0)
+    with pytest.raises(ValidationError, match="id_swap_probability"):
+        TrackerConfig(id_swap_probability=-0.1)
+
+
+def test_with_occlusion_the_sensor_reports_what_it_sees() -> None:
+    tracker = TrackerConfig(noise_std_m=0.0, occlusion=True, position_m=(3.5, 0.0, 2.2))
+    cabinet = Blockers(np.array([[2.0, 0.0, 0.0]]), np.array([[2.0, 0.0, 2.4]]), np.array([0.4]))
+    behind = person_at("hidden", 0.5)
+    beside = person_at("seen", 1.0, 2.5)
+    measured = measure([behind, beside], np.random.default_rng(0), tracker, blockers=cabinet)
+    assert [h.id for h in measured or []] == ["seen"]
+    # Without occlusion the same sensor sees through the cabinet.
+    plain = measure([behind, beside], np.random.default_rng(0), EXACT, blockers=cabinet)
+    assert [h.id for h in plain or []] == ["hidden", "seen"]

@@ -375,3 +375,15 @@ def test_the_status_lists_the_lost_person_who_holds_the_robot_and_says_what_to_d
     drawn = {c.human for c in doc.human_capsules}
     assert drawn == {"front/h1 (lost)", "side/h1 (lost)"}
     assert all(c.radius_m == pytest.approx(0.05 + 1.6 * 1.03) for c in doc.human_capsules)
+
+
+def test_a_person_who_keeps_being_seen_releases_the_lost_one_once_within_reach(feed: Feed) -> None:
+    """After a 3 m jump the detection continues its own new track frame after frame; each of those frames is a
+    detection too: once the lost person's reach covers it (≈ 1.8 s at K), it may be them, and they are released."""
+    feed.see(0, "front", body("front", "h1", 1.0, 0.0))
+    events: list[str] = []
+    for i in range(1, 61):  # 2 s at 30 Hz, the same person standing 3 m away
+        events += feed.see(i * FRAME_NS, "front", body("front", "h1", 4.0, 0.0))
+    assert events == ["track_lost:front/h1:None", "track_released:front/h1:redetected"]
+    assert feed.tracks.released[-1].released_by == "redetected by front/h1"
+    assert [(t.label, t.state) for t in feed.tracks.live] == [("front/h1#2", TrackState.SEEN)]

@@ -2,11 +2,14 @@
 
 Every sensor captures at its own ``rate_hz`` from the start of the scenario; a capture takes the true
 humans at that scenario time through the sensor model and queues the measured frame for publication
-``latency_s`` later, stamped with the wall-clock time of the capture. The caller passes the clocks in:
+``latency_s`` later, stamped with the wall-clock time of the capture. The caller passes the clocks in, and the
+robots' link capsules when a sensor with occlusion captures (:attr:`TrackerEmulator.occludes`):
 
-    emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
+    emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic(), coverage=box)
     while running:
-        for tracker, message in emulator.step(time.monotonic(), time.time_ns()):
+        now_s = time.monotonic()
+        links = robot_poses.capsules() if emulator.occludes and emulator.capture_due(now_s) else None
+        for tracker, message in emulator.step(now_s, time.time_ns(), links):
             publish(tracker, message)
         sleep until emulator.next_event_s()
 """
@@ -21,10 +24,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hrc_common.config import TrackerConfig
+from hrc_common.config import Box, TrackerConfig
 from hrc_common.messages import Humans
+from tracker_emu.occlusion import NO_BLOCKERS, Blockers, fixture_blockers, join_blockers
 from tracker_emu.scenario import Scenario, TrackedHuman, humans_at, scenario_time
-from tracker_emu.sensor import humans_message, measure
+from tracker_emu.sensor import humans_message, measure, rename, swap_ids
 
 
 @dataclass
@@ -36,12 +40,14 @@ class TrackerCounters:
         published: frames handed out for publication (= the last ``seq``).
         dropped: frames lost by the sensor model, never published.
         skipped: capture instants missed because the caller came late (the loop overran).
+        id_swaps: times two reported people exchanged their ids.
     """
 
     captured: int = 0
     published: int = 0
     dropped: int = 0
     skipped: int = 0
+    id_swaps: int = 0
 
 
 @dataclass
@@ -52,6 +58,8 @@ class _Sensor:
     period_s: float
     next_capture_s: float
     counters: TrackerCounters = field(default_factory=TrackerCounters)
+    names: dict[str, str] = field(default_factory=dict)
+    """The id this sensor gives each true id (after id swaps); a true id not in it keeps its own."""
 
 
 @dataclass(frozen=True, order=True)
@@ -74,15 +82,27 @@ class TrackerEmulator:
     Args:
         scenario: the scripted humans.
         trackers: the sensors to play, by name.
-        seed: seed of the sensors' noise and drops.
+        seed: seed of the sensors' noise, drops, misses and id swaps.
         start_s: monotonic time at which the scenario starts (scenario time 0) [s].
+        coverage: the volume the cell's trackers cover (``[tracking]``): nobody outside it is reported; None =
+            everywhere.
     """
 
-    def __init__(self, scenario: Scenario, trackers: Mapping[str, TrackerConfig], seed: int, start_s: float) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        trackers: Mapping[str, TrackerConfig],
+        seed: int,
+        start_s: float,
+        *,
+        coverage: Box | None = None,
+    ) -> None:
         if not trackers:
             raise ValueError("at least one tracker is required")
         self.scenario = scenario
         self.start_s = start_s
+        self.coverage = coverage
+        self._fixtures = fixture_blockers(scenario.fixtures)
         self._sensors = {
             name: _Sensor(name, config, tracker_rng(seed, name), 1.0 / config.rate_hz, start_s)
             for name, config in trackers.items()
@@ -108,29 +128,42 @@ class TrackerEmulator:
         """How many times the scenario has restarted by ``now_s`` (0 during the first run)."""
         return math.floor(max(0.0, self.elapsed_s(now_s)) / self.scenario.duration_s)
 
+    @property
+    def occludes(self) -> bool:
+        """Whether a sensor sees only what is in its line of sight (and so needs the robots' link capsules)."""
+        return any(sensor.config.occlusion for sensor in self._sensors.values())
+
+    def capture_due(self, now_s: float) -> bool:
+        """Whether a sensor captures at ``now_s`` (monotonic time [s]): the robots' links are needed only then."""
+        return any(sensor.next_capture_s <= now_s for sensor in self._sensors.values())
+
     def next_event_s(self) -> float:
         """Monotonic time of the next capture or publication [s]."""
         next_capture_s = min(sensor.next_capture_s for sensor in self._sensors.values())
         return min(next_capture_s, self._pending[0].due_s) if self._pending else next_capture_s
 
-    def step(self, now_s: float, now_ns: int) -> list[tuple[str, Humans]]:
+    def step(self, now_s: float, now_ns: int, robot_links: Blockers | None = None) -> list[tuple[str, Humans]]:
         """Capture the frames that are due, then hand out the frames whose latency has passed.
 
         Args:
             now_s: monotonic time [s].
             now_ns: wall-clock time at ``now_s``, nanoseconds since the Unix epoch (the capture stamp).
+            robot_links: the robots' link capsules at ``now_s``, world frame [m], for the sensors with occlusion;
+                None = no robot in sight (only people hide anything).
 
         Returns:
             ``(tracker, message)`` pairs to publish now, in capture order.
         """
         humans_true: list[TrackedHuman] | None = None
+        blockers = NO_BLOCKERS
         for sensor in self._sensors.values():
             if sensor.next_capture_s > now_s:
                 continue
             if humans_true is None:
                 humans_true = humans_at(self.scenario, self.elapsed_s(now_s))
                 self.present_ids = tuple(h.id for h in humans_true)
-            self._capture(sensor, humans_true, now_s, now_ns)
+                blockers = join_blockers([NO_BLOCKERS if robot_links is None else robot_links, self._fixtures])
+            self._capture(sensor, humans_true, now_s, now_ns, blockers)
         out = []
         while self._pending and self._pending[0].due_s <= now_s:
             frame = heapq.heappop(self._pending)
@@ -139,15 +172,22 @@ class TrackerEmulator:
             out.append((frame.tracker, humans_message(frame.tracker, counters.published, frame.stamp_ns, frame.humans)))
         return out
 
-    def _capture(self, sensor: _Sensor, humans_true: list[TrackedHuman], now_s: float, now_ns: int) -> None:
+    def _capture(
+        self, sensor: _Sensor, humans_true: list[TrackedHuman], now_s: float, now_ns: int, blockers: Blockers
+    ) -> None:
         sensor.counters.captured += 1
-        measured = measure(humans_true, sensor.rng, sensor.config)
+        config = sensor.config
+        measured = measure(humans_true, sensor.rng, config, coverage=self.coverage, blockers=blockers)
         if measured is None:
             sensor.counters.dropped += 1
         else:
+            names = swap_ids(measured, sensor.names, sensor.rng, config.id_swap_probability)
+            sensor.counters.id_swaps += names != sensor.names
+            sensor.names = names
             self._order += 1
             heapq.heappush(
-                self._pending, _Pending(now_s + sensor.config.latency_s, self._order, sensor.name, now_ns, measured)
+                self._pending,
+                _Pending(now_s + config.latency_s, self._order, sensor.name, now_ns, rename(measured, names)),
             )
         # Next capture on the sensor's own grid; instants already past are skipped, not caught up in a burst.
         sensor.next_capture_s += sensor.period_s

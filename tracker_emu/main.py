@@ -1,7 +1,11 @@
 """The tracker emulator process: plays a scenario's humans as one or several sensors over Zenoh.
 
-clock → TrackerEmulator.step(now) → publish the frames due → TruthSampler.step(now) → publish the truth
+clock → TrackerEmulator.step(now, robot links) → publish the frames due → TruthSampler.step(now) → publish the truth
 → sleep until the next capture, publication or truth sample
+
+Sensors report only people inside the cell's covered volume (``[tracking]``). When a sensor has occlusion, the
+process follows the robots' true joint positions (``hrc/<cell>/truth/robot/*/state``, published by the controller
+emulators) and passes their link capsules to each capture; until a robot's first state arrives, it hides nothing.
 
 The ground truth (the scenario's capsules before noise, drops and latency) goes out at ``--truth-rate-hz``
 on ``hrc/<cell>/truth/humans`` as a humans message of tracker ``truth``, stamped and published at once.
@@ -15,7 +19,7 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import NamedTuple
 
 import zenoh
@@ -23,6 +27,7 @@ import zenoh
 from hrc_common import keys
 from hrc_common.config import CellConfig, ConfigError, TrackerConfig, load_cell_config
 from hrc_common.messages import to_payload
+from hrc_common.robot_model import load_robot_model
 from hrc_common.sd_notify import LoopNotifier
 from hrc_common.service import (
     add_config_argument,
@@ -33,7 +38,9 @@ from hrc_common.service import (
 )
 from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
+from tracker_emu.robot_links import RobotPoses
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
+from tracker_emu.sensor import covered_volume
 
 log = logging.getLogger("hrc-tracker-emu")
 
@@ -74,7 +81,9 @@ def select_scenario(config: CellConfig, name: str | None) -> tuple[str, Scenario
 
 def _progress(emulator: TrackerEmulator, now_s: float) -> str:
     counters = "; ".join(
-        f"{name}: {c.published} published, {c.dropped} dropped" + (f", {c.skipped} skipped" if c.skipped else "")
+        f"{name}: {c.published} published, {c.dropped} dropped"
+        + (f", {c.skipped} skipped" if c.skipped else "")
+        + (f", {c.id_swaps} id swaps" if c.id_swaps else "")
         for name, c in emulator.counters.items()
     )
     return (
@@ -99,6 +108,22 @@ def _declare_publishers(session: zenoh.Session, cell: str, trackers: Iterable[st
     )
 
 
+def robot_poses(config: CellConfig) -> RobotPoses:
+    """The cell's robot models, loaded, waiting for their true joint positions.
+
+    Raises:
+        ConfigError: a robot's URDF or links do not load.
+    """
+    return RobotPoses(config.cell, {name: load_robot_model(name, robot) for name, robot in config.robots.items()})
+
+
+def _truth_state_callback(robots: RobotPoses) -> Callable[[zenoh.Sample], None]:
+    def on_sample(sample: zenoh.Sample) -> None:
+        robots.on_truth_state(str(sample.key_expr), sample.payload.to_bytes())
+
+    return on_sample
+
+
 def _log_start(cell: str, scenario_name: str, scenario: Scenario, trackers: dict[str, TrackerConfig]) -> None:
     log.info(
         "cell %r: playing scenario %r (%.1f s%s: %s) as tracker(s) %s",
@@ -107,16 +132,28 @@ def _log_start(cell: str, scenario_name: str, scenario: Scenario, trackers: dict
         scenario.duration_s,
         ", loop" if scenario.loop else "",
         scenario.description,
-        ", ".join(f"{n} ({t.rate_hz:g} Hz, latency {t.latency_s:g} s)" for n, t in trackers.items()),
+        ", ".join(
+            f"{n} ({t.rate_hz:g} Hz, latency {t.latency_s:g} s"
+            + (f", occlusion from {t.position_m}" if t.occlusion else "")
+            + ")"
+            for n, t in trackers.items()
+        ),
     )
 
 
 def _publish_due(
-    emulator: TrackerEmulator, truth: TruthSampler | None, publishers: _Publishers, now_s: float, now_ns: int
+    emulator: TrackerEmulator,
+    truth: TruthSampler | None,
+    publishers: _Publishers,
+    robots: RobotPoses | None,
+    now_s: float,
+    now_ns: int,
 ) -> bool:
     """Publish the frames due at ``now_s`` and the truth sample, if one is due; whether a frame went out."""
     published = False
-    for name, message in emulator.step(now_s, now_ns):
+    # Forward kinematics only when a sensor with occlusion captures.
+    robot_links = robots.capsules() if robots is not None and emulator.capture_due(now_s) else None
+    for name, message in emulator.step(now_s, now_ns, robot_links):
         publishers.humans[name].put(to_payload(message))
         published = True
     truth_message = truth.step(now_s, now_ns) if truth is not None else None
@@ -153,6 +190,7 @@ def _play(
     emulator: TrackerEmulator,
     truth: TruthSampler | None,
     publishers: _Publishers,
+    robots: RobotPoses | None,
     course: _Course,
     stop: threading.Event,
 ) -> None:
@@ -163,7 +201,7 @@ def _play(
     freeze_startup_heap()
     while not stop.is_set():
         now_s = time.monotonic()
-        published = _publish_due(emulator, truth, publishers, now_s, time.time_ns()) or published
+        published = _publish_due(emulator, truth, publishers, robots, now_s, time.time_ns()) or published
         service.cycle_done(now_s, lambda: _progress(emulator, time.monotonic()), ready=published)
         course.update(emulator, now_s)
         next_s = min(emulator.next_event_s(), course.next_progress_s, now_s + service.ping_every_s)
@@ -185,20 +223,34 @@ def main(
     truth_rate_hz: float = DEFAULT_TRUTH_RATE_HZ,
     *,
     zenoh_options: SessionOptions,
+    robots: RobotPoses | None = None,
 ) -> int:
     """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code.
 
     ``truth_rate_hz``: rate of the ground truth on ``hrc/<cell>/truth/humans`` [Hz]; 0 publishes none.
+    ``robots``: the robot models the sensors with occlusion see (default: loaded here when a tracker occludes).
+
+    Raises:
+        ConfigError: a robot model does not load (only when ``robots`` is not given).
     """
     cell = config.cell
+    if robots is None and any(t.occlusion for t in trackers.values()):
+        robots = robot_poses(config)
     with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
         publishers = _declare_publishers(session, cell, trackers)
+        subscriber = (
+            None
+            if robots is None
+            else session.declare_subscriber(f"hrc/{cell}/truth/robot/*/state", _truth_state_callback(robots))
+        )
         token = session.liveliness().declare_token(keys.alive(cell, COMPONENT))
-        emulator = TrackerEmulator(scenario, trackers, seed, start_s=time.monotonic())
+        emulator = TrackerEmulator(
+            scenario, trackers, seed, start_s=time.monotonic(), coverage=covered_volume(config.tracking)
+        )
         truth = TruthSampler(scenario, truth_rate_hz, emulator.start_s) if truth_rate_hz > 0.0 else None
         _log_start(cell, scenario_name, scenario, trackers)
-        _play(emulator, truth, publishers, _Course(scenario_name, scenario, emulator.start_s), stop)
-        del token, publishers  # undeclared when the session closes
+        _play(emulator, truth, publishers, robots, _Course(scenario_name, scenario, emulator.start_s), stop)
+        del token, publishers, subscriber  # undeclared when the session closes
     log.info("stopped; %s", _progress(emulator, time.monotonic()))
     return 0
 
@@ -237,6 +289,7 @@ def cli(argv: list[str] | None = None) -> None:
         config = load_cell_config(args.config)
         scenario_name, scenario = select_scenario(config, args.scenario)
         trackers = select_trackers(config, args.tracker)
+        robots = robot_poses(config) if any(t.occlusion for t in trackers.values()) else None
         zenoh_options = options_from_args(args, COMPONENT, config)  # mutual TLS + access control by default
     except ConfigError as exc:
         print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)
@@ -254,6 +307,7 @@ def cli(argv: list[str] | None = None) -> None:
             stop,
             truth_rate_hz=args.truth_rate_hz,
             zenoh_options=zenoh_options,
+            robots=robots,
         )
     sys.exit(code)
 

@@ -4,6 +4,14 @@ A scenario lists humans, each with keyframes (time, floor position, heading, rea
 from its first to its last keyframe; in between, the pose is interpolated linearly (the heading along
 the shorter way round). :func:`humans_at` is a pure function of the scenario and the scenario time.
 
+People enter and leave the cell through the boundary of the volume its trackers cover (``[tracking]`` of the
+cell file, ±5.5 m by default): the shipped scenarios start and end every person's path outside it (x or
+|y| = 6 m), since a person who vanishes inside it is, for the gateway, a person the trackers lost.
+
+A scenario may also place fixtures: static objects (a cabinet, a workbench) as capsules that hide what lies
+behind them from sensors with occlusion; nothing else sees them (the gateway and the auditor judge people
+and robots only).
+
 File format::
 
     description = "one person walks in"
@@ -19,6 +27,12 @@ File format::
     xy_m = [6.0, 0.0]
     heading_rad = 3.14159
     reach = 0.0                # optional, in [0, 1]
+
+    [[fixtures]]               # optional
+    name = "cabinet"
+    a_m = [1.0, -0.9, 0.0]     # axis end points, world frame [m]
+    b_m = [1.0, -0.9, 2.0]
+    radius_m = 0.35
 """
 
 from __future__ import annotations
@@ -38,6 +52,7 @@ MAX_WALKING_SPEED_MPS = 3.0
 """Fastest allowed motion of a person between two keyframes [m/s]."""
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
+Point = tuple[Finite, Finite, Finite]
 
 
 class _Frozen(BaseModel):
@@ -86,6 +101,16 @@ class HumanScript(_Frozen):
         return self.keyframes[-1].t_s
 
 
+class Fixture(_Frozen):
+    """A static object of the scene as a capsule: the segment ``a_m``–``b_m`` (world frame) [m] swept by a sphere
+    of ``radius_m`` [m]. It only hides what lies behind it from the sensors with occlusion."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    a_m: Point
+    b_m: Point
+    radius_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)]
+
+
 class Scenario(_Frozen):
     """A scripted scene of the cell; times are scenario times from 0 to ``duration_s`` [s]."""
 
@@ -93,6 +118,7 @@ class Scenario(_Frozen):
     duration_s: Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
     loop: bool
     humans: list[HumanScript] = Field(default_factory=list)
+    fixtures: list[Fixture] = Field(default_factory=list)
 
     @model_validator(mode="after")
     def _within_duration_and_unique(self) -> Scenario:

@@ -5,9 +5,9 @@ loop's timing, faults raised), each event of the log as it arrives (people relea
 document when scraped (gauges and counters the gateway already counts, the people tracked). Names follow Prometheus'
 conventions: prefix ``hrc_``, base units (seconds, metres), ``_total`` for counters, ratios in 0–1.
 
-A status document shows the loop at one instant: its mean tick period since the previous document, the longest
-decision and the lateness of the last tick, not each tick's. The period histogram's buckets lie around the
-configured period, so that it shows how far the means stray from it.
+A status document carries every tick period since the previous document (``loop.tick_periods_s``), the longest loop
+iteration and the lateness of the last tick. The period histogram observes each tick's period; its buckets lie
+around the configured period, so that its quantiles are tails, not interpolations of means.
 
 Releases are counted from the ``track_released`` events, not from the status: the status keeps only the 32 most
 recent released tracks, a released label may come back (the same person lost and released again), and the child may
@@ -143,7 +143,7 @@ class GatewayMetrics:
         self._previous: GatewayStatus | None = None
         self.period = Histogram(
             "hrc_loop_period_seconds",
-            "Mean tick period over the ticks between two status documents.",
+            "Each tick's interval from the previous tick.",
             buckets=period_buckets(period_s),
             registry=self.registry,
         )
@@ -178,11 +178,8 @@ class GatewayMetrics:
             self.lateness.observe(status.loop.last_lateness_s)
             for name, code in raised_faults(previous, status):
                 self.faults_raised.labels(name, code).inc()
-            if previous is None:
-                return
-            ticks = status.loop.tick_cycles - previous.loop.tick_cycles
-            if ticks > 0 and status.stamp_ns > previous.stamp_ns:
-                self.period.observe((status.stamp_ns - previous.stamp_ns) / NS_PER_S / ticks)
+            for period_s in status.loop.tick_periods_s:
+                self.period.observe(period_s)
 
     def observe_event(self, event: Event) -> None:
         """One event of the log arrived; an event of a seq already observed is not counted again."""

@@ -322,6 +322,7 @@ def loop_status(rate: RateLoop, compute_max_s: float, event_driven: bool, event_
         last_lateness_s=_rounded(max(rate.last_lateness_s, 0.0), LOOP_DIGITS),
         compute_max_s=_rounded(compute_max_s, LOOP_DIGITS),
         event_seqs=list(event_seqs),
+        tick_periods_s=[_rounded(x, LOOP_DIGITS) for x in rate.take_tick_periods()],
     )
 
 

@@ -275,6 +275,10 @@ RECENT_CYCLE_DECAY = 0.98
 """Per cycle, the weight of the longest recent cycle in :attr:`RateLoop.guard_s` (halves in ~35 cycles)."""
 
 
+MAX_TICK_PERIODS = 256
+"""Tick periods kept between two status documents (25 Hz status at up to 1 kHz ticks needs 40)."""
+
+
 class RateLoop:
     """Fixed-rate loop on the monotonic clock that measures its own lateness, with optional event cycles.
 
@@ -313,6 +317,10 @@ class RateLoop:
         self.last_lateness_s = 0.0
         """Lateness of the last tick [s] (event cycles leave it as it is)."""
         self.tick_cycles = 0
+        self.tick_periods_s: list[float] = []
+        """Each tick's interval from the previous tick [s], since :meth:`take_tick_periods` (at most
+        :data:`MAX_TICK_PERIODS` kept; the Prometheus histogram observes each)."""
+        self._last_tick_s: float | None = None
         self.event_cycles = 0
         self.wakes_served_by_tick = 0
         """Wake-ups left to the next tick because it was due within ``event_guard_s``."""
@@ -369,9 +377,18 @@ class RateLoop:
                 return not stop.is_set()
         return False
 
+    def take_tick_periods(self) -> list[float]:
+        """The tick periods since the previous call [s], oldest first; the list starts empty again."""
+        periods, self.tick_periods_s = self.tick_periods_s, []
+        return periods
+
     def _tick(self, late_s: float, wake: threading.Event | None) -> None:
         if wake is not None:
             wake.clear()
+        now_s = time.monotonic()
+        if self._last_tick_s is not None and len(self.tick_periods_s) < MAX_TICK_PERIODS:
+            self.tick_periods_s.append(now_s - self._last_tick_s)
+        self._last_tick_s = now_s
         self.last_lateness_s = late_s
         missed = int(late_s // self.period_s)
         self.missed_cycles += missed

@@ -227,6 +227,11 @@ class LoopStatus(_Strict):
         description="Override seqs of the event cycles since the previous status; complete when as many as "
         "the growth of ``event_cycles`` (capped at 256)."
     )
+    tick_periods_s: list[NonNegative] = Field(
+        default_factory=list,
+        description="Each tick's interval from the previous tick since the previous status, oldest first (at most "
+        "256) [s]: the period histogram of the metrics observes each.",
+    )
     budget_overruns: Count = Field(
         0,
         description="Decisions that commanded δ > 0 whose next decision started later than the "

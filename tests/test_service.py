@@ -275,3 +275,26 @@ def test_collections_paused_leaves_them_off_if_they_were_off() -> None:
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+def test_the_rate_loop_hands_over_each_tick_period_once() -> None:
+    """Every tick's interval from the previous tick is kept for the status (the metrics observe each), and taken
+    once: the next status gets only the ticks after it."""
+    import threading
+
+    from hrc_common.service import MAX_TICK_PERIODS, RateLoop
+
+    rate = RateLoop(0.002)
+    stop = threading.Event()
+    for _ in range(6):
+        assert rate.sleep(stop)
+    periods = rate.take_tick_periods()
+    assert len(periods) == 5, "six ticks, five intervals"
+    assert all(p > 0.0 for p in periods)
+    assert sum(periods) >= 4 * 0.002, "the ticks are a period apart (or later), never earlier"
+    assert rate.take_tick_periods() == []
+    assert rate.sleep(stop)
+    assert len(rate.take_tick_periods()) == 1
+    rate.tick_periods_s = [0.002] * MAX_TICK_PERIODS
+    assert rate.sleep(stop)
+    assert len(rate.take_tick_periods()) == MAX_TICK_PERIODS, "bounded between two statuses"

@@ -2,7 +2,7 @@
 
 Each program is its own process, as in production; they meet over Zenoh on loopback, with mutual TLS and the
 cell's access control: on first start the cell CA and the programs' certificates are created in the state
-folder (``$HRC_STATE_DIR/pki``, else ``.state/pki``; see README, Security). ``--insecure-plain-tcp`` runs them
+folder (``$HRC_STATE_DIR/pki``, else ``.state/pki``; see docs/security.md). ``--insecure-plain-tcp`` runs them
 over plain TCP instead (development only, loudly). Ctrl-C (or SIGTERM) stops all of them cleanly; if one of
 them exits on its own, the others are stopped too.
 """
@@ -46,7 +46,7 @@ def program_commands(
         endpoint: the gateway's Zenoh endpoint; the emulators connect to it.
         security_args: given to every program (``--pki-dir DIR`` or ``--insecure-plain-tcp``).
         record_dir: if given, the gateway records itself to ``gateway.mcap`` there and ``hrc-record`` records
-            every topic of the cell to ``cell.mcap`` (README, "Recording and replay").
+            every topic of the cell to ``cell.mcap`` (docs/operations.md, "Recording and replay").
     """
     common = [*(["--config", config_path] if config_path else []), *security_args]
     gateway_record = ["--record", str(record_dir / "gateway.mcap")] if record_dir else []
@@ -94,7 +94,7 @@ def _security(config: CellConfig, pki_dir: Path, zenoh_port: int, insecure: bool
     if created or issued:
         print(
             f"hrc-cell: {'created the cell CA and ' if created else ''}issued certificates for {', '.join(issued)} in "
-            f"{pki_dir} (see README, Security)",
+            f"{pki_dir} (see docs/security.md)",
             flush=True,
         )
     return f"tls/127.0.0.1:{zenoh_port}", ["--pki-dir", str(pki_dir)]

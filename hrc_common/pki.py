@@ -347,7 +347,7 @@ class CellPki:
                 if not create:
                     raise PkiError(
                         f"no certificate for {cn!r} in {self.root}; issue one: hrc-cert issue --pki-dir {self.root} "
-                        f"--role ... (see README, Security)"
+                        f"--role ... (see docs/security.md)"
                     )
                 identity, issued = self._issue(cn, hosts, replace=False), True
             if not self.ca_certificate.exists():

@@ -245,7 +245,7 @@ def freeze_startup_heap() -> None:
 
     Call it right before a program's loop starts. Why: a full (generation 2) collection of the gateway's ~157 000
     start-up objects takes ~38 ms, ten periods at 250 Hz, and it happens at some allocation in the loop; after
-    the freeze it scans only what the loop itself keeps (measured: see the README, "Several robots").
+    the freeze it scans only what the loop itself keeps (measured: see docs/benchmarks.md, "Many robots").
     Reference cycles created later are still collected.
     """
     gc.collect()

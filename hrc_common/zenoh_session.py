@@ -182,7 +182,7 @@ def mutual_tls(
     if issued and not had_ca:
         log.warning(
             "created a new cell CA in %s: only programs with certificates of this CA can join; on a cell spread "
-            "over hosts, copy ca.crt and this program's certificate from the CA's host instead (README, Security)",
+            "over hosts, copy ca.crt and this program's certificate from the CA's host instead (docs/security.md)",
             pki_dir,
         )
     if issued:

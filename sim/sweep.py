@@ -19,7 +19,7 @@ scenario's keyframes) is outside the separation-monitoring guarantee, which hold
 table gives those cases their own figure (cases, violations, smallest margin while moving, margin lost) beside the
 within-K figure. The command exits 1 if any cycle of a within-K case violated, else 0: a violation beyond K is
 printed with its margin, never hidden, but it is not a failure of the gateway (it plans with the K it is configured
-with; a cell with faster people needs a larger ``human_speed_mps``, see README "Randomized sweep").
+with; a cell with faster people needs a larger ``human_speed_mps``, see docs/benchmarks.md, "Randomized sweep").
 """
 
 from __future__ import annotations

@@ -113,6 +113,8 @@ class RobotState:
     speed_hold: WindowMax
     replan: ReplanMonitor
     topic: str
+    watchdog_s: float
+    """The controller stops on its own when it hears no override for this long (``controller.watchdog_s``) [s]."""
     zone: Zone = Zone.SAFETY_EXCEPTION
     previous_delta: float = 0.0
 
@@ -172,6 +174,7 @@ class SafetyCore:
                 WindowMax(hold_ns),
                 ReplanMonitor(safety.replan_delta_below, safety.replan_after_s),
                 f"robot/{name}",
+                config.robots[name].controller.watchdog_s,
             )
             for name, robot in robots.items()
         }
@@ -198,11 +201,15 @@ class SafetyCore:
         gateway_period_s: float,
         resets: tuple[TrackReset, ...] = (),
     ) -> dict[str, RobotDecision]:
-        """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s];
+        """One decision per robot at ``now``; ``gateway_period_s`` bounds the time until the next decision [s] (per
+        robot at most its controller's watchdog: a controller that hears no override for that long stops on its own);
         ``resets``: operators' resets of lost tracks received since the previous step."""
         humans = self._humans_view(inputs, now.mono_ns, resets)
         self.capsules = humans.capsules
-        return {name: self._decide(state, inputs, now, humans, gateway_period_s) for name, state in self.states.items()}
+        return {
+            name: self._decide(state, inputs, now, humans, min(gateway_period_s, state.watchdog_s))
+            for name, state in self.states.items()
+        }
 
     def track_records(self) -> tuple[TrackRecord, ...]:
         """Every track (seen, lost, recently released), for the status."""

@@ -81,7 +81,7 @@ class DelayBudgetStatus(_Strict):
     controller_cycle_s: NonNegative = Field(description="Controller cycle, measured from its joint states [s].")
     gateway_period_s: NonNegative = Field(
         description="Until the gateway's next decision: the longest interval between decisions of the last 10 s, at "
-        "least the period [s]."
+        "least the period, at most the controller's watchdog (it stops on its own after that) [s]."
     )
 
 

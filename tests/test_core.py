@@ -407,3 +407,16 @@ def test_a_forged_nominal_velocity_of_zero_while_moving_stops_the_robot(cell: Ce
     }
     cell.store.on_joint_state(keys.robot_state("demo", "ur5"), json.dumps(raw).encode(), at(stamp + MS))
     assert_stopped(cell.step(stamp + MS), "joint_state_inconsistent")
+
+
+def test_the_time_to_the_next_decision_is_budgeted_at_most_the_controllers_watchdog(cell: Cell) -> None:
+    """After a long hold-up (say the gateway was frozen for 1 s) the loop budgets its worst recent interval, but a
+    controller that hears no override for its watchdog time stops on its own: no robot runs longer on an old δ."""
+    cell.feed(NOW, [NEAR_HAND])
+    now = at(NOW)
+    watchdog_s = cell.config.robots["ur5"].controller.watchdog_s
+    held = cell.core.step(cell.store.snapshot(now), now, 1.0)["ur5"]
+    assert held.delay.gateway_period_s == pytest.approx(watchdog_s)
+    short = cell.core.step(cell.store.snapshot(now), now, 0.004)["ur5"]
+    assert short.delay.gateway_period_s == pytest.approx(0.004)
+    assert short.delta_bound >= held.delta_bound

@@ -145,10 +145,7 @@ class Track:
     def capsules(self) -> HumanCapsules:
         """The capsules it was last seen with (human ids ``<tracker>/<id>``)."""
         if self._capsules is None:
-            f, a, b = self.frame, self.start, self.end
-            self._capsules = HumanCapsules(
-                f.h_a_world[a:b], f.h_b_world[a:b], f.radius_m[a:b], f.human_ids[a:b], f.capsule_names[a:b]
-            )
+            self._capsules = part(self.frame, self.start, self.end)
         return self._capsules
 
     @property
@@ -180,6 +177,18 @@ def human_starts(capsules: HumanCapsules) -> list[int]:
     return [0, *(i for i in range(1, n) if ids[i] != ids[i - 1]), n] if n else [0]
 
 
+def part(capsules: HumanCapsules, start: int, end: int) -> HumanCapsules:
+    """Capsules ``start:end`` of a frame (views of its arrays)."""
+    c = capsules
+    return HumanCapsules(
+        c.h_a_world[start:end],
+        c.h_b_world[start:end],
+        c.radius_m[start:end],
+        c.human_ids[start:end],
+        c.capsule_names[start:end],
+    )
+
+
 def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) -> list[Detection]:
     """A tracker frame's capsules as one detection per human (in the frame's order)."""
     starts = human_starts(capsules)
@@ -188,13 +197,7 @@ def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) ->
         Detection(
             tracker,
             capsules.human_ids[start][prefix:],
-            HumanCapsules(
-                capsules.h_a_world[start:end],
-                capsules.h_b_world[start:end],
-                capsules.radius_m[start:end],
-                capsules.human_ids[start:end],
-                capsules.capsule_names[start:end],
-            ),
+            part(capsules, start, end),
             captured_mono_ns,
             capsules,
             start,
@@ -372,13 +375,7 @@ class TrackSet:
                 detection = Detection(
                     tracker,
                     capsules.human_ids[start][prefix:],
-                    HumanCapsules(
-                        capsules.h_a_world[start:end],
-                        capsules.h_b_world[start:end],
-                        capsules.radius_m[start:end],
-                        capsules.human_ids[start:end],
-                        capsules.capsule_names[start:end],
-                    ),
+                    part(capsules, start, end),
                     captured_ns,
                     capsules,
                     start,
@@ -576,10 +573,7 @@ class _People(NamedTuple):
 
     def person(self, k: int) -> HumanCapsules:
         """The capsules of the frame's k-th person (human ids ``<tracker>/<id>``)."""
-        c, a, b = self.capsules, self.starts[k], self.starts[k + 1]
-        return HumanCapsules(
-            c.h_a_world[a:b], c.h_b_world[a:b], c.radius_m[a:b], c.human_ids[a:b], c.capsule_names[a:b]
-        )
+        return part(self.capsules, self.starts[k], self.starts[k + 1])
 
 
 class _Previous(NamedTuple):

@@ -11,9 +11,12 @@ seen)`` of where they were last seen, so the gateway keeps them:
 - **lost**: its last capsules, each radius grown by ``K_reach · (now − last seen)`` (K_reach: ISO 13855's close
   range speed where configured, else K). It enters every robot's decision like a seen person.
 - **released**, only by
-  (a) *redetected*: a detection of **any** tracker, captured after the track was last seen, lies within its
-      reachable set and covers it (:func:`within_reach`, both ways, so that a partial view does not release a
-      whole person); the same id outside the reach is another person and the lost one stays;
+  (a) *redetected*: a person of a new frame (any tracker, captured after the track was last seen) who has every part
+      the track had, each within its reach, and who can be them: one person accounts for one track, so someone who
+      continues their own track (seen all along) releases nobody, unless that track is a *twin* (another tracker's
+      view of the same person when it was lost); someone who appeared inside the covered volume after the track was
+      lost (nobody enters there: a *claim*) may release one lost track; a newcomer at the boundary releases none.
+      The same id outside the reach is another person and the lost one stays;
   (b) *left*: when lost, it was last seen within ``tracking.exit_band_m`` of a side face of the covered volume
       (inside an exit zone where the cell declares them), moving out through that face;
   (c) *reset*: an operator, after checking the area, released it with an authenticated command.
@@ -139,6 +142,13 @@ class Track:
     released_by: str | None = None
     released_mono_ns: int = 0
     last_centre: FloatArray | None = None
+    claim: bool = False
+    """It appeared inside the covered volume (nobody enters there): it may be someone lost before it appeared, and may
+    release one such lost track it covers (then the claim is spent). A track that appears at the boundary is a
+    newcomer."""
+    first_seen_mono_ns: int = 0
+    twins: frozenset[int] = frozenset()
+    """Serials of other trackers' tracks that covered it when it was lost: the same person, still seen elsewhere."""
     _capsules: HumanCapsules | None = None
 
     @property
@@ -207,46 +217,25 @@ def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) ->
     ]
 
 
-def point_segment_distances(points: FloatArray, seg_a: FloatArray, seg_b: FloatArray) -> FloatArray:
-    """Distance of every point to every segment, shape (P, S) [m]."""
-    axis = seg_b - seg_a  # (S, 3)
-    length_sq = np.einsum("ij,ij->i", axis, axis)
-    rel = points[:, None, :] - seg_a[None, :, :]  # (P, S, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = np.where(length_sq > 0.0, np.einsum("psk,sk->ps", rel, axis) / length_sq, 0.0)
-    t = np.clip(t, 0.0, 1.0)
-    nearest = seg_a[None, :, :] + t[:, :, None] * axis[None, :, :]
-    return np.linalg.norm(points[:, None, :] - nearest, axis=2)  # type: ignore[no-any-return]
-
-
-def inside_grown(inner: HumanCapsules, outer: HumanCapsules, grow_m: float) -> bool:
-    """Whether every end-point ball of ``inner`` lies inside ``outer``'s capsules grown by ``grow_m``.
-
-    A ball of radius ρ at p is inside a capsule (segment s, radius R) iff dist(p, s) + ρ ≤ R.
-    """
-    if inner.n_capsules == 0:
-        return True
-    if outer.n_capsules == 0:
-        return False
-    points = np.concatenate((inner.h_a_world, inner.h_b_world))
-    radii = np.concatenate((inner.radius_m, inner.radius_m))
-    slack = point_segment_distances(points, outer.h_a_world, outer.h_b_world) - outer.radius_m[None, :] - grow_m
-    return bool(((slack.min(axis=1) + radii) <= 1e-9).all())
-
-
-def within_reach(track_capsules: HumanCapsules, detection: HumanCapsules, reach_m: float) -> bool:
-    """Whether a detection can be the person of a track: each lies within the other grown by ``reach_m``.
-
-    Both ways: the detection lies in the track's reachable set (it could be them), and it covers the track (no part
-    of where they were is left unexplained: a view of the legs alone does not release a whole person).
-    """
-    return inside_grown(detection, track_capsules, reach_m) and inside_grown(track_capsules, detection, reach_m)
-
-
 def reach_speed_mps(config: CellConfig) -> float:
     """How fast a lost person's possible positions grow: ISO 13855's close-range speed where configured, else K."""
     safety = config.safety
     return safety.human_speed_close_mps if safety.close_speed_below_m > 0.0 else safety.human_speed_mps
+
+
+def in_entry_band(centre_m: FloatArray, tracking: TrackingConfig) -> bool:
+    """Whether a centre lies where people enter the covered volume: within ``exit_band_m`` of a side face (inside an
+    exit zone where the cell declares them), or outside the volume."""
+    if tracking.exit_zones and not any(
+        all(lo <= x <= hi for x, lo, hi in zip(centre_m, zone.min_m, zone.max_m, strict=True))
+        for zone in tracking.exit_zones
+    ):
+        return False
+    low, high = tracking.coverage_min_m, tracking.coverage_max_m
+    return any(
+        centre_m[axis] - low[axis] <= tracking.exit_band_m or high[axis] - centre_m[axis] <= tracking.exit_band_m
+        for axis in (0, 1)
+    )
 
 
 def leaving_face(track: Track, tracking: TrackingConfig) -> str | None:
@@ -352,7 +341,7 @@ class TrackSet:
             The changes, and the frame's people (for the releases: any of them, continuing a track or not, may be a
             lost person seen again).
         """
-        margin_m = self.tracking.association_margin_m + 2.0 * self._noise_m.get(tracker, 0.0)
+        margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
         starts = human_starts(capsules)
         prefix = len(tracker) + 1
@@ -394,7 +383,7 @@ class TrackSet:
             if track.serial not in observed:
                 events += self._lose(track, captured_ns)
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
-        return events, _People(tracker, capsules, starts, centres, captured_ns)
+        return events, _People(tracker, capsules, starts, centres, captured_ns, tuple(order))
 
     def _seen_of(self, tracker: str) -> list[Track]:
         previous = self._previous.get(tracker)
@@ -434,6 +423,8 @@ class TrackSet:
             detection.end,
             0,
         )
+        track.claim = not in_entry_band(centre(detection.capsules), self.tracking)
+        track.first_seen_mono_ns = detection.captured_mono_ns
         self.live.append(track)
         return track
 
@@ -441,14 +432,38 @@ class TrackSet:
         track.state = TrackState.LOST
         self._lost.append(track)
         self._records = None
+        track.twins = frozenset(
+            other.serial
+            for other in self.live
+            if other.tracker != track.tracker
+            and other.state is TrackState.SEEN
+            and _continues(
+                track.capsules,
+                other.capsules,
+                self.reach_speed_mps * abs(other.last_seen_mono_ns - track.last_seen_mono_ns) / NS_PER_S
+                + self._margin_m(track.tracker, other.tracker),
+            )
+        )
         face = leaving_face(track, self.tracking)
         if face is not None:
             return [self._release(track, now_mono_ns, ReleaseCause.LEFT, f"last seen leaving through face {face}")]
         return [TrackEvent("track_lost", track.label, f"person {track.label} lost: no longer reported")]
 
+    def _margin_m(self, tracker_a: str, tracker_b: str) -> float:
+        """How far two trackers' views of one person may differ beyond motion: the margin and their noise [m]."""
+        return (
+            self.tracking.association_margin_m + self._noise_m.get(tracker_a, 0.0) + self._noise_m.get(tracker_b, 0.0)
+        )
+
     def _release_redetected(self, frames: Sequence[_People]) -> list[TrackEvent]:
-        """Release every lost track that a person of a new frame (any tracker, captured after it was last seen,
-        whether that person continues a track or not) covers."""
+        """Release every lost track that a person of a new frame accounts for.
+
+        One person accounts for one track: a person who continues their own track (someone else, seen all along)
+        releases nobody, unless that track is a twin of the lost one (another tracker's view of the same person).
+        A person who appeared inside the covered volume (a claim: nobody enters there) may release one lost track.
+        Either way the person must have every part the lost track had, each within its reach (a partial view
+        never releases a whole person).
+        """
         events: list[TrackEvent] = []
         for track in list(self._lost):
             track_centre = centre(track.capsules)
@@ -457,18 +472,15 @@ class TrackSet:
                 dt_ns = people.captured_ns - track.last_seen_mono_ns
                 if dt_ns <= 0 or not len(people.centres):
                     continue
-                margin_m = (
-                    self.tracking.association_margin_m
-                    + self._noise_m.get(track.tracker, 0.0)
-                    + self._noise_m.get(people.tracker, 0.0)
-                )
-                reach_m = self.reach_speed_mps * dt_ns / NS_PER_S + margin_m
-                # a person is at most ~2.5 m across: one whose centre is farther cannot cover the track
+                reach_m = self.reach_speed_mps * dt_ns / NS_PER_S + self._margin_m(track.tracker, people.tracker)
                 near = np.flatnonzero(np.linalg.norm(people.centres - track_centre, axis=1) <= reach_m + 2.5)
-                for k in near:
-                    person = people.person(int(k))
-                    if within_reach(track.capsules, person, reach_m):
-                        by = f"redetected by {person.human_ids[0]}"
+                for k in near:  # a person is at most ~2.5 m across: one whose centre is farther cannot cover it
+                    finder = people.tracks[int(k)]
+                    twin = finder.serial in track.twins
+                    claim = finder.claim and finder.first_seen_mono_ns > track.last_seen_mono_ns
+                    if (twin or claim) and _continues(track.capsules, people.person(int(k)), reach_m):
+                        finder.claim = finder.claim and twin
+                        by = f"redetected by {finder.label}" + (" (the same person, seen by another tracker)" * twin)
                         released = self._release(track, people.captured_ns, ReleaseCause.REDETECTED, by)
                         break
                 if released is not None:
@@ -570,6 +582,8 @@ class _People(NamedTuple):
     starts: list[int]
     centres: FloatArray
     captured_ns: int
+    tracks: tuple[Track, ...]
+    """The track each person continues (or started), in the frame's order."""
 
     def person(self, k: int) -> HumanCapsules:
         """The capsules of the frame's k-th person (human ids ``<tracker>/<id>``)."""

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import zenoh
 
-from hrc_common.service import stop_on_signals
-from hrc_common.zenoh_session import session_config
+from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.zenoh_session import session_config
 
 
 def record(connect: list[str], key: str, stop: threading.Event) -> tuple[list[int], list[int]]:

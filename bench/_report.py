@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from hrc_common.config import REPO_ROOT
-
+# bench/ is never installed: it runs from the checkout, so its own location is the checkout
+REPO_ROOT = Path(__file__).resolve().parents[1]
 OUT_DIR = REPO_ROOT / "out" / "bench"
 """Default folder of the JSON results (git-ignored)."""
 

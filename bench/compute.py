@@ -36,10 +36,11 @@ from gateway import kernels
 from gateway.core import RobotDecision, SafetyCore
 from gateway.inputs import InputStore
 from gateway.kernels import RobotKernels
-from hrc_common import keys
-from hrc_common.clocks import Clocks
-from hrc_common.config import CellConfig, Pose, load_cell_config
-from hrc_common.robot_model import RobotModel, load_robot_model
+from hrc_contract import keys
+from hrc_contract.config import CellConfig, Pose
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.robot_model import RobotModel, load_robot_model
 from tracker_emu.body import BodyPose, body_capsules
 
 NAME = "compute"

@@ -14,9 +14,12 @@ import sys
 import threading
 
 from controller_emu import main as controller
-from hrc_common.config import CellConfig, ConfigError, load_cell_config
-from hrc_common.service import add_config_argument, add_zenoh_arguments, configure_logging, stop_on_signals
-from hrc_common.zenoh_session import options_from_args
+from hrc_contract.config import CellConfig, ConfigError
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.logs import configure_logging
+from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.zenoh_session import options_from_args
 
 PROG = "bench.controller_host"
 

@@ -44,7 +44,12 @@ from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from bench.compute import human_capsules
 from bench.loop import Stamp, periods
-from bench.procs import (
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_contract.messages import MAX_CAPSULES_PER_MESSAGE
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import (
     BenchError,
     StartupError,
     exited_programs,
@@ -56,10 +61,6 @@ from bench.procs import (
     with_retries,
     write_cell_config,
 )
-from hrc_common import keys
-from hrc_common.config import CellConfig, load_cell_config
-from hrc_common.messages import MAX_CAPSULES_PER_MESSAGE
-from hrc_common.zenoh_session import session_config
 from tracker_emu.body import BodyPose
 
 NAME = "crowded"
@@ -345,8 +346,8 @@ def run_once(base: CellConfig, settings: Settings, work_dir: Path, progress: Pro
     logs = {name: work_dir / "logs" / f"{NAME}-{name}.log" for name in ("gateway", "controller")}
     cfg = ["--config", str(config_path)]
     specs = [
-        ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
-        ("controller_emu.main", [*cfg, "--zenoh-connect", gw_ep, "--robot", robot], logs["controller"]),
+        ("gateway", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
+        ("controller_emu", [*cfg, "--zenoh-connect", gw_ep, "--robot", robot], logs["controller"]),
     ]
     people = {
         "sparse": crowd(base_xy_m, settings.near_m, 0),

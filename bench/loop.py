@@ -50,7 +50,11 @@ import zenoh
 
 from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
-from bench.procs import (
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import (
     BenchError,
     Program,
     StartupError,
@@ -63,9 +67,6 @@ from bench.procs import (
     with_retries,
     write_cell_config,
 )
-from hrc_common import keys
-from hrc_common.config import CellConfig, load_cell_config
-from hrc_common.zenoh_session import session_config
 
 NAME = "loop"
 TARGET_P99_PERIODS = 1.1
@@ -392,7 +393,7 @@ def tick_periods(stamps: list[Stamp], statuses: list[LoopStatus]) -> tuple[np.nd
 def _controller_spec(robots: list[str], args: list[str], log: Path) -> tuple[str, list[str], Path]:
     """One controller emulator process for one robot, or a ``bench.controller_host`` for several."""
     if len(robots) == 1:
-        return "controller_emu.main", [*args, "--robot", robots[0]], log
+        return "controller_emu", [*args, "--robot", robots[0]], log
     return "bench.controller_host", [*args, "--robots", ",".join(robots)], log
 
 
@@ -413,10 +414,10 @@ def run_once(
     logs = {name: work_dir / "logs" / f"{NAME}-{tag}-{name}.log" for name in ("gateway", *controllers, "tracker")}
     cfg = ["--config", str(config_path)]
     specs = [
-        ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
+        ("gateway", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
         *(_controller_spec(group, [*cfg, "--zenoh-connect", gw_ep], logs[name]) for name, group in controllers.items()),
         (
-            "tracker_emu.main",
+            "tracker_emu",
             [*cfg, "--scenario", settings.scenario, "--seed", str(settings.seed), "--zenoh-connect", gw_ep],
             logs["tracker"],
         ),
@@ -654,7 +655,7 @@ def run(
         "(loop.event_seqs). decision_interval = the same over all decisions, ticks and event cycles.",
         "missed_cycles_in_window is the gateway's own count (RateLoop: boundaries skipped after an overrun; "
         "event cycles are never missed or late ticks); event_cycles_in_window counts the event cycles.",
-        "The HTTP server is a child process of the gateway at niceness +10 (gateway.http_server); the load "
+        "The HTTP server is a child process of the gateway at niceness +10 (gateway.http.server); the load "
         "generator runs in this process, its threads at niceness +load_nice (in a cell the HTTP clients are "
         "other machines); all share the same 2 cores with the controller and tracker emulators.",
         "SSE clients (sse_clients > 0): each a thread of this process (niceness +load_nice, like the load) with "

@@ -24,12 +24,14 @@ from typing import Any
 
 from bench import loop
 from bench._report import default_json_path, print_header
-from bench.procs import write_cell_config
-from hrc_common.config import DEFAULT_CELL_PATH, CellConfig, load_cell_config
+from hrc_contract.config import CellConfig
+from hrc_runtime.config import load_cell_config
+from hrc_tools.cell.procs import write_cell_config
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
 
 NAME = "many_robots"
-TWO_ARMS = DEFAULT_CELL_PATH.parent / "cell_two_arms.toml"
+# bench/ is never installed: it runs from the checkout
+TWO_ARMS = Path(__file__).resolve().parents[1] / "configs" / "cell_two_arms.toml"
 PERSON_PATH = "two_arms_crossing"
 PAIR_SPACING_M = 6.0
 """Distance along x between neighbouring copies of the two-arm cell [m]: each copy (robots and person) spans

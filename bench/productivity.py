@@ -2,8 +2,8 @@
 
     .venv/bin/python -m bench.productivity --scenarios 40 --seed 0 --workers 2 --duration-s 30
 
-Every case of the suite (:func:`sim.scenarios.generate_case`: people, trackers, link faults, simulation
-seed) runs in :func:`sim.cell.simulate` once per variant, with the same seed (so the same sensor noise,
+Every case of the suite (:func:`hrc_tools.sim.scenarios.generate_case`: people, trackers, link faults, simulation
+seed) runs in :func:`hrc_tools.sim.cell.simulate` once per variant, with the same seed (so the same sensor noise,
 drops, link draws, gateway phase and program phase) and the same program:
 
 - ``zanchettin2016``, ``zanchettin2016_speed_aware``, ``iso15066``, ``three_zones``, ``stop_only``:
@@ -20,7 +20,7 @@ ratios of cycles per hour of eq. (15) and of its speed-aware variant: ≥ 1.3 ×
 (issue 4) and ≥ 0.85 × the robot alone (issue 10).
 
 People faster than K: the stress suite draws walkers up to 2.0 m/s against the configured K (1.6 m/s); the report
-gives, per variant, the cases where someone approaches faster than K (:mod:`sim.human_speed`: outside the
+gives, per variant, the cases where someone approaches faster than K (:mod:`hrc_tools.sim.human_speed`: outside the
 separation-monitoring guarantee) apart from those within K: cases, violations, smallest margin while moving and
 margin lost. A PNG plot of cycles per hour per method and kind of case, with the robot-alone and zero-delay bounds,
 is written next to the JSON (``--plot``); ``--plot-from`` redraws it from earlier results (e.g. both suites).
@@ -42,12 +42,13 @@ from typing import Any
 from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, table
 from bench.productivity_plot import PlotError, plot_cycles_per_hour
-from hrc_common.config import CellConfig, load_cell_config
-from hrc_common.robot_model import RobotModel, load_robot_model
-from sim.cell import simulate
-from sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
-from sim.links import LinkFault, LinkFaults
-from sim.scenarios import COLLABORATIVE_KINDS, SweepCase, generate_case, generate_collaborative_case
+from hrc_contract.config import CellConfig
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_tools.sim.cell import simulate
+from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
+from hrc_tools.sim.links import LinkFault, LinkFaults
+from hrc_tools.sim.scenarios import COLLABORATIVE_KINDS, SweepCase, generate_case, generate_collaborative_case
 from tracker_emu.scenario import Scenario
 from tracker_emu.sensor import covered_volume
 
@@ -64,10 +65,11 @@ RATIO_METHODS = ("zanchettin2016", "zanchettin2016_speed_aware")
 """The methods held to :data:`RATIO_TARGETS`: eq. (15) (default) and eq. (15) with the speed-aware stop."""
 SECONDS_PER_HOUR = 3600.0
 SUITES = ("stress", "collaborative")
-"""``stress``: the sweep's generator (sim.scenarios.generate_case); ``collaborative``: the collaborative-station
-suite (sim.scenarios.generate_collaborative_case)."""
+"""``stress``: the sweep's generator
+(hrc_tools.sim.scenarios.generate_case); ``collaborative``: the collaborative-station
+suite (hrc_tools.sim.scenarios.generate_collaborative_case)."""
 CASE_KINDS = ("standing", "approach", "cross")
-"""A case is of the first of these kinds that one of its people has (sim.scenarios): someone standing in the
+"""A case is of the first of these kinds that one of its people has (hrc_tools.sim.scenarios): someone standing in the
 cell from the start, else someone walking up to the robot, else only people crossing."""
 
 
@@ -108,7 +110,7 @@ class VariantRun:
         smallest_margin_moving_m: smallest margin while a robot moved (None: never) [m].
         violations: audited cycles with a violation.
         duration_s: simulated time [s]; wall_s: wall-clock time [s].
-        fastest_approach_mps: the fastest approach of a person of the case (:mod:`sim.human_speed`) [m/s].
+        fastest_approach_mps: the fastest approach of a person of the case (:mod:`hrc_tools.sim.human_speed`) [m/s].
         beyond_k: someone in the case approaches faster than the configured K (outside the guarantee).
     """
 
@@ -486,7 +488,8 @@ def run(
             "start), else 'approach' (someone walks up to the robot), else 'cross' (people only cross the cell).",
             "Program cycles are program progress: whole wraps plus the fraction of the unfinished cycle of each "
             "run (one cycle of the shipped program is about 6.4 s at δ = 1).",
-            "speed_split: per variant, the cases where someone approaches faster than K (sim.human_speed: walking "
+            "speed_split: per variant, the cases where someone approaches faster than K "
+            "(hrc_tools.sim.human_speed: walking "
             "toward a robot base, plus the hand while reaching) apart from those within K. Faster people are "
             "outside the separation-monitoring guarantee; their violations are reported there, never hidden; "
             "margin_lost_m is how far the smallest margin while moving went below 0.",
@@ -543,7 +546,7 @@ def main(argv: list[str] | None = None) -> int:
         "--occlusion",
         action="store_true",
         help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids "
-        "(sim.scenarios.with_occlusion); the same people, links and seeds as without",
+        "(hrc_tools.sim.scenarios.with_occlusion); the same people, links and seeds as without",
     )
     parser.add_argument(
         "--plot", type=Path, default=None, help="the PNG plot of cycles/h (default: next to the JSON, .png)"

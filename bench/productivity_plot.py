@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from hrc_common.errors import HrcError
+from hrc_contract.errors import HrcError
 
 METHOD_COLORS = {
     "zanchettin2016": "#1f77b4",

@@ -45,7 +45,11 @@ import zenoh
 
 from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
-from bench.procs import (
+from hrc_contract import keys
+from hrc_contract.config import CellConfig, TrackerConfig
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import (
     StartupError,
     exited_programs,
     free_port,
@@ -57,9 +61,6 @@ from bench.procs import (
     with_retries,
     write_cell_config,
 )
-from hrc_common import keys
-from hrc_common.config import CellConfig, TrackerConfig, load_cell_config
-from hrc_common.zenoh_session import session_config
 
 NAME = "reaction"
 TRACKER = "bench"
@@ -293,7 +294,7 @@ measures the transport and decision path, not the track logic, and runs the gate
 
 def bench_config(base: CellConfig, rate_hz: float, http_port: int, event_driven: bool = True) -> CellConfig:
     """The cell with one tracker named ``bench``, the given gateway rate, event cycles on or off, and lost people
-    forgotten at once (:data:`FORGET_LOST`; needs :func:`bench.procs.unsafe_test_settings`)."""
+    forgotten at once (:data:`FORGET_LOST`; needs :func:`hrc_tools.cell.procs.unsafe_test_settings`)."""
     config = with_gateway_rate(base, rate_hz, http_port, event_driven)
     tracking = config.tracking.model_copy(update={FORGET_LOST: True})
     return config.model_copy(update={"trackers": {TRACKER: TrackerConfig()}, "tracking": tracking})
@@ -393,9 +394,9 @@ def _run_programs(
     peer_out.unlink(missing_ok=True)
     cfg = ["--config", str(config_path)]
     specs = [
-        ("gateway.main", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
+        ("gateway", [*cfg, "--zenoh-listen", gw_ep], logs["gateway"]),
         (
-            "controller_emu.main",
+            "controller_emu",
             [*cfg, "--robot", robot, "--zenoh-connect", gw_ep, "--zenoh-connect", bench_ep],
             logs["controller"],
         ),

@@ -25,10 +25,10 @@ import numpy as np
 import zenoh
 
 from bench._progress import Progress
-from hrc_common.access_control import CellPolicy
-from hrc_common.pki import CellPki
-from hrc_common.service import stop_on_signals
-from hrc_common.zenoh_session import PLAIN_TCP_LOOPBACK, SessionOptions, mutual_tls, session_config
+from hrc_runtime.access_control import CellPolicy
+from hrc_runtime.pki import CellPki
+from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, SessionOptions, mutual_tls, session_config
 
 KEY = "hrc/demo/robot/ur5/override"
 POLICY = CellPolicy("demo", ("ur5",), ("front",))

@@ -1,1 +1,9 @@
 """Emulator of a closed industrial controller: runs a pre-planned program and accepts only a speed override δ."""
+
+__all__ = [
+    "commissioning",
+    "controller",
+    "main",
+    "node",
+    "program",
+]

@@ -36,21 +36,13 @@ from pydantic import ValidationError
 from controller_emu.controller import check_braking_time
 from controller_emu.node import ControllerNode
 from controller_emu.program import Trajectory, load_trajectory
-from hrc_common.clocks import Clocks
-from hrc_common.config import (
-    DEFAULT_CELL_PATH,
-    ConfigError,
-    ControllerConfig,
-    RobotConfig,
-    RobotModelConfig,
-    load_cell_config,
-    one_line,
-    read_toml,
-    resolve_urdf,
-)
-from hrc_common.errors import HrcError
-from hrc_common.messages import JointState, Override, to_payload
-from hrc_common.robot_model import RobotModel, load_robot_model
+from hrc_contract.config import ConfigError, ControllerConfig, RobotConfig, RobotModelConfig
+from hrc_contract.errors import HrcError
+from hrc_contract.messages import JointState, Override, to_payload
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.config import load_cell_config, one_line, read_toml, resolve_urdf
+from hrc_runtime.locate import find_cell_config
+from hrc_runtime.robot_model import RobotModel, load_robot_model
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -297,7 +289,7 @@ def commission(
 
 def manual_profile_path(config_path: str | None, robot: str) -> Path:
     """The robot model file the cell names for ``robot`` (the profile the measured one is written next to)."""
-    cell_path = (Path(config_path) if config_path is not None else DEFAULT_CELL_PATH).resolve()
+    cell_path = find_cell_config(config_path).resolve()
     model_ref = read_toml(cell_path)["robots"][robot]["model"]
     return (cell_path.parent / str(model_ref)).resolve()
 

@@ -29,9 +29,9 @@ from typing import Literal
 import numpy as np
 
 from controller_emu.program import Trajectory
-from hrc_common.config import ConfigError, ControllerConfig
-from hrc_common.messages import JointState, Override
-from hrc_common.robot_model import RobotModel
+from hrc_contract.config import ConfigError, ControllerConfig
+from hrc_contract.messages import JointState, Override
+from hrc_runtime.robot_model import RobotModel
 
 Mode = Literal["running", "stopped", "protective_stop"]
 

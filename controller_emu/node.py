@@ -6,7 +6,7 @@
     publish(output.joint_state); log(output.mode_change)
 
 The node reads no clock and does no I/O: ``controller_emu/main.py`` passes the process's clocks
-(:func:`hrc_common.clocks.read_clocks`) and publishes over Zenoh, ``sim/cell.py`` passes simulated times
+(:func:`hrc_runtime.clocks.read_clocks`) and publishes over Zenoh, ``hrc_tools/sim/cell.py`` passes simulated times
 and sends over simulated links. Both clocks come with every call: the wall clock is compared only with
 the gateway's stamps, the monotonic clock runs the watchdog and measures the step.
 
@@ -33,9 +33,9 @@ from controller_emu.controller import (
     step,
 )
 from controller_emu.program import Trajectory
-from hrc_common.clocks import Clocks
-from hrc_common.config import ControllerConfig
-from hrc_common.messages import JointState, MessageError, Override, parse_message
+from hrc_contract.config import ControllerConfig
+from hrc_contract.messages import JointState, MessageError, Override, parse_message
+from hrc_runtime.clocks import Clocks
 
 
 @dataclass(frozen=True)

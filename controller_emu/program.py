@@ -28,8 +28,9 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from hrc_common.config import ConfigError, one_line, read_toml
-from hrc_common.robot_model import RobotModel
+from hrc_contract.config import ConfigError
+from hrc_runtime.config import one_line, read_toml
+from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 

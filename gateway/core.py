@@ -22,13 +22,14 @@ from gateway.inputs import HumanFrame, InputSnapshot, JointSample, TopicFault, a
 from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
 from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
-from gateway.metric import decision_clearance_m
+from gateway.separation import decision_clearance_m
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
-from gateway.zones import Zone, ZoneThresholds, commanded_override, next_zone, zone_thresholds
-from hrc_common.clocks import Clocks
-from hrc_common.config import CellConfig
-from hrc_common.humans import NO_HUMANS, HumanCapsules, merge_humans
-from hrc_common.robot_model import RobotModel
+from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
+from hrc_contract.config import CellConfig
+from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
+from hrc_contract.vocabulary import Zone
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.robot_model import RobotModel
 
 Fault = TopicFault
 """A fault of one decision: ``code`` (machine-readable, listed in docs/contract.md) and ``reason`` (for people)."""
@@ -149,6 +150,13 @@ def override_path_faults(path: OverridePathEstimate, now_mono_ns: int, max_age_s
     return []
 
 
+def _until_next_decision_s(gateway_period_s: float, watchdog_s: float) -> float:
+    """How long a robot may run on this decision's δ: until the next decision, at most its controller's watchdog
+    (after which it stops on its own) [s]. A period that is not a finite number stays so (the core's guard gives δ = 0
+    for it)."""
+    return min(gateway_period_s, watchdog_s) if math.isfinite(gateway_period_s) else gateway_period_s
+
+
 class SafetyCore:
     """Steps all robots from an input snapshot; holds one :class:`RobotState` per robot.
 
@@ -207,7 +215,7 @@ class SafetyCore:
         humans = self._humans_view(inputs, now.mono_ns, resets)
         self.capsules = humans.capsules
         return {
-            name: self._decide(state, inputs, now, humans, min(gateway_period_s, state.watchdog_s))
+            name: self._decide(state, inputs, now, humans, _until_next_decision_s(gateway_period_s, state.watchdog_s))
             for name, state in self.states.items()
         }
 

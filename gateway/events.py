@@ -20,8 +20,8 @@ from pathlib import Path
 
 from gateway.core import Fault, RobotDecision
 from gateway.tracks import TrackEvent
-from gateway.zones import Zone
-from hrc_common.status_models import Event, EventKind
+from hrc_contract.status_models import Event, EventKind
+from hrc_contract.vocabulary import Zone
 
 ZONE_HOLD_S = 0.2
 """A new zone must hold this long before it is logged as a change [s]."""

@@ -45,12 +45,12 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
-from hrc_common import keys
-from hrc_common.clocks import Clocks
-from hrc_common.config import CellConfig
-from hrc_common.humans import HumanCapsules, capsules_from_message, implausible_reason
-from hrc_common.messages import Humans, JointState, MessageError, parse_message
-from hrc_common.robot_model import RobotModel
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_contract.humans import HumanCapsules, capsules_from_message, implausible_reason
+from hrc_contract.messages import Humans, JointState, MessageError, parse_message
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 TopicKind = Literal["joint_state", "tracker"]

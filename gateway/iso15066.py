@@ -50,8 +50,7 @@ infinity that bounds nothing is the one this module makes for a point that does 
 ``δ_prev`` is the δ commanded in the previous cycle and ``T`` the gateway period: in the paper the
 previous velocity is the last commanded one (the robot integrates the QP's output); here the applied
 velocity follows the commanded δ through the controller's own ramp. The program's own acceleration
-along its path is not constrained (it was planned within the robot's limits at 100 %).
-"""
+along its path is not constrained (it was planned within the robot's limits at 100 %)."""
 
 from __future__ import annotations
 
@@ -61,43 +60,17 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.geometry import segment_distances
+from gateway.kernels import segment_distances
 from gateway.kinematics import LinkKinematics
-from gateway.metric import human_speed_mps
-from hrc_common.config import SafetyConfig
-from hrc_common.humans import HumanCapsules
+from gateway.separation import human_speed_mps
+from hrc_contract.config import SafetyConfig
+from hrc_contract.humans import HumanCapsules
 
 FloatArray = npt.NDArray[np.float64]
 
 _EPS = 1e-12
 
 ArrayOrFloat = FloatArray | float
-
-
-def protective_distance_m(
-    v_r_mps: ArrayOrFloat,
-    v_h_mps: ArrayOrFloat,
-    t_r_s: ArrayOrFloat,
-    a_s_mps2: ArrayOrFloat,
-    c_m: ArrayOrFloat = 0.0,
-    z_d_m: ArrayOrFloat = 0.0,
-    z_r_m: ArrayOrFloat = 0.0,
-) -> FloatArray:
-    """S_p = v_h (T_r + v_r/a_s) + v_r T_r + v_r²/(2 a_s) + C + Z_d + Z_r, paper eq. (4)–(10) [m].
-
-    Args:
-        v_r_mps: robot speed toward the human at the start of the reaction [m/s].
-        v_h_mps: human speed toward the robot [m/s].
-        t_r_s: reaction time of the whole chain T_r [s].
-        a_s_mps2: constant deceleration of the robot while stopping, > 0 [m/s²].
-        c_m, z_d_m, z_r_m: intrusion distance and position uncertainties of human and robot [m].
-    """
-    v_r = np.asarray(v_r_mps, dtype=float)
-    t_s = v_r / a_s_mps2
-    return np.asarray(
-        v_h_mps * (t_r_s + t_s) + v_r * t_r_s + v_r * v_r / (2.0 * np.asarray(a_s_mps2)) + c_m + z_d_m + z_r_m,
-        dtype=float,
-    )
 
 
 def v_r_max_mps(
@@ -188,7 +161,7 @@ def _speed_toward(v: FloatArray, frm: FloatArray, to: FloatArray) -> FloatArray:
     return np.asarray(np.where(dist > _EPS, along, np.linalg.norm(v, axis=-1)), dtype=float)
 
 
-def build_rows(
+def iso_rows(
     links: LinkKinematics,
     link_radius_m: FloatArray,
     t_brake_link_s: FloatArray,

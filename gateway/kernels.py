@@ -7,8 +7,9 @@ Two compiled calls per robot and cycle instead of ~100 numpy calls and ~20 Pinoc
   :class:`gateway.kinematics.KinematicChain` (oMi = oMi[parent] · placement · motion(q); the velocity of a
   point p is Σ_j ω_j × (p − o_j) q̇_j over the revolute joints that move it and a_j q̇_j over the prismatic
   ones, safety-math.md §2).
-- :func:`build_rows`: what :func:`gateway.metric.build_rows` (the numpy reference) returns — segment distances
-  (Ericson 2005, §5.1.9, the steps of :mod:`gateway.geometry`), surface distance, clearance Δ (eq. (10)–(12),
+- :func:`build_rows`: what :func:`gateway.reference.separation.build_rows` (the numpy reference)
+  returns — segment distances
+  (Ericson 2005, §5.1.9, the steps of :mod:`hrc_runtime.segments`), surface distance, clearance Δ (eq. (10)–(12),
   ISO 13855 close-speed switch), f = max(0, d − Δ)², e = (h − r)ᵀ v of the 4 corners and the bounds of
   eq. (15) (safety-math.md §2–§4) — with their minimum and the closest pair.
 - :class:`RobotKernels`: both for one robot, as :class:`gateway.core.SafetyCore` calls them. Building it checks
@@ -31,19 +32,19 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from gateway.geometry import SegmentDistances
 from gateway.kinematics import PRISMATIC, REVOLUTE, KinematicChain, LinkKinematics, kinematic_chain
-from gateway.kinematics import link_kinematics as pinocchio_link_kinematics
-from gateway.metric import ConstraintRows
-from hrc_common.config import ConfigError, SafetyConfig
-from hrc_common.humans import HumanCapsules
-from hrc_common.robot_model import RobotModel
+from gateway.reference.kinematics import link_kinematics as pinocchio_link_kinematics
+from gateway.separation import ConstraintRows
+from hrc_contract.config import ConfigError, SafetyConfig
+from hrc_contract.humans import HumanCapsules
+from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.segments import SegmentDistances
 
 FloatArray = npt.NDArray[np.float64]
 
 _EPS = 1e-12
 _PARALLEL_SIN2 = 1e-14
-"""As in :mod:`gateway.geometry`: degenerate below a squared length of 1e-12 m², parallel below sin² 1e-14."""
+"""As in :mod:`hrc_runtime.segments`: degenerate below a squared length of 1e-12 m², parallel below sin² 1e-14."""
 
 CHECK_TOLERANCE = 1e-9
 """Largest difference to Pinocchio of a link-end position [m] or velocity [m/s] for the kinematics to be used."""
@@ -226,7 +227,7 @@ def _segment_pair(
     """Distance [m] and closest-point abscissas (s, t) of a link segment and a capsule segment.
 
     Args: the link's direction d1 = p_b − p_a and a = ‖d1‖², the capsule's d2 = h_b − h_a and e = ‖d2‖²,
-    and r = p_a − h_a. The same steps as :func:`gateway.geometry.segment_distances`, for one pair: the
+    and r = p_a − h_a. The same steps as :func:`hrc_runtime.segments.segment_distances`, for one pair: the
     unclamped s (0 for parallel segments), then t clamped, then s from that t clamped; a point segment
     projects the other's point. Without branches (selects only), so that the loop over capsules vectorises.
     """
@@ -286,7 +287,9 @@ def _segment_distances(p_a: Any, p_b: Any, h_a: Any, h_b: Any) -> Any:
 
 
 def segment_distances(p_a: FloatArray, p_b: FloatArray, h_a: FloatArray, h_b: FloatArray) -> SegmentDistances:
-    """Compiled :func:`gateway.geometry.segment_distances`: L links ``[p_a, p_b]`` (L, 3) × H capsules (H, 3)."""
+    """Compiled :func:`hrc_runtime.segments.segment_distances`:
+
+    L links ``[p_a, p_b]`` (L, 3) × H capsules (H, 3)."""
     distance, s, t = _segment_distances(*(np.ascontiguousarray(x, float) for x in (p_a, p_b, h_a, h_b)))
     return SegmentDistances(distance, s, t)
 
@@ -331,7 +334,7 @@ def _rows(
     corner: Any,
     horizon: Any,
 ) -> Any:
-    """The arrays of :class:`gateway.metric.ConstraintRows` into the caller's ``pair``, ``corner`` and ``horizon``;
+    """The arrays of :class:`gateway.separation.ConstraintRows` into the caller's ``pair``, ``corner`` and ``horizon``;
     returns the smallest bound (inf if none), the first (i, j) of smallest d and that d ((-1, -1, inf) if none).
 
     The capsules ``h`` are the columns of :func:`capsule_columns`: contiguous over capsules, so the loops over
@@ -526,7 +529,7 @@ def _row_outputs(n_links: int, n_capsules: int) -> tuple[FloatArray, FloatArray,
 def _row_views(
     pair: FloatArray, corner: FloatArray, horizon: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """The arrays of :class:`gateway.metric.ConstraintRows` (all but ``min_bound``) in the packed outputs."""
+    """The arrays of :class:`gateway.separation.ConstraintRows` (all but ``min_bound``) in the packed outputs."""
     return pair[0], pair[1], pair[2], corner[0], horizon, corner[1]
 
 
@@ -543,7 +546,7 @@ def build_rows(
     safety: SafetyConfig,
     t_delay_s: float,
 ) -> ConstraintRows:
-    """Compiled :func:`gateway.metric.build_rows` (same arguments, same rows; safety-math.md §2–§4)."""
+    """Compiled :func:`gateway.reference.separation.build_rows` (same arguments, same rows; safety-math.md §2–§4)."""
     p_a, p_b, v_a, v_b = (np.ascontiguousarray(x, float) for x in links)
     capsules = capsule_columns(humans)
     pair, corner, horizon = _row_outputs(len(p_a), capsules.shape[1])

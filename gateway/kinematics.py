@@ -2,8 +2,7 @@
 
 :func:`link_kinematics` asks Pinocchio (the reference; the auditor uses it). :func:`kinematic_chain` extracts,
 once at start-up, the flat description of the same chain that the compiled kinematics of
-:mod:`gateway.kernels` runs on every cycle, which is checked against Pinocchio before the gateway starts.
-"""
+:mod:`gateway.kernels` runs on every cycle, which is checked against Pinocchio before the gateway starts."""
 
 from __future__ import annotations
 
@@ -12,10 +11,9 @@ from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-import pinocchio as pin
 
-from hrc_common.config import ConfigError
-from hrc_common.robot_model import RobotModel
+from hrc_contract.config import ConfigError
+from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]
@@ -50,28 +48,6 @@ def _frame_layout(frame_a_ids: tuple[int, ...], frame_b_ids: tuple[int, ...]) ->
     gather = np.array([a_rows, b_rows, [n + k for k in a_rows], [n + k for k in b_rows]], dtype=np.intp)
     gather.flags.writeable = False
     return frames, gather
-
-
-def link_kinematics(robot: RobotModel, data: pin.Data, q_rad: FloatArray, qd_radps: FloatArray) -> LinkKinematics:
-    """Positions and velocities of the link end frames for joint positions ``q_rad`` and velocities ``qd_radps``.
-
-    The velocity of a frame origin is the linear part of its LOCAL_WORLD_ALIGNED spatial velocity,
-    i.e. ``J_frame q̇`` with the frame's world-aligned position Jacobian (safety-math.md §2).
-    """
-    model = robot.model
-    pin.forwardKinematics(model, data, q_rad, qd_radps)
-    pin.updateFramePlacements(model, data)
-    frames, gather = _frame_layout(robot.frame_a_ids, robot.frame_b_ids)
-    # Every access to a Pinocchio object from Python costs ~1 µs: each distinct frame is read once, and the
-    # base pose is applied to all of them in one product.
-    placements = data.oMf
-    base = np.array(
-        [placements[f].translation for f in frames]
-        + [pin.getFrameVelocity(model, data, f, pin.LOCAL_WORLD_ALIGNED).linear for f in frames]
-    )  # (2 F, 3): positions, then velocities, base frame
-    world = (base @ robot.R_world_base.T)[gather]  # (4, L, 3)
-    world[:2] += robot.p_world_base
-    return LinkKinematics(world[0], world[1], world[2], world[3])
 
 
 # -- the chain as flat arrays, for the compiled forward kinematics (gateway.kernels) -----------------

@@ -33,31 +33,25 @@ from pydantic import TypeAdapter
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
-from gateway.http_server import HttpServerProcess
+from gateway.http.server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
+from gateway.recording import GatewayRecorder
 from gateway.status import cycle_status, effective_config, loop_status
-from hrc_common import keys
-from hrc_common.clocks import read_clocks
-from hrc_common.config import CellConfig, ConfigError, load_cell_config
-from hrc_common.messages import Override, to_payload
-from hrc_common.robot_model import RobotModel, load_robot_model
-from hrc_common.sd_notify import LoopNotifier
-from hrc_common.service import (
-    RateLoop,
-    StopEvent,
-    add_config_argument,
-    add_zenoh_arguments,
-    collections_paused,
-    configure_logging,
-    freeze_startup_heap,
-    logging_through_a_queue,
-    stop_on_signals,
-    use_realtime_scheduling,
-)
-from hrc_common.status_models import Event, GatewayStatus, HumanCapsuleStatus, LoopStatus
-from hrc_common.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
-from recorder.gateway_log import GatewayRecorder
-from recorder.mcap_sink import RecordingError
+from hrc_contract import keys
+from hrc_contract.config import CellConfig, ConfigError
+from hrc_contract.messages import Override, to_payload
+from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus, LoopStatus
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.clocks import read_clocks
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.logs import configure_logging, logging_through_a_queue
+from hrc_runtime.mcap_sink import RecordingError
+from hrc_runtime.rate_loop import RateLoop
+from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_realtime_scheduling
+from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_runtime.sd_notify import LoopNotifier
+from hrc_runtime.signals import StopEvent, stop_on_signals
+from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 log = logging.getLogger("hrc-gateway")
 

@@ -4,7 +4,7 @@ Each method reduces one decision of one robot (kinematics, eq. (15) rows, humans
 to one δ bound in [0, 1]. Faults, zones and the safety-exception latch are applied after it by
 :class:`gateway.core.SafetyCore`, the same for every method, so no method can command δ > 0 on a fault.
 
-- ``zanchettin2016`` — eq. (15) with the measured delay (:mod:`gateway.metric`), the default.
+- ``zanchettin2016`` — eq. (15) with the measured delay (:mod:`gateway.separation`), the default.
 - ``iso15066`` — ISO/TS 15066 speed and separation monitoring with the joint limits, QP (12) of
   Pupa et al. 2021 in closed form (:mod:`gateway.iso15066`).
 - ``three_zones`` — Marvel 2013: δ = 0 / 0.5 / 1 from the distance of the tool point to the nearest
@@ -47,7 +47,7 @@ import pinocchio as pin
 from gateway import iso15066
 from gateway.delay import NS_PER_S
 from gateway.kinematics import LinkKinematics
-from gateway.metric import (
+from gateway.separation import (
     ConstraintRows,
     decision_clearance_m,
     human_speed_at_mps,
@@ -56,9 +56,9 @@ from gateway.metric import (
     speed_aware_clearance_m,
 )
 from gateway.zones import Protection
-from hrc_common.config import ConfigError, SafetyConfig
-from hrc_common.humans import HumanCapsules
-from hrc_common.robot_model import RobotModel
+from hrc_contract.config import ConfigError, SafetyConfig
+from hrc_contract.humans import HumanCapsules
+from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -106,7 +106,7 @@ class OverrideMethod(Protocol):
 
     def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
         """The protective distance (and δ thresholds) of this decision's safety exception; ``clearance_m`` is the
-        decision's Δ of :func:`gateway.metric.decision_clearance_m` when the caller has it [m]."""
+        decision's Δ of :func:`gateway.separation.decision_clearance_m` when the caller has it [m]."""
         ...
 
 
@@ -117,7 +117,7 @@ class SharedClearance:
     safety: SafetyConfig
 
     def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
-        """Δ of :func:`gateway.metric.decision_clearance_m` (``clearance_m`` when given: the core has it already),
+        """Δ of :func:`gateway.separation.decision_clearance_m` (``clearance_m`` when given: the core has it already),
         δ = 0 only on a bound of 0."""
         if clearance_m is None:
             clearance_m = decision_clearance_m(self.safety, t_brake_max_s, t_delay_s)
@@ -150,7 +150,7 @@ class Iso15066(SharedClearance):
         self.safety = safety
 
     def bound(self, x: MethodInput) -> float:
-        rows = iso15066.build_rows(
+        rows = iso15066.iso_rows(
             x.links, x.robot.link_radius_m, x.robot.t_brake_link_s, x.humans, self.safety, x.t_delay_s
         )
         joints = iso15066.joint_limit_bound(
@@ -262,7 +262,7 @@ class SpeedAware:
     """Eq. (15) with the speed-aware stopping time δ t_b,→i (safety-math.md §10), the paper's own form.
 
     Per row ``δ (δ t_b,→i + t_delay) e ≤ max(0, d − Δ(δ))²`` with Δ(δ) = c + K (δ t_b,→i + t_delay), and per pair
-    the human-alone bound δ ≤ (d − c − K t_delay) / (K t_b,→i): :func:`gateway.metric.speed_aware_bounds`. K is
+    the human-alone bound δ ≤ (d − c − K t_delay) / (K t_b,→i): :func:`gateway.separation.speed_aware_bounds`. K is
     ISO 13855's close speed below ``speed_aware_close_speed_below_m`` (0.5 m). At δ = 1 the rows are eq. (15)'s
     with the per-link t_b,→i in Δ.
 

@@ -4,7 +4,7 @@
     cycle(now) ──▶ snapshot ──▶ SafetyCore.step ──▶ one decision and one Override message per robot
 
 The process (``gateway/main.py``) feeds it from Zenoh and publishes what ``cycle`` returns; the simulated cell
-(``sim/cell.py``) feeds it from simulated links on a simulated clock. Both run this very object, so the sweep
+(``hrc_tools/sim/cell.py``) feeds it from simulated links on a simulated clock. Both run this very object, so the sweep
 proves the program, not a copy of its loop. No I/O and no clock inside: every time is passed in.
 """
 
@@ -20,13 +20,13 @@ from gateway.core import RobotDecision, SafetyCore, TrackReset
 from gateway.delay import NS_PER_S
 from gateway.inputs import InputSnapshot, InputStore
 from gateway.tracks import TrackEvent, TrackRecord
-from hrc_common import keys
-from hrc_common.clocks import Clocks
-from hrc_common.config import CellConfig
-from hrc_common.humans import NO_HUMANS, HumanCapsules
-from hrc_common.messages import MessageError, Override, parse_message
-from hrc_common.messages import TrackReset as TrackResetMessage
-from hrc_common.robot_model import RobotModel
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_contract.humans import NO_HUMANS, HumanCapsules
+from hrc_contract.messages import MessageError, Override, parse_message
+from hrc_contract.messages import TrackReset as TrackResetMessage
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.robot_model import RobotModel
 
 RESET_TOPIC = "operator/track_reset"
 """The counters' topic of the operators' resets."""

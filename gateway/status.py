@@ -1,5 +1,5 @@
 """The status document (``GET /api/v1/status`` and ``hrc/<cell>/gateway/status``) and the effective config,
-built through the contract's models (:mod:`hrc_common.status_models`).
+built through the contract's models (:mod:`hrc_contract.status_models`).
 
 Every builder reads the attributes it shows (never ``_asdict()``), so that a field added to a decision does
 not change the document until the model has it too. No builder raises for a decision the core can take:
@@ -22,11 +22,9 @@ from gateway.core import RobotDecision
 from gateway.inputs import InputSnapshot
 from gateway.node import GatewayCycle
 from gateway.tracks import NS_PER_S, TrackRecord, TrackState, reach_speed_mps
-from hrc_common.config import CellConfig
-from hrc_common.humans import HumanCapsules
-from hrc_common.robot_model import RobotModel
-from hrc_common.service import RateLoop
-from hrc_common.status_models import (
+from hrc_contract.config import CellConfig
+from hrc_contract.humans import HumanCapsules
+from hrc_contract.status_models import (
     CapsuleStatus,
     EffectiveConfig,
     EffectiveRobot,
@@ -38,6 +36,8 @@ from hrc_common.status_models import (
     RobotStatus,
     TrackStatus,
 )
+from hrc_runtime.rate_loop import RateLoop
+from hrc_runtime.robot_model import RobotModel
 
 DIGITS = 4
 """Distances, times and δ are rounded to this many decimals (0.1 mm, 0.1 ms)."""

@@ -39,8 +39,8 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hrc_common.config import CellConfig, TrackingConfig
-from hrc_common.humans import NO_HUMANS, HumanCapsules, merge_humans
+from hrc_contract.config import CellConfig, TrackingConfig
+from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 
 FloatArray = npt.NDArray[np.float64]
 NS_PER_S = 1_000_000_000

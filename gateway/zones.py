@@ -1,23 +1,15 @@
 """Zones of one robot and their state machine (Zanchettin et al. 2016, Sec. IV-B, Fig. 7; Sec. V-B).
 
 The zone is a label and a latch: it never raises δ. In ``safety_exception`` the commanded δ is held
-at 0 until the separation is safe again (automatic recovery, no acknowledgement).
-"""
+at 0 until the separation is safe again (automatic recovery, no acknowledgement)."""
 
 from __future__ import annotations
 
 import math
-from enum import StrEnum
 from typing import NamedTuple
 
-from hrc_common.config import ZonesConfig
-
-
-class Zone(StrEnum):
-    AUTONOMOUS = "autonomous"
-    GUARDED_DISTANCE = "guarded_distance"
-    REDUCED_SPEED = "reduced_speed"
-    SAFETY_EXCEPTION = "safety_exception"
+from hrc_contract.config import ZonesConfig
+from hrc_contract.vocabulary import Zone
 
 
 class ZoneThresholds(NamedTuple):

@@ -6,9 +6,10 @@ import os
 
 import pytest
 
-from hrc_common.config import CellConfig, load_cell_config
-from hrc_common.robot_model import RobotModel, load_robot_model
-from hrc_common.zenoh_session import PLAIN_TCP_ENV_VAR
+from hrc_contract.config import CellConfig
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_runtime.zenoh_session import PLAIN_TCP_ENV_VAR
 
 # The loopback tests run the programs over plain TCP (development mode; every program they start inherits this);
 # test_security_*.py run them with mutual TLS and access control, and drop it from their programs' environment.

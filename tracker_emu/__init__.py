@@ -1,1 +1,11 @@
 """Tracker emulator: scripted humans as body capsules, published like one or several real sensors."""
+
+__all__ = [
+    "body",
+    "emulator",
+    "main",
+    "occlusion",
+    "robot_links",
+    "scenario",
+    "sensor",
+]

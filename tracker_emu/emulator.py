@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hrc_common.config import Box, TrackerConfig
-from hrc_common.messages import Humans
+from hrc_contract.config import Box, TrackerConfig
+from hrc_contract.messages import Humans
 from tracker_emu.occlusion import NO_BLOCKERS, Blockers, fixture_blockers, join_blockers
 from tracker_emu.scenario import Scenario, TrackedHuman, humans_at, scenario_time
 from tracker_emu.sensor import humans_message, measure, rename, swap_ids

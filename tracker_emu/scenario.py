@@ -45,7 +45,8 @@ from typing import Annotated, NamedTuple
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from hrc_common.config import ConfigError, one_line, read_toml
+from hrc_contract.config import ConfigError
+from hrc_runtime.config import one_line, read_toml
 from tracker_emu.body import BodyCapsule, BodyPose, body_capsules
 
 MAX_WALKING_SPEED_MPS = 3.0

@@ -23,8 +23,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import numpy.typing as npt
 
-from hrc_common.config import Box, TrackerConfig, TrackingConfig
-from hrc_common.messages import Capsule, Human, Humans
+from hrc_contract.config import Box, TrackerConfig, TrackingConfig
+from hrc_contract.messages import Capsule, Human, Humans
 from tracker_emu.body import BodyCapsule
 from tracker_emu.occlusion import NO_BLOCKERS, Blockers, occlude
 from tracker_emu.scenario import TrackedHuman

@@ -1,1 +1,0 @@
-"""Communication fault injection on real Zenoh traffic between real processes."""

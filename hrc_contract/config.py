@@ -1,0 +1,550 @@
+"""Cell configuration: TOML files in ``configs/`` parsed into frozen, validated models.
+
+A cell file (``configs/cell.toml``) names the robots (each pointing to a robot model file and a
+program), the trackers with their sensor properties, and the safety, zone and gateway parameters.
+Every field carries its unit. Dangerous values refuse to load with a one-line reason that says what
+is allowed (:class:`ConfigError`)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Mapping
+from typing import Annotated, Any, Literal, get_args
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from hrc_contract.errors import HrcError
+from hrc_contract.messages import NAME_PATTERN
+
+ISO13855_WALKING_SPEED_MPS = 1.6
+"""K of ISO 13855 for separations above 0.5 m (Zanchettin et al. 2016, eq. (11))."""
+
+MAX_GUARD_TIME_S = 1.0
+"""Longest time limit that guards safety: data age, controller watchdog, reaction-time floor [s]. A person walks
+1.6 m in 1 s; a chain slower than that is no speed-and-separation monitoring, and a larger value is a unit slip
+(milliseconds typed as seconds)."""
+MIN_BRAKING_TIME_S = 0.02
+"""Shortest braking time (full speed to standstill) of a joint or a controller [s]: five 4 ms controller cycles. No
+industrial drive stops faster; a smaller value shrinks the clearance K t_b and the braking horizon to nothing."""
+MAX_BRAKING_TIME_S = 5.0
+"""Longest braking time [s]: beyond the stop of any industrial arm (a UR5 shoulder: 0.53 s); a unit slip."""
+
+UNSAFE_ENV_VAR = "HRC_ALLOW_UNSAFE"
+"""Environment variable that must name a test-only setting (comma-separated) for a configuration with it to load."""
+
+Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=64)]
+BrakingTime = Annotated[float, Field(ge=MIN_BRAKING_TIME_S, le=MAX_BRAKING_TIME_S, allow_inf_nan=False)]
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class ConfigError(HrcError):
+    """The configuration cannot be loaded or is unsafe. The message is one line."""
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def unsafe_allowed(setting: str, environ: Mapping[str, str] | None = None) -> bool:
+    """True if the environment variable :data:`UNSAFE_ENV_VAR` names ``setting`` (a comma-separated list).
+
+    Args:
+        setting: the name of a test-only setting, e.g. ``unsafe_ignore_delay_for_tests``.
+        environ: the environment to read; None = this process's (``os.environ``).
+    """
+    value = (os.environ if environ is None else environ).get(UNSAFE_ENV_VAR, "")
+    return setting in {name.strip() for name in value.split(",")}
+
+
+SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware"]
+"""The override methods the gateway can run (safety-math.md §4, §7, §8, §10; ``gateway/methods.py``)."""
+SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
+
+
+class SafetyConfig(_Frozen):
+    """Parameters of the separation criterion (safety-math.md §3–§5) and of the selectable methods (§7–§8).
+
+    Time limits that guard safety have an upper bound (a larger value is less safe, or a unit slip). Values for
+    which larger is only more cautious (human speeds, clearances, uncertainties, zone distances) have none.
+    """
+
+    method: SafetyMethod = Field(
+        "zanchettin2016",
+        description="How δ is computed: eq. (15) with the measured delay (default), ISO/TS 15066 SSM, "
+        "three discrete zones on the tool point, or stop-only.",
+    )
+    human_speed_mps: PositiveFloat = ISO13855_WALKING_SPEED_MPS
+    human_speed_close_mps: PositiveFloat = 2.0
+    close_speed_below_m: NonNegativeFloat = Field(
+        0.0,
+        description="Use human_speed_close_mps when the separation is below this [m]; 0 = off (ISO 13855 uses 0.5).",
+    )
+    clearance_static_m: NonNegativeFloat = 0.05
+    t_reaction_s: Annotated[float, Field(ge=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.04,
+        description="Floor of the reaction time; the measured delays are added to it [s]. At most 1 s: the "
+        "default cell's whole measured chain is about 0.13 s, and a floor of seconds is a unit slip (ms).",
+    )
+    max_data_age_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.2,
+        description="Older human data, joint state or override echo stops the robot [s]. At most 1 s: a person "
+        "walks 1.6 m in that time, so older data no longer describes the cell, and accepting it hides a dead "
+        "sensor or link for that long.",
+    )
+    allow_human_speed_below_iso13855: bool = False
+    unsafe_ignore_delay_for_tests: bool = Field(
+        False,
+        description="TEST ONLY: t_delay = 0, to show that the delay terms matter. Never in a real cell: refused "
+        f"unless the environment variable {UNSAFE_ENV_VAR} names it ({UNSAFE_ENV_VAR}=unsafe_ignore_delay_for_tests).",
+    )
+    # -- method "iso15066" (Pupa et al. 2021; safety-math.md §7) -----------------------------------------
+    iso15066_human_uncertainty_m: NonNegativeFloat = Field(
+        0.0, description="Z_d of ISO/TS 15066: position uncertainty of the operator (sensing) [m]."
+    )
+    iso15066_robot_uncertainty_m: NonNegativeFloat = Field(
+        0.0, description="Z_r of ISO/TS 15066: position uncertainty of the robot [m]."
+    )
+    iso15066_joint_acceleration_limit_radps2: Annotated[float, Field(gt=0.0, le=100.0, allow_inf_nan=False)] = Field(
+        10.0,
+        description="Joint acceleration limit of QP (12), every joint [rad/s²]; bounds how fast δ may rise. At most "
+        "100 rad/s²: beyond any industrial arm's joints; a larger value is a unit slip (deg/s²).",
+    )
+    # -- method "three_zones" (Marvel 2013; safety-math.md §8) -------------------------------------------
+    three_zones_tool_frame: str | None = Field(
+        None, description="URDF frame of the tool point; None = frame_b of the robot's last link."
+    )
+    three_zones_stop_below_m: NonNegativeFloat = Field(
+        1.0, description="δ = 0 while a human surface is at or below this distance from the tool point [m]."
+    )
+    three_zones_slow_below_m: PositiveFloat = Field(
+        1.8, description="δ = 0.5 at or below this distance (and above the stop distance), else δ = 1 [m]."
+    )
+    # -- method "stop_only" (safety-math.md §8) ----------------------------------------------------------
+    stop_only_robot_speed_mps: PositiveFloat = Field(
+        1.5,
+        description="Robot speed the stop-only protective zone is sized for: the largest programmed speed of "
+        "any link point, assumed toward the human (S_r and S_s of ISO/TS 15066) [m/s].",
+    )
+    # -- method "zanchettin2016_speed_aware" (eq. (15) with the stopping time δ t_b; safety-math.md §10) ---
+    speed_aware_close_speed_below_m: NonNegativeFloat = Field(
+        0.5,
+        description="This method uses human_speed_close_mps below this separation (ISO 13855: 0.5 m), or below "
+        "close_speed_below_m if that is larger [m].",
+    )
+    speed_aware_stop_below_delta: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        0.05,
+        description="This method's safety exception: the robot is stopped (δ = 0) while its bound is at or below "
+        "this, and its protective distance is Δ(δ) = c + K (δ t_b + t_delay) at this δ. At most 0.5.",
+    )
+    speed_aware_resume_above_delta: Annotated[float, Field(ge=0.0, le=0.5)] = Field(
+        0.1,
+        description="This method's safety exception ends only once its bound is above this (hysteresis on δ; at "
+        "least speed_aware_stop_below_delta). At most 0.5.",
+    )
+    # -- replan request, eq. (16) of Pupa et al. 2021 (every method) --------------------------------------
+    replan_delta_below: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.2, description="Request a replan when the commanded δ stays below this for replan_after_s; 0 = never."
+    )
+    replan_after_s: NonNegativeFloat = Field(
+        1.0, description="How long δ must stay below replan_delta_below before a replan is requested [s]."
+    )
+
+    @field_validator("method", mode="before")
+    @classmethod
+    def _known_method(cls, value: object) -> object:
+        if value not in SAFETY_METHODS:
+            raise ValueError(f"unknown method {value!r}; allowed: {', '.join(SAFETY_METHODS)}")
+        return value
+
+    @field_validator("unsafe_ignore_delay_for_tests")
+    @classmethod
+    def _unsafe_only_when_named(cls, value: bool) -> bool:
+        if value and not unsafe_allowed("unsafe_ignore_delay_for_tests"):
+            raise ValueError(
+                "true is refused: a test-only setting (t_delay = 0) that makes the gateway unsafe; allowed: false, "
+                f"or true with the environment variable {UNSAFE_ENV_VAR}=unsafe_ignore_delay_for_tests"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _three_zones_are_ordered(self) -> SafetyConfig:
+        if self.three_zones_slow_below_m <= self.three_zones_stop_below_m:
+            raise ValueError(
+                f"three_zones_slow_below_m = {self.three_zones_slow_below_m} is not beyond "
+                f"three_zones_stop_below_m = {self.three_zones_stop_below_m}; allowed: slow > stop"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _speed_aware_hysteresis(self) -> SafetyConfig:
+        if self.speed_aware_resume_above_delta < self.speed_aware_stop_below_delta:
+            raise ValueError(
+                f"speed_aware_resume_above_delta = {self.speed_aware_resume_above_delta} is below "
+                f"speed_aware_stop_below_delta = {self.speed_aware_stop_below_delta}; allowed: >= it"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _human_speed_is_safe(self) -> SafetyConfig:
+        if self.human_speed_mps < ISO13855_WALKING_SPEED_MPS and not self.allow_human_speed_below_iso13855:
+            raise ValueError(
+                f"human_speed_mps = {self.human_speed_mps} is below the ISO 13855 walking speed; allowed: "
+                f">= {ISO13855_WALKING_SPEED_MPS}, or set allow_human_speed_below_iso13855 = true"
+            )
+        if self.human_speed_close_mps < self.human_speed_mps:
+            raise ValueError(
+                f"human_speed_close_mps = {self.human_speed_close_mps} is below human_speed_mps = "
+                f"{self.human_speed_mps}; allowed: >= human_speed_mps"
+            )
+        return self
+
+
+class ZonesConfig(_Frozen):
+    """Zone thresholds and hysteresis (safety-math.md §6, paper Sec. V-B)."""
+
+    thresholds: Literal["adaptive", "fixed"] = Field(
+        "adaptive",
+        description="Monitored distance from the current programmed speed, or from fixed_speed_mps.",
+    )
+    fixed_speed_mps: PositiveFloat = Field(1.5, description="Largest programmed link speed, for 'fixed' [m/s].")
+    adaptive_speed_hold_s: Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)] = Field(
+        2.0,
+        description="'adaptive' uses the largest programmed link speed of this last stretch of time [s]. At most "
+        "60 s: the hold bridges the program's slow stretches between fast moves (a few seconds); a longer one "
+        "only keeps a stale peak, and minutes are a unit slip (ms).",
+    )
+    monitored_distance_min_m: NonNegativeFloat = Field(
+        1.0, description="A human closer than this (beyond the clearance) is always 'in the workspace' [m]."
+    )
+    guard_margin_m: NonNegativeFloat = Field(
+        0.5, description="The workspace reaches this far beyond the reduced-speed threshold [m]."
+    )
+    hysteresis_m: NonNegativeFloat = 0.15
+    resume_distance_m: NonNegativeFloat = Field(
+        0.4, description="Safety exception is left only beyond max(this, clearance + hysteresis) [m]."
+    )
+
+    reduced_speed_below: Annotated[float, Field(gt=0.0, le=1.0)] = Field(
+        0.98, description="Enter reduced_speed when δ drops below this; back to guarded at δ = 1."
+    )
+
+
+class GatewayConfig(_Frozen):
+    """The gateway's loop: fixed-rate ticks, plus a decision at once when a tracker frame arrives."""
+
+    rate_hz: Annotated[float, Field(ge=10.0, le=2000.0)] = 250.0
+    status_rate_hz: Annotated[float, Field(gt=0.0, le=100.0)] = 25.0
+    http_host: str = "127.0.0.1"
+    http_port: Annotated[int, Field(ge=0, le=65535)] = 8080
+    event_driven: bool = Field(
+        True,
+        description="Decide at once when a tracker frame arrives (an event cycle between the fixed-rate "
+        "ticks), instead of at the next tick only.",
+    )
+    min_event_interval_s: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.001,
+        description="Event cycles start at least this long apart, so that a flood of tracker messages "
+        "cannot starve the loop [s].",
+    )
+    event_guard_s: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
+        0.0002,
+        description="No event cycle starts when the next tick is due within this time: the tick serves the "
+        "frame instead (a reaction later by at most this), and an event cycle shorter than this cannot "
+        "make the tick late. At or above the period (1 / rate_hz) there are no event cycles [s].",
+    )
+    loop_realtime_priority: Annotated[int, Field(ge=0, le=99)] = Field(
+        0,
+        description="Linux SCHED_FIFO priority of the safety loop's thread (1-99; needs root or CAP_SYS_NICE; "
+        "the gateway starts anyway and logs a warning if it is refused); 0 = normal scheduling.",
+    )
+    io_realtime_priority: Annotated[int, Field(ge=0, le=98)] = Field(
+        0,
+        description="Linux SCHED_FIFO priority of the gateway's I/O threads (Zenoh's threads that receive inputs, "
+        "the thread that feeds the HTTP child, the log writer), below loop_realtime_priority; 0 = normal "
+        "scheduling. They share Python's interpreter lock with the loop: at normal priority any other program can "
+        "deschedule one while it holds the lock, and the loop waits (a priority inversion, seen with many robots).",
+    )
+
+    @model_validator(mode="after")
+    def _io_below_the_loop(self) -> GatewayConfig:
+        if self.io_realtime_priority and not 0 < self.io_realtime_priority < self.loop_realtime_priority:
+            raise ValueError(
+                f"io_realtime_priority = {self.io_realtime_priority} with loop_realtime_priority = "
+                f"{self.loop_realtime_priority}; allowed: 0 (off), or 1 to loop_realtime_priority - 1 (the loop "
+                "must be able to preempt the receiving threads)"
+            )
+        return self
+
+
+class ControllerConfig(_Frozen):
+    """The emulated controller's own behaviour (a real controller's is fixed by its vendor)."""
+
+    cycle_s: Annotated[float, Field(ge=0.0005, le=0.1)] = 0.004
+    braking_time_s: BrakingTime = Field(
+        0.24,
+        description="Override 1 → 0 takes at most this long [s]. 0.02–5 s: a real drive's stop (nanoseconds "
+        "would hide every delay from the tests); it must not exceed the t_b of any link the gateway assumes.",
+    )
+    accel_time_s: Annotated[float, Field(ge=MIN_BRAKING_TIME_S, le=10.0, allow_inf_nan=False)] = Field(
+        0.5,
+        description="Override 0 → 1 takes at least this long [s]. 0.02–10 s: a real drive's ramp; more is a unit slip.",
+    )
+    watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="No valid override for this long → protective stop [s]. At most 1 s: until then a silent "
+        "gateway leaves the robot running at the last override.",
+    )
+
+
+class LinkSegment(_Frozen):
+    """A robot link as a capsule between two URDF frames fixed on the same rigid body."""
+
+    name: Annotated[str, Field(min_length=1, max_length=64)]
+    frame_a: str
+    frame_b: str
+    radius_m: NonNegativeFloat
+
+
+class RobotModelConfig(_Frozen):
+    """A robot model: its URDF, joints, braking times and link capsules (``configs/robots/*.toml``)."""
+
+    urdf: str
+    joints: Annotated[list[str], Field(min_length=1)]
+    braking_time_s: Annotated[list[BrakingTime], Field(min_length=1)] = Field(
+        description="Stopping time of each joint from full speed, in the order of joints [s]; 0.02–5 s each: a "
+        "real drive's (the robot's manual, stop category 0 or 1); t_b of eq. (15) and of ISO/TS 15066 S_s."
+    )
+    links: Annotated[list[LinkSegment], Field(min_length=1)]
+
+    @model_validator(mode="after")
+    def _one_braking_time_per_joint(self) -> RobotModelConfig:
+        if len(self.braking_time_s) != len(self.joints):
+            raise ValueError(
+                f"braking_time_s has {len(self.braking_time_s)} values for {len(self.joints)} joints; "
+                "allowed: one per joint, in the order of joints"
+            )
+        return self
+
+
+class Pose(_Frozen):
+    xyz: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+    rpy: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
+
+
+class RobotConfig(_Frozen):
+    model: RobotModelConfig
+    base_pose_world: Pose = Pose()
+    program: str = Field(description="Absolute path of the program file of the controller emulator.")
+    controller: ControllerConfig = ControllerConfig()
+
+
+class TrackerConfig(_Frozen):
+    """Sensor properties; the tracker emulator plays them, the gateway only needs the names."""
+
+    rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = 30.0
+    noise_std_m: NonNegativeFloat = 0.01
+    drop_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.0
+    latency_s: NonNegativeFloat = Field(0.0, description="Capture-to-publish latency [s].")
+    position_m: tuple[Finite, Finite, Finite] | None = Field(
+        None, description="Where the sensor sees from, world frame [m]; required with occlusion."
+    )
+    occlusion: bool = Field(
+        False,
+        description="The emulated sensor reports only what it sees from position_m: a body capsule whose line of "
+        "sight is blocked by the robots' links, the scenario's fixtures and other people is left out, a person with "
+        "none visible is not reported (tracker_emu/occlusion.py).",
+    )
+    miss_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = Field(
+        0.0, description="Probability that the emulated sensor misses a person in a frame (each person, each frame)."
+    )
+    id_swap_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = Field(
+        0.0,
+        description="Probability per frame that two people the emulated sensor reports exchange their ids, "
+        "from that frame on.",
+    )
+
+    @model_validator(mode="after")
+    def _occlusion_needs_a_position(self) -> TrackerConfig:
+        if self.occlusion and self.position_m is None:
+            raise ValueError(
+                "occlusion = true needs the sensor's position_m; allowed: occlusion = false, or a position"
+            )
+        return self
+
+
+Vector3 = tuple[Finite, Finite, Finite]
+
+MAX_WORLD_EXTENT_M = 100.0
+"""Widest a cell's world volume may be along each axis [m]: more is a unit slip (mm)."""
+
+
+class PlausibilityConfig(_Frozen):
+    """What a tracker may report, checked at the door (gateway): where capsules may be and how big they may be."""
+
+    world_min_m: Vector3 = Field(
+        (-7.0, -7.0, -0.2),
+        description="Lower corner of the cell's volume in the world frame; every capsule end point lies inside "
+        "[m]. The default reaches beyond where the shipped scenarios and the sweep's people appear (6.1 m).",
+    )
+    world_max_m: Vector3 = Field((7.0, 7.0, 2.6), description="Upper corner of the cell's volume [m].")
+    max_capsule_length_m: Annotated[float, Field(gt=0.0, le=2.5, allow_inf_nan=False)] = Field(
+        1.0,
+        description="Longest human capsule (a leg, the torso) [m]. At most 2.5 m: no body part is longer than a "
+        "person is tall; a longer 'capsule' is not a person.",
+    )
+    max_capsule_radius_m: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.35, description="Largest human capsule radius [m]. At most 1 m: no body part is thicker than 2 m."
+    )
+
+    @model_validator(mode="after")
+    def _world_is_a_volume(self) -> PlausibilityConfig:
+        for axis, lo, hi in zip("xyz", self.world_min_m, self.world_max_m, strict=True):
+            if not lo < hi:
+                raise ValueError(
+                    f"world_min_m {axis} = {lo} is not below world_max_m {axis} = {hi}; allowed: min < max per axis"
+                )
+            if hi - lo > MAX_WORLD_EXTENT_M:
+                raise ValueError(
+                    f"the world volume is {hi - lo} m wide along {axis}; allowed: at most {MAX_WORLD_EXTENT_M} m"
+                )
+        return self
+
+
+class StreamsConfig(_Frozen):
+    """How the gateway judges the order and timing of each input stream (stamps, sequence numbers, clocks)
+    and whether the reported joint rates and override agree with what was commanded.
+
+    Every tolerance has an upper bound: a looser one lets a wrong stamp, a clock step or a controller that runs
+    faster than commanded pass unnoticed.
+    """
+
+    max_future_stamp_s: Annotated[float, Field(ge=0.0, le=0.05, allow_inf_nan=False)] = Field(
+        0.005,
+        description="A stamp ahead of the receiver's clock by more is rejected [s]. At most 0.05 s: a stamp from "
+        "the future shortens the measured age, so the delay budget would be understated by up to this.",
+    )
+    fault_hold_s: Annotated[float, Field(ge=0.1, le=10.0, allow_inf_nan=False)] = Field(
+        0.5,
+        description="A stream fault (stamps or seqs backwards, clock step) keeps δ = 0 this long after its last "
+        "occurrence [s]. At least 0.1 s: every stream (≥ 10 Hz) delivers a fresh sample before δ may rise again, "
+        "and a fault that recurs every few cycles keeps the robot stopped. At most 10 s: one glitch should not stop "
+        "the cell for longer than a stream needs to show it is sound; more is a unit slip (ms).",
+    )
+    max_clock_step_s: Annotated[float, Field(ge=0.001, le=0.05, allow_inf_nan=False)] = Field(
+        0.02,
+        description="The gateway's wall clock moving against its monotonic clock by more is a clock step (a "
+        "fault) [s]. 0.001–0.05 s: a smaller step goes unnoticed and shifts every measured age by up to this "
+        "much; reading two clocks and NTP slewing (≤ 0.5 ms/s) must not count as a step.",
+    )
+    qd_tolerance_radps: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
+        0.01,
+        description="Reported q̇ may differ from override · q̇_nominal (per joint, sign included) by this plus "
+        "qd_tolerance_ratio · |q̇_nominal| "
+        "before it is a fault [rad/s]. At most 0.1 rad/s (0.1 m/s at 1 m reach) of unnoticed extra speed.",
+    )
+    qd_tolerance_ratio: Annotated[float, Field(ge=0.0, le=0.1, allow_inf_nan=False)] = Field(
+        0.02, description="See qd_tolerance_radps [1]. At most 0.1: a joint 10 % faster than commanded is a fault."
+    )
+    override_tolerance: Annotated[float, Field(ge=0.0, le=0.02, allow_inf_nan=False)] = Field(
+        0.001,
+        description="An applied override above the commanded one (beyond the braking ramp) by more is a fault [1]. "
+        "At most 0.02: two steps of a controller that rounds its override to whole percent.",
+    )
+
+
+class Box(_Frozen):
+    """An axis-aligned box in the world frame [m]."""
+
+    min_m: Vector3
+    max_m: Vector3
+
+    @model_validator(mode="after")
+    def _is_a_volume(self) -> Box:
+        for axis, lo, hi in zip("xyz", self.min_m, self.max_m, strict=True):
+            if not lo < hi:
+                raise ValueError(f"min_m {axis} = {lo} is not below max_m {axis} = {hi}; allowed: min < max per axis")
+        return self
+
+
+class TrackingConfig(_Frozen):
+    """People as tracks (``gateway/tracks.py``, docs/contract.md "Tracks"): what the trackers cover, where people
+    may leave, and how a track is matched. A person no longer seen is *lost*, never gone: only a detection within
+    their reachable set, leaving through the coverage boundary, or an operator's reset releases them."""
+
+    coverage_min_m: Vector3 = Field(
+        (-5.5, -5.5, -0.2),
+        description="Lower corner of the volume the cell's trackers cover together (world frame) [m]. People enter "
+        "and leave only through its boundary; a person lost inside it stays (lost) until released.",
+    )
+    coverage_max_m: Vector3 = Field((5.5, 5.5, 2.6), description="Upper corner of the covered volume [m].")
+    exit_band_m: Annotated[float, Field(gt=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.4,
+        description="A track last seen with its centre within this of a side face of the covered volume, moving out "
+        "through that face, has left [m]. At most 2 m: deeper inside, a person who is lost has not left.",
+    )
+    exit_speed_min_mps: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.2,
+        description="Outward speed of the track's centre (over its last observations) above which it counts as "
+        "moving out [m/s]; noise of a standing person stays below it.",
+    )
+    exit_zones: list[Box] = Field(
+        default_factory=list,
+        description="Doors and walkways (boxes): when given, a person leaves only through them; empty = anywhere "
+        "on the side faces of the covered volume.",
+    )
+    association_margin_m: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = Field(
+        0.1,
+        description="Added to a track's reach when matching a detection to it: the tracker's stated position "
+        "uncertainty beyond 3 × noise_std_m [m]. At most 0.5 m: a looser match lets one person's detection "
+        "release another's track.",
+    )
+    unsafe_forget_lost_for_tests: bool = Field(
+        False,
+        description="TEST ONLY: a person no longer seen is forgotten at once (the classic fail-open), to show that "
+        f"the sweep's auditor catches it. Refused unless {UNSAFE_ENV_VAR} names it.",
+    )
+
+    @field_validator("unsafe_forget_lost_for_tests")
+    @classmethod
+    def _unsafe_only_when_named(cls, value: bool) -> bool:
+        if value and not unsafe_allowed("unsafe_forget_lost_for_tests"):
+            raise ValueError(
+                "true is refused: a test-only setting (lost people are forgotten) that makes the gateway unsafe; "
+                f"allowed: false, or true with {UNSAFE_ENV_VAR}=unsafe_forget_lost_for_tests"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _coverage_is_a_volume(self) -> TrackingConfig:
+        Box(min_m=self.coverage_min_m, max_m=self.coverage_max_m)  # raises with the axis that is not a volume
+        return self
+
+
+class CellConfig(_Frozen):
+    cell: Name
+    safety: SafetyConfig = SafetyConfig()
+    zones: ZonesConfig = ZonesConfig()
+    gateway: GatewayConfig = GatewayConfig()
+    plausibility: PlausibilityConfig = PlausibilityConfig()
+    streams: StreamsConfig = StreamsConfig()
+    tracking: TrackingConfig = TrackingConfig()
+    robots: dict[Name, RobotConfig]
+    trackers: dict[Name, TrackerConfig]
+    default_scenario: str = "walk_in_reach_leave"
+    scenarios_dir: str = Field(description="Absolute path of the folder of scenario files.")
+
+    @field_validator("robots", "trackers")
+    @classmethod
+    def _not_empty(cls, value: dict[str, Any]) -> dict[str, Any]:
+        if not value:
+            raise ValueError("at least one entry is required")
+        return value
+
+    def sha256(self) -> str:
+        """Hex digest of the configuration as loaded (canonical JSON, referenced files included)."""
+        canonical = json.dumps(self.model_dump(mode="json"), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(canonical.encode()).hexdigest()

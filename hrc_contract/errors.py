@@ -1,0 +1,26 @@
+"""The project's exception tree: one root, :class:`HrcError`, for every error the project raises on purpose.
+
+A leaf module (it imports nothing of the project), so that the wire messages can use it and stay a leaf.
+
+    HrcError
+    ├── ConfigError        (hrc_contract.config)           a configuration that cannot load or is unsafe: refuse
+    │   │                                                  to start
+    │   ├── NotFoundError  (hrc_runtime.locate)            no cell file or state folder given nor found
+    │   ├── PkiError       (hrc_runtime.pki)               the cell's PKI is missing, invalid or expired
+    │   └── SecurityError  (hrc_runtime.zenoh_session)     a Zenoh session cannot be secured as asked
+    ├── MessageError       (hrc_contract.messages)         a payload that is not a valid message: count it, fail
+    │                                                      closed
+    ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
+    ├── RuleError          (hrc_tools.faultinject.rules)   a fault-injection rule that does not parse
+    ├── RelayError         (hrc_tools.faultinject.relay)   the fault relay cannot run
+    └── BenchError         (hrc_tools.cell.procs)          a benchmark or process test could not run
+        └── StartupError   (hrc_tools.cell.procs)          a program did not start
+
+Every message says what was given and what is allowed.
+"""
+
+from __future__ import annotations
+
+
+class HrcError(Exception):
+    """Root of the errors raised by hrc-gateway's programs and libraries."""

@@ -1,0 +1,362 @@
+"""The gateway's status and REST responses (`docs/contract.md`, "Status" and "REST"), as pydantic models.
+
+One status document is published twice: on the Zenoh key ``hrc/<cell>/gateway/status`` and as the body of
+``GET /api/v1/status`` (:class:`GatewayStatus`). The gateway builds it through these models
+(``gateway/status.py``), so what it publishes is what they describe; the REST API declares them as its
+response models (``/openapi.json``); consumers (the auditor, the tests) parse with
+``GatewayStatus.model_validate_json(payload)``. ``python -m hrc_contract.contract`` writes their JSON Schemas
+to ``docs/schemas``.
+
+This module imports nothing of the gateway (only the configuration models, for ``GET /api/v1/config``), so
+that any consumer can use it alone. A field is only ever added here together with the code that fills it:
+the models forbid unknown fields.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from hrc_contract.config import (
+    GatewayConfig,
+    LinkSegment,
+    PlausibilityConfig,
+    Pose,
+    SafetyConfig,
+    StreamsConfig,
+    TrackingConfig,
+    ZonesConfig,
+)
+
+ZoneName = Literal["autonomous", "guarded_distance", "reduced_speed", "safety_exception"]
+"""The zones of ``hrc_contract.vocabulary.Zone`` (safety-math.md §6)."""
+
+ControllerMode = Literal["running", "stopped", "protective_stop"]
+"""``mode`` of the controller's joint state (``hrc_contract.messages.JointState``)."""
+
+Unit = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+Count = Annotated[int, Field(ge=0)]
+FaultCode = Annotated[str, Field(pattern=r"^[a-z0-9_]+$", max_length=64)]
+Point = Annotated[list[Finite], Field(min_length=3, max_length=3)]
+"""A point of the cell's world frame, ``[x, y, z]`` [m]."""
+
+
+class _Strict(BaseModel):
+    """A part of a response whose shape is fixed: unknown fields are an error, numbers are finite."""
+
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, json_schema_serialization_defaults_required=True
+    )
+
+
+class Fault(_Strict):
+    """An active fault of one robot: δ is 0 while any is active (contract, "Fault codes")."""
+
+    code: FaultCode = Field(description="Machine-readable kind, one of the contract's table of fault codes.")
+    reason: str = Field(description="For people: what was seen and what is allowed (e.g. an age and its limit).")
+
+
+class ClosestPair(_Strict):
+    """The human capsule and robot link at ``min_distance_m``."""
+
+    human: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
+    capsule: str = Field(description="Capsule name of that human (e.g. ``hand_r``).")
+    link: str = Field(description="Robot link name (``links`` of the robot in ``GET /api/v1/config``).")
+
+
+class DelayBudgetStatus(_Strict):
+    """The parts of ``t_delay_s`` [s] (safety-math.md §5); their sum is ``t_delay_s``."""
+
+    t_reaction_s: NonNegative = Field(description="Configured reaction-time floor (``safety.t_reaction_s``) [s].")
+    human_age_s: NonNegative = Field(
+        description="Age of the oldest tracker's newest frame; ``max_data_age_s`` for a tracker without data [s]."
+    )
+    joint_state_age_s: NonNegative = Field(description="Age of the newest joint state [s].")
+    override_path_s: NonNegative = Field(
+        description="Override path latency, learnt from the ``override_seq`` the controller echoes [s]."
+    )
+    controller_cycle_s: NonNegative = Field(description="Controller cycle, measured from its joint states [s].")
+    gateway_period_s: NonNegative = Field(
+        description="Until the gateway's next decision: the longest interval between decisions of the last 10 s, at "
+        "least the period, at most the controller's watchdog (it stops on its own after that) [s]."
+    )
+
+
+class ThresholdsStatus(_Strict):
+    """Distance thresholds of the zone logic this cycle, surface to surface [m] (safety-math.md §6).
+
+    ``reduce_m`` and ``monitored_m`` grow with the programmed link speed; they are null when not a finite
+    number (an absurd programmed speed), which never happens with plausible input.
+    """
+
+    protective_m: NonNegative = Field(description="The clearance Δ: at or below it the robot must stand still [m].")
+    resume_m: NonNegative = Field(description="A safety exception ends only beyond this [m].")
+    reduce_m: NonNegative | None = Field(description="Beyond it eq. (15) allows full speed [m].")
+    monitored_m: NonNegative | None = Field(description="The monitored workspace; beyond it: autonomous [m].")
+
+
+class CapsuleStatus(_Strict):
+    """A capsule (a segment swept by a sphere) in the cell's world frame, for drawing the cell."""
+
+    name: str = Field(description="Link name of the robot, or capsule name of a human (e.g. ``hand_r``).")
+    a_m: Point = Field(description="First end point of the segment [m].")
+    b_m: Point = Field(description="Second end point of the segment [m].")
+    radius_m: NonNegative = Field(description="Radius around the segment [m].")
+
+
+class HumanCapsuleStatus(CapsuleStatus):
+    """One capsule of a human in a tracker's newest valid frame."""
+
+    human: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
+
+
+class RobotStatus(_Strict):
+    """One robot's decision as the status shows it (``robots.<robot>`` of :class:`GatewayStatus`)."""
+
+    zone: ZoneName
+    delta: Unit = Field(description="The override δ commanded with ``override_seq``.")
+    delta_bound: Unit = Field(
+        description="δ allowed by the configured method alone (``safety.method``), before faults and the "
+        "safety-exception latch; a bound that is not a number counts as 0, as in the core."
+    )
+    min_distance_m: Finite | None = Field(
+        description="Smallest surface distance robot link ↔ human capsule; null with nobody seen, or when "
+        "not a finite number [m]."
+    )
+    closest: ClosestPair | None = Field(description="The pair at ``min_distance_m``; null with nobody seen.")
+    t_delay_s: NonNegative = Field(description="The whole delay this decision used: the sum of ``delay_budget_s`` [s].")
+    delay_budget_s: DelayBudgetStatus
+    clearance_m: NonNegative = Field(description="Δ = c + K (max t_b + t_delay) at the nominal human speed [m].")
+    thresholds_m: ThresholdsStatus
+    override_seq: Count = Field(description="``seq`` of the override message that carried this δ.")
+    data_age_s: dict[str, NonNegative | None] = Field(
+        description="Age of the newest valid data of each input at decision time: ``joint_state`` and "
+        "``tracker/<tracker>``; null before the first [s]."
+    )
+    faults: list[Fault] = Field(description="Active faults; δ = 0 and zone ``safety_exception`` while any.")
+    controller_mode: ControllerMode | None = Field(description="``mode`` of the newest joint state; null before one.")
+    delta_applied: Unit | None = Field(
+        description="``override`` of the newest joint state: the δ the controller reports applying (it ramps "
+        "toward ``delta`` within its braking time); null before one."
+    )
+    replan_request: bool = Field(
+        description="Eq. (16) of Pupa et al. 2021: δ has stayed below ``safety.replan_delta_below`` for "
+        "``safety.replan_after_s`` (never while faulted)."
+    )
+    links: list[CapsuleStatus] = Field(
+        default_factory=list,
+        description="The link capsules at the joint positions this decision used (world frame); empty before "
+        "the first joint state.",
+    )
+
+
+class HumanSeen(_Strict):
+    """A human in the newest valid frame of one tracker."""
+
+    id: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
+    tracker: str
+    capsules: Count = Field(description="Capsules of this human in that frame.")
+
+
+TrackStateName = Literal["seen", "lost", "released"]
+"""A track's state (``gateway.tracks.TrackState``; docs/contract.md "Tracks")."""
+
+
+class TrackStatus(_Strict):
+    """One person as one tracker followed them: seen, lost (never gone) or released, and by what."""
+
+    label: str = Field(description="``<tracker>/<id>``; ``#<n>`` appended when another live track has that label.")
+    tracker: str
+    human: str = Field(
+        description="The id its capsules carry in ``closest`` and ``human_capsules``: ``<tracker>/<id>`` while seen, "
+        "``<label> (lost)`` while lost."
+    )
+    state: TrackStateName
+    last_seen_age_s: NonNegative = Field(description="Time since the frame it was last seen in was captured [s].")
+    reach_m: NonNegative = Field(
+        description="Lost: how far the person may be from where last seen (K × last_seen_age_s); its capsules are "
+        "grown by this in every decision. 0 otherwise [m]."
+    )
+    capsules: Count = Field(description="Capsules of the person as last seen.")
+    holds: list[str] = Field(
+        description="Robots whose closest person this is while their δ is below 1 (who holds which robot)."
+    )
+    released_by: str | None = Field(
+        description="Released: what released it (redetected by <label>, last seen leaving, reset by an operator)."
+    )
+    action: str | None = Field(
+        description="Lost: what to do, for people (e.g. clear the area and reset); null otherwise."
+    )
+
+
+class InputCounters(_Strict):
+    """Messages received per input topic (``robot/<robot>``, ``tracker/<tracker>``), since the gateway started."""
+
+    received: dict[str, Count] = Field(description="Valid messages stored, per topic.")
+    rejected: dict[str, dict[str, Count]] = Field(
+        description='Rejected messages per topic and reason (contract, "Rejection reasons"). Topics of '
+        "unknown robots and trackers are counted too (``robot/<name>``, ``tracker/<name>``)."
+    )
+
+
+class LoopStatus(_Strict):
+    """How the gateway's own loop keeps its period (``gateway.rate_hz``), since it started.
+
+    A decision is taken at every tick and, with ``event_driven``, also when a tracker frame arrives (an
+    event cycle, between ticks).
+    """
+
+    rate_hz: NonNegative = Field(description="Tick rate [Hz].")
+    cycles: Count = Field(description="All decisions: ``tick_cycles + event_cycles``.")
+    tick_cycles: Count = Field(description="Decisions at the fixed-rate ticks.")
+    event_cycles: Count = Field(description="Decisions taken at once when a tracker frame arrived.")
+    wakes_served_by_tick: Count = Field(
+        description="Tracker frames left to a tick due within ``gateway.event_guard_s``."
+    )
+    event_driven: bool = Field(description="``gateway.event_driven``.")
+    missed_cycles: Count = Field(description="Ticks skipped after an overrun.")
+    last_lateness_s: NonNegative = Field(description="Lateness of the last tick [s].")
+    compute_max_s: NonNegative = Field(
+        description="Longest loop iteration (from waking to going back to sleep: the decision, publishing, hand-offs) "
+        "since the previous status [s]."
+    )
+    event_seqs: list[Count] = Field(
+        description="Override seqs of the event cycles since the previous status; complete when as many as "
+        "the growth of ``event_cycles`` (capped at 256)."
+    )
+    tick_periods_s: list[NonNegative] = Field(
+        default_factory=list,
+        description="Each tick's interval from the previous tick since the previous status, oldest first (at most "
+        "256) [s]: the period histogram of the metrics observes each.",
+    )
+    budget_overruns: Count = Field(
+        0,
+        description="Decisions that commanded δ > 0 whose next decision started later than the "
+        "``delay_budget_s.gateway_period_s`` they counted, since the gateway started (the loop was held up).",
+    )
+
+
+class GatewayStatus(_Strict):
+    """The status document: ``GET /api/v1/status`` and the Zenoh key ``hrc/<cell>/gateway/status``
+    (published at ``gateway.status_rate_hz``, 25 Hz by default; the same document on both)."""
+
+    cell: str
+    stamp_ns: Count = Field(
+        description="When the document was built, right after the decision it shows [ns since the Unix epoch]."
+    )
+    robots: dict[str, RobotStatus] = Field(description="Every configured robot, by name.")
+    humans: list[HumanSeen] = Field(description="The humans of every tracker's newest valid frame.")
+    inputs: InputCounters
+    loop: LoopStatus
+    tracks: list[TrackStatus] = Field(
+        default_factory=list,
+        description="Every person tracked: seen, lost (kept, growing at K) and the recently released (docs/contract.md "
+        '"Tracks").',
+    )
+    human_capsules: list[HumanCapsuleStatus] = Field(
+        default_factory=list, description="The capsules of ``humans`` (world frame), for drawing the cell."
+    )
+
+
+EventKind = Literal[
+    "start", "stop", "config_loaded", "zone_changed", "fault_raised", "fault_cleared", "track_lost", "track_released"
+]
+"""What an :class:`Event` records (contract, "Events")."""
+
+
+class Event(_Strict):
+    """One entry of the gateway's event log (``GET /api/v1/events`` and the JSON Lines file)."""
+
+    seq: Count = Field(description="1, 2, 3, ... in the order the gateway logged them, since it started.")
+    stamp_ns: Count = Field(description="When it was logged [ns since the Unix epoch].")
+    kind: EventKind
+    robot: str | None = Field(default=None, description="The robot it concerns; null for the whole gateway.")
+    message: str = Field(description="For people: what happened, with the reason.")
+    zone: ZoneName | None = Field(default=None, description="``zone_changed``: the zone entered.")
+    previous_zone: ZoneName | None = Field(default=None, description="``zone_changed``: the zone left.")
+    code: FaultCode | None = Field(default=None, description="``fault_raised`` / ``fault_cleared``: its code.")
+    reason: str | None = Field(default=None, description="``fault_raised``: the fault's reason.")
+    config_sha256: str | None = Field(default=None, description="``config_loaded``: hex SHA-256 of the config.")
+    track: str | None = Field(default=None, description="``track_lost`` / ``track_released``: the track's label.")
+    cause: str | None = Field(
+        default=None,
+        description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom).",
+    )
+
+
+class EventsResponse(_Strict):
+    """``GET /api/v1/events?since=<seq>``: the events after ``since`` that the server still holds, oldest first."""
+
+    events: list[Event]
+    last_seq: Count = Field(description="Seq of the newest event logged (0 before any): the next ``since``.")
+
+
+class RobotStatusResponse(RobotStatus):
+    """``GET /api/v1/robots/{robot}``: one robot's entry of the status, with the document's cell and stamp."""
+
+    cell: str
+    stamp_ns: Count = Field(description="``stamp_ns`` of the status document [ns since the Unix epoch].")
+    robot: str
+
+
+class EffectiveRobot(_Strict):
+    """A robot as the gateway loaded it: enough to recompute δ."""
+
+    urdf: str = Field(description="Absolute path of the URDF loaded.")
+    base_pose_world: Pose = Field(description="Pose of the robot base in the cell's world frame [m, rad].")
+    joints: list[str] = Field(description="Joint names, in the order of ``q`` in the joint state.")
+    braking_time_s: list[NonNegative] = Field(description="Braking time of each joint, in the order of joints [s].")
+    links: list[LinkSegment] = Field(description="Link capsules between two URDF frames (as Pinocchio loads them).")
+
+
+class EffectiveConfig(_Strict):
+    """``GET /api/v1/config``: the effective safety configuration, so that anyone can recompute δ."""
+
+    cell: str
+    config_sha256: str = Field(
+        pattern=r"^[0-9a-f]{64}$",
+        description="Hex SHA-256 of the whole configuration as loaded (referenced files included).",
+    )
+    trackers: list[str] = Field(description="Configured trackers, sorted.")
+    safety: SafetyConfig
+    zones: ZonesConfig
+    gateway: GatewayConfig
+    plausibility: PlausibilityConfig
+    streams: StreamsConfig
+    tracking: TrackingConfig
+    robots: dict[str, EffectiveRobot]
+
+
+class Health(_Strict):
+    """``GET /healthz``: the HTTP process is up (says nothing about the safety loop)."""
+
+    status: Literal["ok"]
+
+
+class Ready(_Strict):
+    """``GET /readyz`` 200: a fresh status without any fault on any robot."""
+
+    ready: Literal[True]
+
+
+class NotReady(_Strict):
+    """Why ``GET /readyz`` answers 503 while the loop runs: the reasons of the active faults."""
+
+    ready: Literal[False]
+    faults: dict[str, list[str]] = Field(description="Per faulted robot, the ``reason`` of each active fault.")
+
+
+class ErrorResponse(_Strict):
+    """An error: 404 for an unknown robot (the message names the known ones); 503 when the safety loop
+    has not published a status yet, or none for ``STATUS_STALE_AFTER_S`` (1 s)."""
+
+    detail: str
+
+
+class NotReadyResponse(_Strict):
+    """``GET /readyz`` 503: a message when the safety loop publishes no status, else the faults."""
+
+    detail: NotReady | str

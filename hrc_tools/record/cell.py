@@ -1,0 +1,330 @@
+"""``hrc-record``: every topic of a cell to an MCAP file, with 3D capsules for Foxglove and Lichtblick.
+
+    hrc-record --output cell.mcap [--config PATH] [--zenoh-connect ENDPOINT] [--events-url URL]
+
+It connects as a Zenoh client (``--zenoh-mode client`` by default) to the gateway, a peer that routes every
+topic of the cell to its clients; ``--zenoh-mode peer`` to meet the programs directly instead.
+
+A Zenoh member of the cell with the ``recorder`` certificate (it may subscribe, never put; see
+:mod:`hrc_runtime.pki`). Every message of the contract's topics is written as it arrived (payload bytes
+unchanged, ``log_time`` = its arrival on this host's wall clock), on a channel named after its key
+(``/hrc/<cell>/robot/<robot>/state`` ...) with the JSON Schema of its model:
+
+- joint states and ground-truth joint states (``hrc.joint_state``), overrides (``hrc.override``), tracker
+  frames and ground-truth humans (``hrc.humans``), the gateway status (``hrc.gateway_status``);
+- the gateway's event log (``hrc.event``, ``/hrc/<cell>/gateway/events``), polled from its REST API
+  (``GET /api/v1/events?since=…``, the gateway publishes no events on Zenoh): ``log_time`` is when the poll
+  answered, like every other message's arrival (the first poll brings the events since the gateway started,
+  which can be long before the recorder); when each was logged is its ``stamp_ns``;
+- ``foxglove.SceneUpdate`` on ``/scene/humans/<tracker>`` (each frame's people) and ``/scene/robots`` (the
+  links of each status, coloured by zone), with Foxglove's own schema (:func:`hrc_tools.record.scene.foxglove_schema`);
+- payloads that are not a valid message of their key on ``/hrc/<cell>/rejected`` (``hrc.rejected``), so a
+  hostile input is kept as evidence without breaking a reader that trusts the schemas.
+
+Ctrl-C (or SIGTERM) closes the file (footer and summary written): it opens in any MCAP reader.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import logging
+import sys
+import threading
+import time
+import urllib.request
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError
+
+from hrc_contract import keys
+from hrc_contract.config import CellConfig, ConfigError
+from hrc_contract.messages import MAX_PAYLOAD_BYTES, Humans, JointState, MessageError, Override, parse_message
+from hrc_contract.status_models import Event, EventsResponse, GatewayStatus
+from hrc_runtime.access_control import RECORDER
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.logs import configure_logging
+from hrc_runtime.mcap_sink import ChannelSpec, McapSink, RecordingError, identity, model_channel
+from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+from hrc_tools.record import scene
+
+log = logging.getLogger("hrc-record")
+
+PROG = "hrc-record"
+EVENTS_POLL_S = 0.5
+"""How often the gateway's event log is polled [s]."""
+PROGRESS_EVERY_S = 10.0
+
+JOINT_STATE = model_channel("hrc.joint_state", JointState)
+OVERRIDE = model_channel("hrc.override", Override)
+HUMANS = model_channel("hrc.humans", Humans)
+STATUS = model_channel("hrc.gateway_status", GatewayStatus)
+EVENT = model_channel("hrc.event", Event)
+SCENE = ChannelSpec(scene.SCHEMA_NAME, scene.foxglove_schema())
+
+
+class RejectedPayload(BaseModel):
+    """A payload that is not a valid message of its key: kept as received, with why."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    key: str
+    reason: str
+    payload_base64: str
+
+
+REJECTED = model_channel("hrc.rejected", RejectedPayload)
+
+
+class Topic(NamedTuple):
+    """How a key of the cell is recorded: its model (to validate), its channel, and its scene builder."""
+
+    model: type[BaseModel]
+    channel: ChannelSpec
+    scene_topic: str | None
+
+
+def topic_of(cell: str, key: str) -> Topic | None:
+    """What ``key`` carries in cell ``cell``, None for a key this recorder does not know."""
+    parts = key.split("/")
+    if len(parts) < 4 or parts[0] != "hrc" or parts[1] != cell:
+        return None
+    kind = parts[2:]
+    if len(kind) == 3 and kind[0] == "robot" and kind[2] == "state":
+        return Topic(JointState, JOINT_STATE, None)
+    if len(kind) == 3 and kind[0] == "robot" and kind[2] == "override":
+        return Topic(Override, OVERRIDE, None)
+    if len(kind) == 3 and kind[0] == "tracker" and kind[2] == "humans":
+        return Topic(Humans, HUMANS, f"/scene/humans/{kind[1]}")
+    if kind == ["gateway", "status"]:
+        return Topic(GatewayStatus, STATUS, "/scene/robots")
+    if len(kind) == 4 and kind[:2] == ["truth", "robot"] and kind[3] == "state":
+        return Topic(JointState, JOINT_STATE, None)
+    if kind == ["truth", "humans"]:
+        return Topic(Humans, HUMANS, "/scene/truth")
+    return None
+
+
+def subscriptions(cell: str) -> list[str]:
+    """The key expressions recorded: the contract's topics of the cell and the ground truth."""
+    return [
+        keys.robot_state(cell, "*"),
+        keys.robot_override(cell, "*"),
+        keys.tracker_humans(cell, "*"),
+        keys.gateway_status(cell),
+        f"hrc/{cell}/truth/**",
+    ]
+
+
+def _parse(payload: bytes, model: type[BaseModel]) -> BaseModel:
+    """The message, by the contract's parser for wire messages (``schema`` checked), by the model otherwise."""
+    if "schema_" in model.model_fields:
+        return parse_message(payload, model)
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise MessageError("too_large", f"{len(payload)} bytes")
+    try:
+        return model.model_validate_json(payload)
+    except ValidationError as exc:
+        raise MessageError("invalid", str(exc.errors()[0]["msg"])) from None
+
+
+def _scene_update(message: BaseModel, received_ns: int) -> scene.SceneUpdate | None:
+    if isinstance(message, Humans):
+        return scene.humans_scene(message, received_ns)
+    if isinstance(message, GatewayStatus):
+        return scene.robots_scene(message, received_ns)
+    return None
+
+
+def _encode_model(message: BaseModel) -> bytes:
+    return message.model_dump_json().encode()
+
+
+class CellRecorder:
+    """Writes what the subscribers receive to the sink (callbacks on Zenoh threads; the sink never blocks)."""
+
+    def __init__(self, sink: McapSink, cell: str) -> None:
+        self.sink = sink
+        self.cell = cell
+        self.unknown_keys = 0
+
+    def on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
+        """Record one payload received on ``key``: on its channel, or as rejected; plus its scene update."""
+        topic = topic_of(self.cell, key)
+        if topic is None:
+            self.unknown_keys += 1
+            return
+        try:
+            message = _parse(payload, topic.model)
+        except MessageError as exc:
+            rejected = RejectedPayload(key=key, reason=exc.reason, payload_base64=base64.b64encode(payload).decode())
+            self.sink.offer(f"/hrc/{self.cell}/rejected", REJECTED, received_ns, _encode_model, rejected)
+            return
+        self.sink.offer(f"/{key}", topic.channel, received_ns, identity, payload)
+        update = _scene_update(message, received_ns)
+        if update is not None and topic.scene_topic is not None:
+            self.sink.offer(topic.scene_topic, SCENE, received_ns, _encode_model, update)
+
+    def on_events(self, events: Sequence[Event], received_ns: int) -> None:
+        """Record the events of one poll of the gateway's log, answered at ``received_ns`` (their ``log_time``)."""
+        for event in events:
+            self.sink.offer(f"/hrc/{self.cell}/gateway/events", EVENT, received_ns, _encode_model, event)
+
+
+_EVENTS = TypeAdapter(EventsResponse)
+
+
+def fetch_events(url: str, since: int, timeout_s: float = 2.0) -> EventsResponse:
+    """``GET {url}/api/v1/events?since=…`` of the gateway.
+
+    Raises:
+        OSError: the gateway does not answer (``urllib.error.URLError`` is one).
+        ValidationError: the answer is not the contract's.
+    """
+    with urllib.request.urlopen(f"{url}/api/v1/events?since={since}", timeout=timeout_s) as response:
+        return _EVENTS.validate_json(response.read())
+
+
+def _callback(recorder: CellRecorder) -> Callable[[zenoh.Sample], None]:
+    def on_sample(sample: zenoh.Sample) -> None:
+        received_ns = time.time_ns()
+        try:
+            recorder.on_sample(str(sample.key_expr), sample.payload.to_bytes(), received_ns)
+        except Exception:  # a callback must never die
+            log.exception("error while recording a message on %s", sample.key_expr)
+
+    return on_sample
+
+
+class _EventPoller:
+    """The gateway's event log since the last poll; says once when the gateway stops or starts answering."""
+
+    def __init__(self, url: str | None) -> None:
+        self.url = url
+        self.since = 0
+        self.answering: bool | None = None
+
+    def poll(self) -> list[Event]:
+        if self.url is None:
+            return []
+        try:
+            response = fetch_events(self.url, self.since)
+        except (OSError, ValidationError) as exc:
+            if self.answering is not False:
+                log.warning("gateway events at %s: no answer (%s); polling on", self.url, exc)
+            self.answering = False
+            return []
+        if self.answering is not True:
+            log.info("gateway events at %s: recording", self.url)
+        self.answering = True
+        self.since = response.last_seq
+        return list(response.events)
+
+
+JOIN_WITHIN_S = 30.0
+"""A client recorder started with the cell (``hrc-cell --record``) may come up before the gateway listens: it
+tries to join for this long [s] before it gives up."""
+
+
+def _join(config: zenoh.Config, stop: threading.Event) -> zenoh.Session:
+    """Open the session, retrying every 0.5 s for :data:`JOIN_WITHIN_S` (or until ``stop``).
+
+    Raises:
+        zenoh.ZError: the last attempt's error, once the time is up.
+    """
+    deadline_s = time.monotonic() + JOIN_WITHIN_S
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError:
+            if time.monotonic() >= deadline_s or stop.wait(0.5):
+                raise
+
+
+def run_recorder(
+    config: CellConfig,
+    output: Path,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    stop: threading.Event,
+    events_url: str | None,
+    *,
+    zenoh_options: SessionOptions,
+) -> int:
+    """Record until ``stop`` is set. Returns the number of messages written.
+
+    Raises:
+        RecordingError: the output cannot be created.
+    """
+    metadata = {"hrc.cell_recording": {"cell": config.cell, "config_sha256": config.sha256()}}
+    session_cm = _join(session_config(listen, connect, zenoh_options), stop)
+    with McapSink(output, metadata=metadata) as sink, session_cm as session:
+        recorder = CellRecorder(sink, config.cell)
+        subscribers = [session.declare_subscriber(k, _callback(recorder)) for k in subscriptions(config.cell)]
+        log.info("recording cell %r to %s (%s)", config.cell, output, ", ".join(subscriptions(config.cell)))
+        poller = _EventPoller(events_url)
+        next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+        while not stop.wait(EVENTS_POLL_S):
+            recorder.on_events(poller.poll(), time.time_ns())
+            if time.monotonic() >= next_progress_s:
+                next_progress_s += PROGRESS_EVERY_S
+                log.info("recording %s: %d dropped so far", output, sink.dropped)
+        recorder.on_events(poller.poll(), time.time_ns())
+        for subscriber in subscribers:
+            subscriber.undeclare()  # type: ignore[no-untyped-call]  # zenoh stub
+    summary = sink.close()
+    how = "complete" if summary.complete else f"INCOMPLETE: {summary.dropped} dropped {summary.error or ''}".strip()
+    log.info("recording %s closed: %d messages (%s)", output, summary.records, how)
+    return summary.records
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Record every topic of the cell to MCAP (with Foxglove 3D capsules) until Ctrl-C"
+    )
+    add_config_argument(parser)
+    add_zenoh_arguments(parser)
+    # a client of the peer it connects to (the gateway by default), which routes every topic of the cell to it
+    parser.set_defaults(zenoh_mode="client")
+    parser.add_argument("--output", "-o", type=Path, required=True, metavar="PATH", help="the MCAP file to write")
+    parser.add_argument(
+        "--events-url",
+        default=None,
+        metavar="URL",
+        help="the gateway's HTTP API for its event log (default http://<gateway.http_host>:<gateway.http_port>; "
+        "'none': no events)",
+    )
+    args = parser.parse_args(argv)
+    configure_logging(args.log_level)
+    connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
+    with stop_on_signals() as stop:
+        try:
+            config = load_cell_config(args.config)
+            zenoh_options = options_from_args(args, RECORDER, config)  # subscribes only (access control)
+            events_url = args.events_url or f"http://{config.gateway.http_host}:{config.gateway.http_port}"
+            run_recorder(
+                config,
+                args.output,
+                args.zenoh_listen,
+                connect,
+                stop,
+                None if events_url == "none" else events_url,
+                zenoh_options=zenoh_options,
+            )
+        except (ConfigError, RecordingError) as exc:
+            sys.stderr.write(f"{PROG}: {' '.join(str(exc).split())}\n")
+            sys.exit(2)
+        except zenoh.ZError as exc:
+            where = ", ".join(args.zenoh_connect or [DEFAULT_ENDPOINT])
+            sys.stderr.write(f"{PROG}: cannot join the cell at {where} (is the gateway running?): {exc}\n")
+            sys.exit(2)
+    sys.exit(0)
+
+
+if __name__ == "__main__":
+    cli()

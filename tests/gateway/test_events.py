@@ -1,0 +1,65 @@
+"""Event cycles of the real gateway: a tracker frame is decided on when it arrives, not at the next tick.
+
+The gateway runs at 20 Hz (a tick every 50 ms) while this process, as the tracker, sends a sample every
+~15 ms alternating a person far away (δ = 1) and a person enclosing the robot (δ = 0) (``bench.reaction``
+does the sending and the matching). The status documents list the override seqs of the event cycles,
+so the test asserts *which* cycle reflected each sample, not how fast: no timing threshold.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from pathlib import Path
+
+import pytest
+
+from bench.reaction import RunSettings, run_once
+from gateway.status import loop_status
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.rate_loop import RateLoop
+from hrc_tools.cell.procs import with_retries
+
+RATE_HZ = 20.0
+SAMPLES = 30
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("event_driven", [True, False])
+def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_driven: bool) -> None:
+    settings = RunSettings(
+        rate_hz=RATE_HZ,
+        samples=SAMPLES,
+        interval_s=0.015,
+        jitter=0.2,
+        warmup_timeout_s=30.0,
+        settle_s=0.3,
+        seed=3,
+        event_driven=event_driven,
+    )
+    run = with_retries(partial(run_once, load_cell_config(None), settings, tmp_path), f"{RATE_HZ:g} Hz")
+    assert run["faults_in_status"] == {}
+    assert run["status_cross_check"]["disagree"] == 0
+    by = run["reflected_by"]
+    matched = run["samples_matched"]
+    detail = f"matched {matched}/{SAMPLES}, reflected by {by}, excluded {run['excluded']}"
+    if event_driven:
+        # Three samples per tick period: only a decision per sample reflects each of them.
+        assert matched >= 0.8 * SAMPLES, detail
+        assert by["event_cycle"] >= 0.8 * matched, detail
+        assert run["gateway_event_cycles_during_run"] > 0
+    else:
+        # The teeth: at the ticks only, nothing is an event cycle, and many samples are never reflected
+        # before the next-but-one was sent (excluded by the matching).
+        assert by["event_cycle"] == 0, detail
+        assert run["gateway_event_cycles_during_run"] == 0
+        assert matched < 0.8 * SAMPLES, detail
+
+
+def test_loop_block_counts_ticks_and_event_cycles_apart() -> None:
+    rate = RateLoop(0.004)
+    rate.tick_cycles, rate.event_cycles, rate.missed_cycles = 10, 3, 1
+    block = loop_status(rate, 0.0005, True, [4, 7, 9])
+    assert block.rate_hz == 250.0
+    assert (block.cycles, block.tick_cycles, block.event_cycles, block.missed_cycles) == (13, 10, 3, 1)
+    assert block.event_seqs == [4, 7, 9]
+    assert block.event_driven is True

@@ -1,0 +1,735 @@
+"""InputStore: the door of the gateway. Newest valid sample per topic; every bad, implausible, out-of-order or
+inconsistent message counted by reason and faulting its topic (held); never raising."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gateway.inputs import JUMP_MARGIN_RAD, VELOCITY_LIMIT_FACTOR, InputStore, age_s
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_contract.humans import capsules_from_message
+from hrc_contract.messages import Humans
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.robot_model import RobotModel
+
+CELL = "demo"
+NOW = 1_790_000_000_000_000_000
+MONO0 = 5_000_000_000  # the monotonic clock at NOW
+MS = 1_000_000
+FUTURE_NS = 5 * MS  # streams.max_future_stamp_s of the default cell
+HOLD_NS = 500 * MS  # streams.fault_hold_s of the default cell
+JOINT_KEY = keys.robot_state(CELL, "ur5")
+FRONT_KEY = keys.tracker_humans(CELL, "front")
+# A capsule kilometres long whose axis passes a hand's width from a UR5 tool: finite, schema-valid, absurd.
+KM_CAPSULE = {"name": "forearm_r", "a": [-3000.0, 0.45, 1.2], "b": [3000.0, 0.45, 1.2], "radius": 0.05}
+
+
+def at(t_ns: int = NOW, wall_step_ns: int = 0) -> Clocks:
+    """The gateway's clocks at wall time ``t_ns`` (monotonic in step), its wall clock stepped by ``wall_step_ns``."""
+    return Clocks(t_ns + wall_step_ns, MONO0 + t_ns - NOW)
+
+
+def js(seq=1, stamp_ns=NOW - 4 * MS, **changes) -> dict:
+    raw = {
+        "schema": "hrc.joint_state/1",
+        "robot": "ur5",
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "q": [0.0, -1.2, 1.5, 0.1, 0.2, 0.3],
+        "qd": [0.0] * 6,
+        "qd_nominal": [0.5] * 6,
+        "override": 0.0,
+        "override_seq": -1,
+        "mode": "running",
+    }
+    raw.update(changes)
+    return raw
+
+
+def hm(seq=1, stamp_ns=NOW - 30 * MS, tracker="front", **changes) -> dict:
+    raw = {
+        "schema": "hrc.humans/1",
+        "tracker": tracker,
+        "seq": seq,
+        "stamp_ns": stamp_ns,
+        "humans": [
+            {
+                "id": "h1",
+                "capsules": [
+                    {"name": "torso", "a": [2.0, 0.0, 0.9], "b": [2.0, 0.0, 1.5], "radius": 0.15},
+                    {"name": "hand_r", "a": [1.6, 0.2, 1.1], "b": [1.6, 0.2, 1.1], "radius": 0.05},
+                ],
+            }
+        ],
+    }
+    raw.update(changes)
+    return raw
+
+
+def enc(raw: dict) -> bytes:
+    return json.dumps(raw).encode()
+
+
+@pytest.fixture
+def store(cell_config: CellConfig, ur5: RobotModel) -> InputStore:
+    return InputStore(cell_config, {"ur5": ur5})
+
+
+def rejected(store: InputStore, topic: str) -> dict[str, int]:
+    return store.counters()[0].get(topic, {})
+
+
+def stored_seq(store: InputStore, t_ns: int = NOW) -> int | None:
+    """The seq of the joint state the store keeps for the UR5, None without one."""
+    sample = store.snapshot(at(t_ns)).joint["ur5"]
+    return None if sample is None else sample.seq
+
+
+def fault_codes(store: InputStore, t_ns: int = NOW) -> dict[str, str]:
+    return {topic: f.code for topic, f in store.snapshot(at(t_ns)).faults.items()}
+
+
+def test_default_cell_limits_are_the_ones_these_tests_assume(cell_config: CellConfig) -> None:
+    assert round(cell_config.streams.max_future_stamp_s * 1e9) == FUTURE_NS
+    assert round(cell_config.streams.fault_hold_s * 1e9) == HOLD_NS
+
+
+# -- valid data -----------------------------------------------------------------------------------
+
+
+def test_valid_joint_state_is_stored(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=7)), at())
+    snap = store.snapshot(at())
+    sample = snap.joint["ur5"]
+    assert sample is not None
+    assert sample.seq == 7
+    assert sample.stamp_ns == NOW - 4 * MS
+    np.testing.assert_allclose(sample.q_rad, [0.0, -1.2, 1.5, 0.1, 0.2, 0.3])
+    np.testing.assert_allclose(sample.qd_nominal_radps, [0.5] * 6)  # the programmed speed, not qd
+    assert sample.mode == "running"
+    assert snap.faults == {}
+    assert store.counters() == ({}, {"robot/ur5": 1})
+
+
+def test_valid_humans_are_flattened_with_tracker_prefixed_ids(store: InputStore) -> None:
+    store.on_humans(FRONT_KEY, enc(hm()), at())
+    frame = store.snapshot(at()).humans["front"]
+    assert frame is not None
+    assert frame.human_count == 1
+    caps = frame.capsules
+    assert caps.human_ids == ("front/h1", "front/h1")
+    assert caps.capsule_names == ("torso", "hand_r")
+    np.testing.assert_allclose(caps.h_a_world, [[2.0, 0.0, 0.9], [1.6, 0.2, 1.1]])
+    np.testing.assert_allclose(caps.h_b_world, [[2.0, 0.0, 1.5], [1.6, 0.2, 1.1]])
+    np.testing.assert_allclose(caps.radius_m, [0.15, 0.05])
+    assert store.snapshot(at()).humans["side"] is None
+
+
+def test_empty_humans_list_is_data(store: InputStore) -> None:
+    store.on_humans(FRONT_KEY, enc(hm(humans=[])), at())
+    frame = store.snapshot(at()).humans["front"]
+    assert frame is not None
+    assert frame.human_count == 0
+    assert frame.capsules.n_capsules == 0
+    assert frame.capsules.h_a_world.shape == (0, 3)
+
+
+# -- every bad payload, counted by reason ---------------------------------------------------------
+
+
+def _replace(raw: dict, old: bytes, new: bytes) -> bytes:
+    payload = enc(raw)
+    assert old in payload
+    return payload.replace(old, new)
+
+
+JOINT_BAD: list[tuple[str, bytes, str]] = [
+    ("not_json", b"{this is not json", "not_json"),
+    ("binary", b"\x00\xff\xfe garbage", "not_json"),
+    ("json_array", b"[1, 2, 3]", "not_json"),
+    ("nan_literal", _replace(js(), b'"override": 0.0', b'"override": NaN'), "non_finite"),
+    ("infinity_literal", _replace(js(), b"[0.5, 0.5", b"[Infinity, 0.5"), "non_finite"),
+    ("wrong_schema", enc(js(schema="hrc.joint_state/0")), "wrong_schema"),
+    ("unknown_field", enc(js(temperature=40.0)), "invalid"),
+    ("wrong_lengths", enc(js(qd=[0.0] * 5)), "invalid"),
+    ("override_percent", enc(js(override=62.0)), "invalid"),
+    ("wrong_joint_count", enc(js(q=[0.0] * 5, qd=[0.0] * 5, qd_nominal=[0.0] * 5)), "wrong_joint_count"),
+    ("name_mismatch", enc(js(robot="ur10")), "name_mismatch"),
+    ("too_large", b'{"schema": "hrc.joint_state/1", "pad": "' + b"x" * 2_000_000 + b'"}', "too_large"),
+    ("stamp_in_future", enc(js(seq=2, stamp_ns=NOW + FUTURE_NS + 1)), "stamp_in_future"),
+    ("q_out_of_limits", enc(js(seq=2, q=[0.0, -1.2, 1.5, 0.1, 0.2, 1e6])), "q_out_of_limits"),
+    ("qd_above_limit", enc(js(seq=2, qd_nominal=[50.0] * 6)), "qd_above_limit"),
+    ("qd_inconsistent", enc(js(seq=2, qd=[0.0, 0.0, 0.0, 0.0, 0.0, 0.4], qd_nominal=[0.0] * 6)), "qd_inconsistent"),
+    ("qd_against_nominal", enc(js(seq=2, qd=[-0.5] * 6, override=1.0)), "qd_inconsistent"),
+    ("q_jump", enc(js(seq=2, stamp_ns=NOW - 3 * MS, q=[0.0, -1.2, 1.5, 0.1, 0.2, 0.5])), "q_jump"),
+]
+
+HUMANS_BAD: list[tuple[str, bytes, str]] = [
+    ("not_json", b"humans!", "not_json"),
+    ("nan_literal", _replace(hm(), b"[2.0, 0.0, 0.9]", b"[NaN, 0.0, 0.9]"), "non_finite"),
+    ("wrong_schema", enc(hm(schema="hrc.joint_state/1")), "wrong_schema"),
+    ("unknown_field", enc(hm(confidence=0.9)), "invalid"),
+    ("wrong_lengths", _replace(hm(), b"[2.0, 0.0, 0.9]", b"[2.0, 0.0]"), "invalid"),
+    ("negative_radius", _replace(hm(), b'"radius": 0.05', b'"radius": -0.05'), "invalid"),
+    ("name_mismatch", enc(hm(tracker="side")), "name_mismatch"),
+    ("too_large", b" " * 2_000_000, "too_large"),
+    ("stamp_in_future", enc(hm(stamp_ns=NOW + 1_000 * MS)), "stamp_in_future"),
+    ("person_without_capsules", enc(hm(humans=[{"id": "h1", "capsules": []}])), "invalid"),
+    ("kilometre_capsule", enc(hm(humans=[{"id": "h1", "capsules": [KM_CAPSULE]}])), "outside_world"),
+    ("outside_world", _replace(hm(), b"[2.0, 0.0, 0.9]", b"[2.0, 40.0, 0.9]"), "outside_world"),
+    ("capsule_too_long", _replace(hm(), b"[2.0, 0.0, 1.5]", b"[2.0, 0.0, 2.5]"), "capsule_too_long"),
+    ("radius_too_large", _replace(hm(), b'"radius": 0.15', b'"radius": 1.5'), "radius_too_large"),
+]
+
+
+@pytest.mark.parametrize(("label", "payload", "reason"), JOINT_BAD, ids=[b[0] for b in JOINT_BAD])
+def test_bad_joint_state_counted_and_faulted(store: InputStore, label, payload, reason) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1)), at())
+    store.on_joint_state(JOINT_KEY, payload, at())
+    assert rejected(store, "robot/ur5") == {reason: 1}
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].reason.startswith(reason)
+    assert snap.joint["ur5"] is not None
+    assert snap.joint["ur5"].seq == 1  # the bad message did not replace the stored one
+    assert store.counters()[1] == {"robot/ur5": 1}
+
+
+@pytest.mark.parametrize(("label", "payload", "reason"), HUMANS_BAD, ids=[b[0] for b in HUMANS_BAD])
+def test_bad_humans_counted_and_faulted(store: InputStore, label, payload, reason) -> None:
+    store.on_humans(FRONT_KEY, payload, at())
+    assert rejected(store, "tracker/front") == {reason: 1}
+    snap = store.snapshot(at())
+    assert snap.faults["tracker/front"].reason.startswith(reason)
+    assert snap.humans["front"] is None
+
+
+@pytest.mark.parametrize(
+    ("reason", "code"),
+    [
+        ("not_json", "tracker_invalid"),
+        ("outside_world", "tracker_implausible"),
+        ("stamp_in_future", "tracker_out_of_order"),
+    ],
+)
+def test_fault_codes_name_the_kind_of_problem(store: InputStore, reason: str, code: str) -> None:
+    payload = {
+        "not_json": b"{",
+        "outside_world": enc(hm(humans=[{"id": "h1", "capsules": [KM_CAPSULE]}])),
+        "stamp_in_future": enc(hm(stamp_ns=NOW + 10 * MS)),
+    }[reason]
+    store.on_humans(FRONT_KEY, payload, at())
+    assert fault_codes(store) == {"tracker/front": code}
+
+
+def test_overflowing_number_is_rejected_and_faulted(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, _replace(js(), b'"override": 0.0', b'"override": 1e999'), at())
+    store.on_humans(FRONT_KEY, _replace(hm(), b"[2.0, 0.0, 0.9]", b"[1e999, 0.0, 0.9]"), at())
+    snap = store.snapshot(at())
+    assert snap.joint["ur5"] is None
+    assert snap.humans["front"] is None
+    assert set(snap.faults) == {"robot/ur5", "tracker/front"}
+    assert rejected(store, "robot/ur5") == {"non_finite": 1}  # json.loads makes 1e999 inf without parse_constant
+    assert sum(rejected(store, "tracker/front").values()) == 1
+
+
+@pytest.mark.parametrize("kind", ["robot", "tracker"])
+def test_deeply_nested_payload_is_counted_not_raised(store: InputStore, kind: str) -> None:
+    """Regression: from about 1000 levels (2 kB) json.loads raised RecursionError through parse_message."""
+    payload = b"[" * 5_000 + b"]" * 5_000  # 10 kB
+    if kind == "robot":
+        store.on_joint_state(JOINT_KEY, payload, at())
+        assert rejected(store, "robot/ur5") == {"not_json": 1}
+    else:
+        store.on_humans(FRONT_KEY, payload, at())
+        assert rejected(store, "tracker/front") == {"not_json": 1}
+
+
+def test_unknown_robot_and_tracker_counted_but_concern_no_robot(store: InputStore) -> None:
+    store.on_joint_state(keys.robot_state(CELL, "ghost"), enc(js(robot="ghost")), at())
+    store.on_humans(keys.tracker_humans(CELL, "back"), enc(hm(tracker="back")), at())
+    store.on_joint_state("some/other/key", enc(js()), at())
+    rejected_all, received = store.counters()
+    assert rejected_all["robot/ghost"] == {"unknown_robot": 1}
+    assert rejected_all["tracker/back"] == {"unknown_tracker": 1}
+    assert rejected_all["robot/?"] == {"unknown_robot": 1}
+    assert received == {}
+    assert store.snapshot(at()).faults == {}
+
+
+# -- plausibility ---------------------------------------------------------------------------------
+
+
+def test_plausible_frames_at_the_limits_pass(store: InputStore, cell_config: CellConfig) -> None:
+    p = cell_config.plausibility
+    low, high = list(p.world_min_m), list(p.world_max_m)
+    corner = {"name": "c", "a": low, "b": low, "radius": p.max_capsule_radius_m}
+    leg = {"name": "leg", "a": [0.0, 0.0, 0.1], "b": [0.0, 0.0, 0.1 + p.max_capsule_length_m], "radius": 0.08}
+    top = {"name": "t", "a": high, "b": high, "radius": 0.0}
+    store.on_humans(FRONT_KEY, enc(hm(humans=[{"id": "h1", "capsules": [corner, leg, top]}])), at())
+    assert store.snapshot(at()).faults == {}
+    assert store.snapshot(at()).humans["front"].capsules.n_capsules == 3
+
+
+def test_a_person_with_no_capsules_is_not_nobody(store: InputStore) -> None:
+    """Issue 9, hole 2: right after a person stood at the tool, a frame listing them with no capsule."""
+    store.on_humans(FRONT_KEY, enc(hm(seq=1)), at())
+    store.on_humans(FRONT_KEY, enc(hm(seq=2, stamp_ns=NOW - 20 * MS, humans=[{"id": "h1", "capsules": []}])), at())
+    snap = store.snapshot(at())
+    assert snap.faults["tracker/front"].code == "tracker_invalid"
+    assert snap.humans["front"].seq == 1  # the person is still where they were seen
+
+
+# -- order of the stream --------------------------------------------------------------------------
+
+
+def test_exact_repeat_is_a_duplicate_not_a_fault(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=10, stamp_ns=NOW - 4 * MS)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=10, stamp_ns=NOW - 4 * MS)), at())
+    store.on_humans(FRONT_KEY, enc(hm(seq=5)), at())
+    store.on_humans(FRONT_KEY, enc(hm(seq=5)), at())
+    assert rejected(store, "robot/ur5") == {"duplicate": 1}
+    assert rejected(store, "tracker/front") == {"duplicate": 1}
+    assert store.snapshot(at()).faults == {}
+
+
+@pytest.mark.parametrize(
+    ("seq", "stamp_ns", "reason", "kept"),
+    [
+        (9, NOW - 8 * MS, "stamp_backwards", 10),  # older
+        (11, NOW - 5 * MS, "stamp_backwards", 10),  # newer seq, older stamp
+        (3, NOW - 4 * MS, "stamp_backwards", 10),  # lower seq, same stamp
+        (10, NOW - 2 * MS, "seq_backwards", 10),  # same seq, newer stamp
+        (0, NOW - 1 * MS, "seq_backwards", 0),  # a restart (or a forged seq): newest kept, still a fault
+    ],
+)
+def test_stamps_or_seqs_going_backwards_fault_the_topic(store: InputStore, seq, stamp_ns, reason, kept) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=10, stamp_ns=NOW - 4 * MS)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=seq, stamp_ns=stamp_ns)), at())
+    assert rejected(store, "robot/ur5") == {reason: 1}
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_out_of_order"
+    assert snap.joint["ur5"].seq == kept
+
+
+def test_future_stamp_tolerance_boundary(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW + FUTURE_NS)), at())
+    assert store.snapshot(at()).joint["ur5"] is not None
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW + FUTURE_NS + 1)), at())
+    assert rejected(store, "robot/ur5") == {"stamp_in_future": 1}
+
+
+def test_forged_future_frames_interleaved_with_genuine_ones_keep_the_robots_stopped(store: InputStore) -> None:
+    """Issue 9, hole 3: "nobody here" stamped a few ms ahead, interleaved with genuine frames of a person."""
+    for k in range(60):  # 2 s of a 30 Hz tracker, a forged frame after each genuine one
+        t = NOW + k * 33 * MS
+        store.on_humans(FRONT_KEY, enc(hm(seq=2 * k + 1, stamp_ns=t - 30 * MS)), at(t))
+        store.on_humans(FRONT_KEY, enc(hm(seq=2 * k + 2, stamp_ns=t + 4 * MS, humans=[])), at(t + 1 * MS))
+        snap = store.snapshot(at(t + 2 * MS))
+        if k >= 1:
+            assert snap.faults["tracker/front"].code == "tracker_out_of_order", k
+    assert rejected(store, "tracker/front")["stamp_backwards"] >= 58
+
+
+# -- the hold -------------------------------------------------------------------------------------
+
+
+def test_a_fault_lasts_until_valid_data_came_and_the_hold_passed(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS)), at())
+    store.on_joint_state(JOINT_KEY, b"garbage", at())
+    assert fault_codes(store) == {"robot/ur5": "joint_state_invalid"}
+    # valid data after it, but within the hold: still faulted
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW + 10 * MS)), at(NOW + 14 * MS))
+    assert fault_codes(store, NOW + 14 * MS) == {"robot/ur5": "joint_state_invalid"}
+    # the hold passed, but no valid data since the fault: still faulted
+    store.on_joint_state(JOINT_KEY, enc(js(robot="ur10")), at(NOW + 20 * MS))
+    assert fault_codes(store, NOW + 20 * MS + HOLD_NS) == {"robot/ur5": "joint_state_invalid"}
+    assert store.snapshot(at(NOW + 20 * MS + HOLD_NS)).faults["robot/ur5"].reason.startswith("name_mismatch")
+    # valid data after it, and the hold passed: cleared
+    store.on_joint_state(JOINT_KEY, enc(js(seq=3, stamp_ns=NOW + 30 * MS)), at(NOW + 34 * MS))
+    assert fault_codes(store, NOW + 20 * MS + HOLD_NS - 1) == {"robot/ur5": "joint_state_invalid"}
+    assert fault_codes(store, NOW + 20 * MS + HOLD_NS) == {}
+    assert rejected(store, "robot/ur5") == {"not_json": 1, "name_mismatch": 1}
+    assert store.counters()[1] == {"robot/ur5": 3}
+
+
+def test_the_hold_runs_on_the_monotonic_clock(store: InputStore) -> None:
+    store.on_humans(FRONT_KEY, b"{", at())
+    store.on_humans(FRONT_KEY, enc(hm(seq=1, stamp_ns=NOW - 30 * MS)), at(NOW + 1 * MS))
+    # a wall-clock step forward of an hour does not end the hold (and is a fault of its own)
+    later = at(NOW + 2 * MS, wall_step_ns=3_600_000 * MS)
+    assert set(store.snapshot(later).faults) == {"tracker/front"}
+
+
+def test_faults_are_per_topic(store: InputStore) -> None:
+    store.on_humans(FRONT_KEY, b"{", at())
+    store.on_humans(keys.tracker_humans(CELL, "side"), enc(hm(tracker="side")), at())
+    store.on_joint_state(JOINT_KEY, enc(js()), at())
+    assert fault_codes(store) == {"tracker/front": "tracker_invalid"}
+
+
+def test_count_rejection_from_outside_faults_the_topic(store: InputStore) -> None:
+    store.count_rejection("robot/ur5", "internal_error", at())
+    assert fault_codes(store) == {"robot/ur5": "joint_state_invalid"}
+    assert rejected(store, "robot/ur5") == {"internal_error": 1}
+
+
+# -- ages and clocks ------------------------------------------------------------------------------
+
+
+def test_age_is_transit_at_arrival_plus_monotonic_time_since(store: InputStore) -> None:
+    store.on_humans(FRONT_KEY, enc(hm(stamp_ns=NOW - 30 * MS)), at())
+    frame = store.snapshot(at()).humans["front"]
+    assert age_s(frame, at(NOW + 50 * MS).mono_ns) == pytest.approx(0.080)
+    # a wall-clock step backwards on this host does not make the frame younger
+    assert age_s(frame, at(NOW + 50 * MS, wall_step_ns=-10_000 * MS).mono_ns) == pytest.approx(0.080)
+
+
+def test_a_wall_clock_step_on_this_host_is_a_fault_for_the_hold(store: InputStore) -> None:
+    assert store.snapshot(at()).clock_fault is None
+    assert store.snapshot(at(NOW + 4 * MS)).clock_fault is None
+    fault = store.snapshot(at(NOW + 8 * MS, wall_step_ns=-2_000 * MS)).clock_fault
+    assert fault is not None
+    assert fault.code == "clock_step"
+    assert "-2.000 s" in fault.reason
+    # the clock stays where it stepped: the fault holds, then clears by itself
+    assert store.snapshot(at(NOW + 12 * MS, wall_step_ns=-2_000 * MS)).clock_fault is not None
+    assert store.snapshot(at(NOW + 8 * MS + HOLD_NS, wall_step_ns=-2_000 * MS)).clock_fault is None
+
+
+def test_small_clock_drift_is_not_a_step(store: InputStore, cell_config: CellConfig) -> None:
+    step_ns = round(cell_config.streams.max_clock_step_s * 1e9)
+    store.snapshot(at())
+    assert store.snapshot(at(NOW + 4 * MS, wall_step_ns=step_ns)).clock_fault is None
+
+
+# -- consistency with what was commanded ----------------------------------------------------------
+
+
+def test_moving_joints_with_zero_nominal_speed_fault_the_robot(store: InputStore) -> None:
+    """Issue 9, hole 5: qd_nominal = 0 while qd moves the robot."""
+    moving = js(seq=1, qd=[0.0, 0.0, 0.0, 0.0, 0.0, 1.0], qd_nominal=[0.0] * 6, override=1.0)
+    store.on_joint_state(JOINT_KEY, enc(moving), at())
+    assert fault_codes(store) == {"robot/ur5": "joint_state_inconsistent"}
+    assert store.snapshot(at()).joint["ur5"] is None
+
+
+def test_qd_at_override_times_nominal_is_consistent(store: InputStore) -> None:
+    state = js(seq=1, qd=[0.31, -0.25, 0.0, 0.0, 0.0, 0.0], qd_nominal=[0.5, -0.4, 0.0, 0.0, 0.0, 0.0], override=0.6)
+    store.on_joint_state(JOINT_KEY, enc(state), at())
+    assert store.snapshot(at()).faults == {}
+
+
+@pytest.mark.parametrize(
+    ("qd", "qd_nominal", "override"),
+    [
+        ([-0.5] * 6, [0.5] * 6, 1.0),  # honest qd toward the person, qd_nominal claiming away (issue 17)
+        ([0.0, 0.0, 0.3, 0.0, 0.0, 0.0], [0.0, 0.0, -0.5, 0.0, 0.0, 0.0], 0.6),  # one joint reversed
+        ([0.0] * 6, [0.5] * 6, 1.0),  # still while the program says it moves at full speed
+    ],
+)
+def test_qd_other_than_override_times_nominal_faults_the_robot(
+    store: InputStore, qd: list[float], qd_nominal: list[float], override: float
+) -> None:
+    """Sign included: a magnitude check let a reversed qd_nominal through and δ rose from 0.13 to 1."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, qd=qd, qd_nominal=qd_nominal, override=override)), at())
+    assert fault_codes(store) == {"robot/ur5": "joint_state_inconsistent"}
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+    assert store.snapshot(at()).joint["ur5"] is None
+
+
+def test_qd_tolerance_is_absolute_plus_ratio_of_nominal_either_side(store: InputStore, cell_config: CellConfig) -> None:
+    streams = cell_config.streams
+    nominal = [0.5, -0.5, 2.0, -2.0, 0.0, 0.0]
+    room = [streams.qd_tolerance_radps + streams.qd_tolerance_ratio * abs(v) for v in nominal]
+    inside = [0.6 * v + 0.999 * r * (-1) ** j for j, (v, r) in enumerate(zip(nominal, room, strict=True))]
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, qd=inside, qd_nominal=nominal, override=0.6)), at())
+    assert store.snapshot(at()).faults == {}
+    outside = [*inside[:3], -0.6 * 2.0 - 1.001 * room[3], *inside[4:]]
+    store.on_joint_state(
+        JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 3 * MS, qd=outside, qd_nominal=nominal, override=0.6)), at()
+    )
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+
+
+# -- continuity of the joint positions ------------------------------------------------------------
+
+Q0 = [0.0, -1.2, 1.5, 0.1, 0.2, 0.3]
+
+
+def _moved(joint: int, by_rad: float) -> list[float]:
+    q = list(Q0)
+    q[joint] += by_rad
+    return q
+
+
+def _allowed_rad(ur5: RobotModel, joint: int, dt_ns: int) -> float:
+    """The motion a joint may show in ``dt_ns`` between two stamps: its velocity limit (×1.05) plus the margin."""
+    return float(ur5.velocity_limit_radps[joint]) * VELOCITY_LIMIT_FACTOR * dt_ns / 1e9 + JUMP_MARGIN_RAD
+
+
+def test_a_pose_jump_between_two_states_faults_the_robot(store: InputStore, ur5: RobotModel) -> None:
+    """Issue 17: a q that moved farther than the velocity limit allows since the last state (a pose jump)."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, q=Q0)), at())
+    jump_rad = 1.01 * _allowed_rad(ur5, 2, 4 * MS)
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(2, -jump_rad))), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("q_jump: joint 2 moved")
+    assert stored_seq(store) == 1  # the jumped pose is not believed
+    assert rejected(store, "robot/ur5") == {"q_jump": 1}
+
+
+def test_motion_within_the_velocity_limit_is_continuous(store: InputStore, ur5: RobotModel) -> None:
+    stamp_ns = NOW - 40 * MS
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=stamp_ns, q=Q0)), at())
+    q = list(Q0)
+    for k in range(2, 10):  # every joint at 0.99 of what its limit allows, 4 ms apart
+        q = [v + 0.99 * _allowed_rad(ur5, j, 4 * MS) * (-1) ** j for j, v in enumerate(q)]
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=stamp_ns + (k - 1) * 4 * MS, q=q)), at())
+    assert store.snapshot(at()).faults == {}
+    assert stored_seq(store) == 9
+
+
+def test_the_allowed_motion_grows_with_the_gap_between_stamps(store: InputStore, ur5: RobotModel) -> None:
+    """A state after a long gap (a paused stream) may show the motion of that whole gap."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 700 * MS, q=Q0)), at(NOW - 699 * MS))
+    moved = 0.99 * _allowed_rad(ur5, 0, 696 * MS)  # about 2.3 rad
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(0, moved))), at())
+    assert store.snapshot(at()).faults == {}
+    assert stored_seq(store) == 2
+
+
+def test_the_first_state_may_be_anywhere(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, q=[3.0, -3.0, 3.0, -3.0, 3.0, -3.0])), at())
+    assert store.snapshot(at()).faults == {}
+
+
+def test_a_restarted_controller_is_judged_against_the_newest_state(store: InputStore) -> None:
+    """A restart (seq from 0, newer stamp) is a seq_backwards fault, and no pose jump when the robot stood still
+    or the restart took long enough; a restart that shows a jump is one."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=500, stamp_ns=NOW - 400 * MS, q=Q0)), at(NOW - 399 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=0, stamp_ns=NOW - 8 * MS, q=_moved(1, 1.0))), at(NOW - 7 * MS))
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1}  # 1 rad in 0.39 s is within the limit
+    assert stored_seq(store) == 0
+    store.on_joint_state(JOINT_KEY, enc(js(seq=0, stamp_ns=NOW - 4 * MS, q=_moved(1, 2.0))), at())
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1, "q_jump": 1}  # another restart, 1 rad in 4 ms
+
+
+def test_states_after_a_rejected_jump_are_judged_against_the_last_accepted(store: InputStore) -> None:
+    """One forged pose does not become the reference: the genuine states after it are continuous, and the fault
+    clears after the hold."""
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, q=Q0)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 6 * MS, q=_moved(4, 1.5))), at())
+    for k in range(3, 6):
+        t = NOW + (k - 3) * 4 * MS
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 4 * MS, q=_moved(4, 0.001 * k))), at(t))
+    assert rejected(store, "robot/ur5") == {"q_jump": 1}
+    assert stored_seq(store, NOW + 8 * MS) == 5
+    assert fault_codes(store, NOW + 8 * MS) == {"robot/ur5": "joint_state_inconsistent"}
+    assert fault_codes(store, NOW + HOLD_NS) == {}
+
+
+def test_a_repeated_stamp_is_judged_by_the_order_not_as_a_jump(store: InputStore) -> None:
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS, q=Q0)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, q=_moved(0, 2.0))), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS, q=Q0)), at())  # a duplicate
+    assert rejected(store, "robot/ur5") == {"stamp_backwards": 1, "duplicate": 1}
+
+
+def _applied(store: InputStore, overrides: list[float], commanded: float) -> None:
+    store.on_override_sent("ur5", 1, commanded, at(NOW - 20 * MS))
+    for k, applied in enumerate(overrides):
+        t = NOW + 4 * k * MS
+        raw = js(seq=1 + k, stamp_ns=t - 2 * MS, override=applied, override_seq=1, qd=[0.5 * applied] * 6)
+        store.on_joint_state(JOINT_KEY, enc(raw), at(t))
+
+
+def test_an_applied_override_above_the_command_faults_the_robot(store: InputStore) -> None:
+    """Issue 9, hole 5/6: the controller moves at δ = 1 (e.g. a forged override) while the gateway commands 0."""
+    _applied(store, [0.0, 0.02, 0.05, 0.1], commanded=0.0)
+    assert fault_codes(store, NOW + 12 * MS) == {"robot/ur5": "override_not_followed"}
+    assert rejected(store, "robot/ur5") == {"override_above_commanded": 2}
+
+
+def test_one_state_above_the_command_is_not_yet_a_fault(store: InputStore) -> None:
+    _applied(store, [0.0, 0.02, 0.0], commanded=0.0)
+    assert fault_codes(store, NOW + 8 * MS) == {}
+
+
+def test_braking_toward_the_command_is_following_it(store: InputStore, ur5: RobotModel) -> None:
+    """From δ = 1 the controller may take its braking time to reach 0: a ramp at the planned rate is fine."""
+    t_brake_s = float(ur5.t_brake_link_s[ur5.t_brake_link_s > 0].min())
+    ramp = [max(0.0, 1.0 - k * 0.004 / t_brake_s) for k in range(80)]
+    _applied(store, ramp, commanded=0.0)
+    assert fault_codes(store, NOW + 320 * MS) == {}
+
+
+def test_braking_slower_than_planned_is_not_following(store: InputStore, ur5: RobotModel) -> None:
+    t_brake_s = float(ur5.t_brake_link_s[ur5.t_brake_link_s > 0].min())
+    too_slow = [max(0.0, 1.0 - k * 0.004 / (1.5 * t_brake_s)) for k in range(80)]
+    _applied(store, too_slow, commanded=0.0)
+    assert fault_codes(store, NOW + 320 * MS) == {"robot/ur5": "override_not_followed"}
+
+
+# -- override path through the store ------------------------------------------------------------
+
+
+def test_override_echo_is_learned(store: InputStore) -> None:
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 20 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, override_seq=1)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, override_seq=1)), at())
+    path = store.snapshot(at()).override_path["ur5"]
+    assert path.latency_s == pytest.approx(0.012)
+    assert path.controller_cycle_s == pytest.approx(0.004)
+    assert path.acked_sent_mono_ns == at(NOW - 20 * MS).mono_ns
+
+
+def test_rejected_states_do_not_teach_the_override_path(store: InputStore) -> None:
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 20 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW + 900 * MS, override_seq=1)), at())  # future
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, robot="ur10", override_seq=1)), at())
+    assert store.snapshot(at()).override_path["ur5"].latency_s is None
+
+
+def test_an_echo_stamped_before_its_override_was_sent_is_a_fault(store: InputStore) -> None:
+    """Issue 17: an echo stamped before the override it reports was sent is not a latency of 0."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 4 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS - FUTURE_NS - 1, override_seq=1)), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("echo_before_send: override_seq 1")
+    assert snap.override_path["ur5"] == (None, None, None)  # nothing learned
+    assert stored_seq(store) == 1  # the state itself is in order and stored, the robot stopped by the fault
+    assert rejected(store, "robot/ur5") == {"echo_before_send": 1}
+    # the same seq in the next states, now stamped after the send, does not confirm it either
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW, override_seq=1)), at(NOW + 1 * MS))
+    assert store.snapshot(at(NOW + 1 * MS)).override_path["ur5"].latency_s is None
+
+
+def test_an_echo_within_the_clocks_agreement_is_a_latency_of_zero(store: InputStore) -> None:
+    """The controller's clock may be behind the gateway's by streams.max_future_stamp_s."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 4 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 4 * MS - FUTURE_NS, override_seq=1)), at())
+    snap = store.snapshot(at())
+    assert snap.faults == {}
+    assert snap.override_path["ur5"].latency_s == 0.0
+    assert snap.override_path["ur5"].acked_sent_mono_ns == at(NOW - 4 * MS).mono_ns
+
+
+def test_an_echo_of_a_seq_never_sent_is_a_fault(store: InputStore) -> None:
+    """Once the path is confirmed, a seq above every one sent is another sender's (or forged): a fault, and
+    the newest confirmed override stays the one this gateway sent."""
+    store.on_override_sent("ur5", 1, 0.0, at(NOW - 20 * MS))
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=NOW - 8 * MS, override_seq=1)), at())
+    store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 4 * MS, override_seq=9)), at())
+    snap = store.snapshot(at())
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("echo_never_sent: override_seq 9")
+    assert snap.override_path["ur5"].acked_sent_mono_ns == at(NOW - 20 * MS).mono_ns
+    assert rejected(store, "robot/ur5") == {"echo_never_sent": 1}
+
+
+def test_a_seq_reported_before_it_was_sent_never_confirms_it(store: InputStore) -> None:
+    """A controller that keeps reporting seq 5 (a previous gateway's, or frozen) while this gateway starts: no
+    fault before the first confirmation (a restart looks the same), and no confirmation when this gateway's own
+    seq 5 goes out: the controller reported it before it existed."""
+    for k in range(1, 8):
+        t = NOW + k * 4 * MS
+        store.on_override_sent("ur5", k, 0.0, at(t - 2 * MS))
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 1 * MS, override_seq=5)), at(t))
+    snap = store.snapshot(at(NOW + 28 * MS))
+    assert snap.faults == {}
+    assert snap.override_path["ur5"].latency_s is None  # the core: override_path_unconfirmed, δ = 0
+    assert store.counters()[0] == {}
+
+
+# -- never raises ---------------------------------------------------------------------------------
+
+
+def test_random_garbage_and_mutations_never_raise(cell_config: CellConfig, ur5: RobotModel) -> None:
+    """Seeded fuzz: random bytes, truncations, byte flips and field swaps of valid payloads."""
+    rng = np.random.default_rng(21)
+    store = InputStore(cell_config, {"ur5": ur5})
+    valid = [enc(js()), enc(hm())]
+    calls = 0
+    for k in range(1500):
+        base = valid[k % 2]
+        kind = k % 5
+        if kind == 0:
+            payload = rng.bytes(int(rng.integers(0, 300)))
+        elif kind == 1:
+            payload = base[: int(rng.integers(0, len(base)))]
+        elif kind == 2:
+            data = bytearray(base)
+            for _ in range(int(rng.integers(1, 6))):
+                data[int(rng.integers(len(data)))] = int(rng.integers(0, 256))
+            payload = bytes(data)
+        elif kind == 3:
+            raw = json.loads(base)
+            field = str(rng.choice(sorted(raw)))
+            raw[field] = [None, -1, 1e308, "x", [], {}, True, 2**70][int(rng.integers(8))]
+            payload = enc(raw)
+        else:
+            payload = base.replace(b"0.", str(rng.choice(["NaN", "-Infinity", "1e999", "-0.", "00."])).encode(), 1)
+        store.on_joint_state(JOINT_KEY, payload, at())
+        store.on_humans(FRONT_KEY, payload, at())
+        calls += 2
+    rejected_all, received = store.counters()
+    total = sum(sum(r.values()) for r in rejected_all.values()) + sum(received.values())
+    assert total == calls  # every message is either accepted or counted as rejected
+    assert sum(rejected_all["robot/ur5"].values()) > 500
+
+
+# -- waking the loop ------------------------------------------------------------------------------
+
+
+def test_tracker_changes_wake_the_loop_and_nothing_else_does(cell_config: CellConfig, ur5: RobotModel) -> None:
+    calls: list[int] = []
+    store = InputStore(cell_config, {"ur5": ur5}, on_tracker_change=lambda: calls.append(1))
+    store.on_humans(FRONT_KEY, enc(hm(seq=1)), at())
+    assert len(calls) == 1  # a new frame
+    store.on_humans(FRONT_KEY, enc(hm(seq=1)), at())
+    assert len(calls) == 1  # a repeat changes nothing
+    store.on_humans(keys.tracker_humans(CELL, "rogue"), enc(hm(seq=2, tracker="rogue")), at())
+    assert len(calls) == 1  # an unknown tracker concerns no robot: nothing changed
+    store.on_joint_state(JOINT_KEY, enc(js()), at())
+    assert len(calls) == 1  # joint states do not wake it
+    store.on_humans(FRONT_KEY, b"{not json", at())
+    assert len(calls) == 2  # a fault: the robots must stop at once
+    assert fault_codes(store) == {"tracker/front": "tracker_invalid"}
+    store.on_humans(FRONT_KEY, enc(hm(seq=2, stamp_ns=NOW + 900 * MS)), at())
+    assert len(calls) == 3  # stamp in the future: a fault too
+
+
+def test_flattened_capsules_match_the_message_on_random_frames() -> None:
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        humans = [
+            {
+                "id": f"h{i}",
+                "capsules": [
+                    {
+                        "name": f"c{k}",
+                        "a": rng.uniform(-3, 3, 3).tolist(),
+                        "b": rng.uniform(-3, 3, 3).tolist(),
+                        "radius": float(rng.uniform(0, 0.3)),
+                    }
+                    for k in range(int(rng.integers(1, 16)))
+                ],
+            }
+            for i in range(int(rng.integers(0, 4)))
+        ]
+        message = Humans.model_validate(hm(humans=humans))
+        caps = capsules_from_message("side", message)
+        flat = [(f"side/{h['id']}", c) for h in humans for c in h["capsules"]]
+        assert caps.human_ids == tuple(hid for hid, _ in flat)
+        assert caps.capsule_names == tuple(c["name"] for _, c in flat)
+        assert caps.h_a_world.shape == caps.h_b_world.shape == (len(flat), 3)
+        assert caps.radius_m.shape == (len(flat),)
+        np.testing.assert_array_equal(caps.h_a_world.reshape(-1, 3), np.array([c["a"] for _, c in flat]).reshape(-1, 3))
+        np.testing.assert_array_equal(caps.h_b_world.reshape(-1, 3), np.array([c["b"] for _, c in flat]).reshape(-1, 3))
+        np.testing.assert_array_equal(caps.radius_m, [c["radius"] for _, c in flat])

@@ -1,0 +1,385 @@
+"""CPU scheduling of the gateway: the safety loop under SCHED_FIFO when allowed, the HTTP child niced; the loop's
+timing (what each decision budgets until the next one) and the status built off the loop's thread."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import support.status_examples as ex
+import zenoh
+from pydantic import ValidationError
+
+from gateway import main as gateway_main
+from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
+from gateway.node import GatewayCycle, GatewayNode
+from gateway.status import effective_config
+from hrc_contract.config import CellConfig, GatewayConfig
+from hrc_contract.status_models import HumanCapsuleStatus
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.signals import StopEvent
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import free_port, running_cell
+
+
+def _may_use_fifo() -> bool:
+    try:
+        os.sched_get_priority_max(os.SCHED_FIFO)
+    except (AttributeError, OSError):
+        return False
+    return os.geteuid() == 0
+
+
+def test_priority_range_is_validated() -> None:
+    assert GatewayConfig().loop_realtime_priority == 0
+    assert GatewayConfig(loop_realtime_priority=99).loop_realtime_priority == 99
+    for bad in (-1, 100):
+        with pytest.raises(ValidationError, match="loop_realtime_priority"):
+            GatewayConfig(loop_realtime_priority=bad)
+
+
+def test_refused_realtime_scheduling_warns_and_goes_on(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    def refuse(pid: int, policy: int, param: object) -> None:
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with caplog.at_level(logging.WARNING, logger="hrc-gateway"):
+        gateway_main._use_realtime_scheduling(10)
+    assert "could not run the safety loop under SCHED_FIFO priority 10" in caplog.text
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_realtime_scheduling_applies_to_the_calling_thread_only() -> None:
+    seen: dict[str, int] = {}
+
+    def loop_thread() -> None:
+        gateway_main._use_realtime_scheduling(7)
+        seen["policy"] = os.sched_getscheduler(0)
+        seen["priority"] = os.sched_getparam(0).sched_priority
+
+    thread = threading.Thread(target=loop_thread)
+    thread.start()
+    thread.join()
+    assert seen == {"policy": os.SCHED_FIFO, "priority": 7}
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER  # this (other) thread is unchanged
+
+
+def test_http_child_lowers_its_cpu_priority(cell_config: CellConfig) -> None:
+    http = HttpServerProcess("127.0.0.1", free_port(), effective_config(cell_config))
+    try:
+        pid = http._proc.pid
+        expected = min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICENESS_INCREMENT)
+        deadline = time.monotonic() + 20.0
+        niceness = os.getpriority(os.PRIO_PROCESS, pid)
+        while niceness != expected and time.monotonic() < deadline:
+            time.sleep(0.05)
+            niceness = os.getpriority(os.PRIO_PROCESS, pid)
+        assert niceness == expected
+    finally:
+        http.close()
+
+
+def test_input_priority_must_stay_below_the_loop() -> None:
+    assert GatewayConfig(loop_realtime_priority=10, io_realtime_priority=9).io_realtime_priority == 9
+    assert GatewayConfig(loop_realtime_priority=0, io_realtime_priority=0).io_realtime_priority == 0
+    for loop, inputs in ((10, 10), (10, 11), (0, 5)):
+        with pytest.raises(ValidationError, match="io_realtime_priority"):
+            GatewayConfig(loop_realtime_priority=loop, io_realtime_priority=inputs)
+
+
+class _Payload:
+    def __init__(self, data: bytes) -> None:
+        self._data = data
+
+    def to_bytes(self) -> bytes:
+        return self._data
+
+
+class _Sample:
+    def __init__(self, key: str, data: bytes) -> None:
+        self.key_expr = key
+        self.payload = _Payload(data)
+
+
+class _RecordingNode:
+    def __init__(self) -> None:
+        self.messages: list[tuple[str, bytes, int, int]] = []
+
+    def on_message(self, key: str, payload: bytes, received: object) -> None:
+        self.messages.append((key, payload, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_receiving_threads_put_themselves_under_fifo_below_the_loop() -> None:
+    node = _RecordingNode()
+    on_sample = gateway_main._callback(node, 4)  # type: ignore[arg-type]
+    thread = threading.Thread(target=lambda: [on_sample(_Sample("k", b"m%d" % i)) for i in range(3)])  # type: ignore[arg-type]
+    thread.start()
+    thread.join()
+    assert node.messages == [
+        ("k", b"m0", os.SCHED_FIFO, 4),
+        ("k", b"m1", os.SCHED_FIFO, 4),
+        ("k", b"m2", os.SCHED_FIFO, 4),
+    ]
+    normal = gateway_main._callback(node, 0)  # type: ignore[arg-type]
+    normal(_Sample("k", b"n"))  # type: ignore[arg-type]
+    assert node.messages[-1] == ("k", b"n", os.SCHED_OTHER, 0)
+
+
+def _thread_priorities(pid: int) -> list[tuple[int, int]]:
+    """(policy, priority) of every thread of process ``pid``."""
+    found = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            found.append((os.sched_getscheduler(int(task)), os.sched_getparam(int(task)).sched_priority))
+        except OSError:  # the thread ended meanwhile
+            continue
+    return found
+
+
+@pytest.mark.e2e
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_running_gateway_has_its_loop_and_receiving_threads_under_fifo(tmp_path: Path) -> None:
+    """The shipped cell: the loop at priority 10, the threads that received inputs and the HTTP feed thread at 5,
+    every other at normal."""
+    with running_cell(tmp_path) as cell:
+        cell.wait_until(lambda s: s["delta"] > 0.0, 60.0, "the robot moving (inputs received)")
+        priorities = _thread_priorities(cell.gateway.pid)
+    fifo = sorted(p for policy, p in priorities if policy == os.SCHED_FIFO)
+    assert fifo.count(10) == 1, priorities
+    assert fifo.count(5) >= 2, priorities  # the HTTP feed thread and the receiving threads
+    assert set(fifo) == {5, 10}, priorities
+    assert any(policy == os.SCHED_OTHER for policy, _ in priorities), priorities
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_the_http_feed_thread_runs_under_fifo_when_asked(cell_config: CellConfig) -> None:
+    for priority, policy in ((3, os.SCHED_FIFO), (0, os.SCHED_OTHER)):
+        http = HttpServerProcess("127.0.0.1", free_port(), effective_config(cell_config), None, priority)
+        try:
+            native_id = http._writer.native_id
+            assert native_id is not None
+            deadline = time.monotonic() + 10.0
+            while os.sched_getscheduler(native_id) != policy and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert (os.sched_getscheduler(native_id), os.sched_getparam(native_id).sched_priority) == (policy, priority)
+        finally:
+            http.close()
+
+
+# -- the loop's timing: the interval to the next decision, the status off the loop thread --------------------
+
+MS = 1_000_000
+
+
+def test_each_decision_budgets_the_longest_recent_interval_at_least_the_period() -> None:
+    intervals = gateway_main.DecisionIntervals(0.004, window_s=1.0)
+    starts_ms = [0, 4, 8, 20, 24, 28]  # a decision held up 8 ms (8 → 20)
+    budgets_s = [intervals.start(t * MS) for t in starts_ms]
+    assert budgets_s == pytest.approx([0.004, 0.004, 0.004, 0.012, 0.012, 0.012])
+    # Shorter intervals (event cycles) never lower it below the worst within the window, nor below the period.
+    assert intervals.start(29 * MS) == pytest.approx(0.012)
+    # Once the 12 ms interval has left the window, the budget comes back down to what the loop takes now.
+    t_ms = 29
+    while t_ms < 20 + 1000 + 4:
+        t_ms += 4
+        budget_s = intervals.start(t_ms * MS)
+    assert budget_s == pytest.approx(0.004)
+
+
+def test_a_moving_decision_whose_successor_came_later_than_budgeted_is_an_overrun() -> None:
+    intervals = gateway_main.DecisionIntervals(0.004)
+    intervals.start(0)
+    intervals.commanded(False)
+    intervals.start(10 * MS)  # 10 ms after a decision with δ = 0 everywhere: late, but no motion was budgeted
+    intervals.commanded(True)
+    assert intervals.overruns == 0
+    intervals.start(19 * MS)  # within the 10 ms budgeted
+    intervals.commanded(True)
+    assert intervals.overruns == 0
+    intervals.start(33 * MS)  # 14 ms after a moving decision that budgeted 10 ms
+    assert intervals.overruns == 1
+    assert intervals.worst_overrun_s == pytest.approx(0.004)
+
+
+def test_decision_intervals_refuse_a_period_or_window_that_is_not_positive() -> None:
+    for period_s, window_s in ((0.0, 1.0), (0.004, 0.0), (-1.0, 1.0)):
+        with pytest.raises(ValueError, match="allowed: > 0"):
+            gateway_main.DecisionIntervals(period_s, window_s)
+
+
+def _job(seq: int) -> gateway_main.StatusJob:
+    return gateway_main.StatusJob(seq, ({}, {}), None, seq)  # type: ignore[arg-type]  # only carried through
+
+
+def test_offering_a_status_never_waits_for_the_status_thread_and_the_newest_wins() -> None:
+    started, release = threading.Event(), threading.Event()
+    published: list[int] = []
+
+    def publish(job: gateway_main.StatusJob) -> None:
+        started.set()
+        release.wait()
+        published.append(job.stamp_ns)
+
+    with gateway_main.StatusThread(publish) as status:
+        status.offer(_job(1))
+        assert started.wait(10.0)
+        for seq in (2, 3, 4):  # the thread is stuck in publishing 1: each offer still returns
+            status.offer(_job(seq))
+        release.set()
+        deadline = time.monotonic() + 10.0
+        while status.published < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert published == [1, 4]
+
+
+def test_an_error_while_publishing_a_status_is_counted_and_the_thread_goes_on() -> None:
+    published: list[int] = []
+
+    def publish(job: gateway_main.StatusJob) -> None:
+        if job.stamp_ns == 1:
+            raise RuntimeError("boom")
+        published.append(job.stamp_ns)
+
+    with gateway_main.StatusThread(publish) as status:
+        status.offer(_job(1))
+        deadline = time.monotonic() + 10.0
+        while status.errors < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        status.offer(_job(2))
+        while status.published < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert (status.errors, published) == (1, [2])
+
+
+def test_the_status_line_is_the_documents_json_serialised_in_chunks(cell_config: CellConfig) -> None:
+    capsule = {"human": "front/h", "name": "torso", "a_m": [0.5, 1.0, 0.9], "b_m": [0.5, 1.0, 1.4], "radius_m": 0.2}
+    doc = ex.gateway_status(ur5=ex.near_robot_status())
+    for count in (0, 3, gateway_main.STATUS_CAPSULES_PER_CHUNK + 1, 4000):
+        capsules = [HumanCapsuleStatus.model_validate({**capsule, "human": f"front/h{k}"}) for k in range(count)]
+        crowded = doc.model_copy(update={"human_capsules": capsules})
+        assert gateway_main.status_json(crowded) == crowded.model_dump_json().encode(), count
+
+
+STALL_S = 0.05
+"""One iteration of the loop is held up this long after its overrides went out."""
+
+GIVE_UP_AFTER_CYCLES = 2500
+"""The loop of the test stops after this many decisions (10 s at 250 Hz) if it has not seen its statuses by then."""
+
+
+class _Publisher:
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.payloads.append(payload)
+
+
+class _Http:
+    """The HTTP child's side the loop and the status thread use; the first exit check stalls (after publishing)."""
+
+    def __init__(self) -> None:
+        self.lines: list[bytes] = []
+        self.checks = 0
+
+    def offer(self, line: bytes) -> None:
+        self.lines.append(line)
+
+    def offer_events(self, events: object) -> None:
+        pass
+
+    def exit_code(self) -> int | None:
+        self.checks += 1
+        if self.checks == 1:
+            time.sleep(STALL_S)
+        return None
+
+
+class _TimedNode:
+    """A gateway node that records when each decision started and what it budgeted until the next one."""
+
+    def __init__(self, node: GatewayNode) -> None:
+        self._node = node
+        self.starts_ns: list[int] = []
+        self.budgets_s: list[float] = []
+
+    def cycle(self, now: Clocks, period_s: float) -> GatewayCycle:
+        self.starts_ns.append(now.mono_ns)
+        self.budgets_s.append(period_s)
+        return self._node.cycle(now, period_s)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._node, name)
+
+
+class _RecordingStatusThread(gateway_main.StatusThread):
+    def __init__(self, publish: Callable[[gateway_main.StatusJob], None]) -> None:
+        self.offered: list[gateway_main.StatusJob] = []
+        self.publishing_threads: set[str] = set()
+
+        def recorded(job: gateway_main.StatusJob) -> None:
+            self.publishing_threads.add(threading.current_thread().name)
+            publish(job)
+
+        super().__init__(recorded)
+
+    def offer(self, job: gateway_main.StatusJob) -> None:
+        self.offered.append(job)
+        super().offer(job)
+
+
+def test_the_loop_budgets_what_it_really_took_and_publishes_the_status_off_its_thread(cell_config: CellConfig) -> None:
+    """The real loop and node, fake outputs: a hold-up after publishing (the first check of the HTTP child, at
+    the first status) is budgeted by every later decision, counted in compute_max_s, and no document is built or
+    serialised on the loop's thread."""
+    node = _TimedNode(gateway_main.build_node(cell_config, None))
+    http, status_key = _Http(), _Publisher()
+    sink = gateway_main._StatusSink(cell_config, node.robots, status_key, http)  # type: ignore[arg-type]
+    stop = StopEvent()
+    status_thread = _RecordingStatusThread(sink.publish)
+
+    class _StopAfterStatuses(_Publisher):
+        def put(self, payload: bytes) -> None:
+            super().put(payload)
+            enough = len(status_thread.offered) >= 4 and status_thread.published >= 2
+            if enough or len(self.payloads) >= GIVE_UP_AFTER_CYCLES:  # the assertions below tell which
+                stop.set()
+
+    out = gateway_main._Outputs({"ur5": _StopAfterStatuses()}, http, status_thread)  # type: ignore[arg-type]
+    with status_thread:
+        assert gateway_main._loop(cell_config, node, out, stop, None) == 0  # type: ignore[arg-type]
+
+    starts_ns = np.array(node.starts_ns)
+    intervals_s = np.diff(starts_ns) / 1e9
+    assert intervals_s.max() >= STALL_S  # the hold-up happened between two decisions
+    period_s = 1.0 / cell_config.gateway.rate_hz
+    for k, budget_s in enumerate(node.budgets_s):
+        worst_so_far_s = intervals_s[:k].max() if k else 0.0  # the run is shorter than the window
+        assert budget_s >= max(period_s, worst_so_far_s) - 1e-9, k
+    assert max(job.loop.compute_max_s for job in status_thread.offered) >= STALL_S
+    assert status_thread.publishing_threads == {"hrc-status"}
+    assert threading.current_thread().name != "hrc-status"
+    docs = [json.loads(line) for line in status_key.payloads]
+    assert len(docs) >= 2
+    assert all(doc["loop"]["budget_overruns"] == 0 for doc in docs)
+    assert http.lines == [line + b"\n" for line in status_key.payloads]
+
+
+def test_overrides_are_published_with_congestion_control_block(cell_config: CellConfig) -> None:
+    """An override that lowers δ must reach the controller: never dropped on a full queue."""
+    with zenoh.open(session_config(listen=[f"tcp/127.0.0.1:{free_port()}"])) as session:
+        publishers = gateway_main._declare_overrides(session, cell_config)
+        assert set(publishers) == set(cell_config.robots)
+        for publisher in publishers.values():
+            assert publisher.congestion_control == zenoh.CongestionControl.BLOCK
+            assert publisher.priority == zenoh.Priority.REAL_TIME

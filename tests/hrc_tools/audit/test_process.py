@@ -1,0 +1,256 @@
+"""The ``hrc-audit`` process: the truth auditor fed by hand (no network), then the program over loopback
+Zenoh with the test playing the controller and the tracker: summary, JSON and exit codes.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import support.status_examples as ex
+import zenoh
+from support.paths import REPO_ROOT
+
+from hrc_contract import keys
+from hrc_contract.config import CellConfig
+from hrc_contract.messages import Capsule, Human, Humans, JointState, to_payload
+from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.audit.main import (
+    EXIT_INCONCLUSIVE,
+    EXIT_OK,
+    EXIT_VIOLATION,
+    MAX_HUMAN_TRUTH_GAP_S,
+    TruthAuditor,
+    exit_code,
+    format_report,
+)
+from hrc_tools.cell.procs import Program, free_endpoint, start_program, stop_all, stop_program, wait_or_fail
+
+START_NS = 1_790_000_000_000_000_000
+CYCLE_NS = 4_000_000
+Q_PICK_ABOVE = [-0.854, -1.353, 1.668, -1.886, -1.571, -0.853]  # tool0 at (0.45, -0.35, 1.10) m
+QD = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0]  # the base turns: the tool moves at ~0.57 m/s
+STATE_KEY = keys.truth_robot_state("demo", "ur5")
+
+
+def state(seq: int, stamp_ns: int, override: float = 1.0, q: list[float] | None = None) -> bytes:
+    qd = [override * v for v in QD]
+    return to_payload(
+        JointState(
+            robot="ur5",
+            seq=seq,
+            stamp_ns=stamp_ns,
+            q=q or Q_PICK_ABOVE,
+            qd=qd,
+            qd_nominal=QD,
+            override=override,
+            override_seq=seq,
+            mode="running" if override > 0 else "stopped",
+        )
+    )
+
+
+def humans(seq: int, stamp_ns: int, at: tuple[float, float, float] | None, radius_m: float = 0.1) -> bytes:
+    people = [] if at is None else [Human(id="h1", capsules=[Capsule(name="hand_r", a=at, b=at, radius=radius_m)])]
+    return to_payload(Humans(tracker="truth", seq=seq, stamp_ns=stamp_ns, humans=people))
+
+
+@pytest.fixture
+def auditor(cell_config: CellConfig, ur5: RobotModel) -> TruthAuditor:
+    return TruthAuditor(cell_config, {"ur5": ur5}, START_NS)
+
+
+def feed(auditor: TruthAuditor, n: int, human_at: tuple[float, float, float] | None, **kwargs: float) -> None:
+    """``n`` controller cycles with a true humans sample at every cycle's stamp."""
+    for k in range(n):
+        stamp = START_NS + k * CYCLE_NS
+        auditor.on_truth_humans(humans(k + 1, stamp, human_at))
+        auditor.on_truth_state(STATE_KEY, state(k, stamp, **kwargs))
+    auditor.process()
+
+
+def test_far_human_moving_robot_passes(auditor: TruthAuditor) -> None:
+    feed(auditor, 50, (4.0, 0.0, 1.0))
+    report = auditor.report(1.0)
+    r = report["robots"]["ur5"]
+    assert r["cycles"] == 50
+    assert r["violations"] == 0
+    # 4 m away less the radii, less what a stop from full speed lets the human (K t_b) and the tool cover.
+    assert 2.5 < r["smallest_margin_m"] < r["min_distance_m"] - 1.6 * 0.24
+    assert r["duration_s"] == pytest.approx(50 * 0.004)
+    assert exit_code(report) == EXIT_OK
+    assert report["verdict"] == "pass"
+
+
+def test_human_at_the_moving_tool_is_a_violation_and_contact(auditor: TruthAuditor) -> None:
+    feed(auditor, 10, (0.45, -0.35, 1.15))
+    report = auditor.report(1.0)
+    r = report["robots"]["ur5"]
+    assert r["violations"] == 10
+    assert r["contacts_while_moving"] == 10
+    assert r["smallest_margin_m"] < 0.0
+    assert r["smallest_margin_pair"][1] == "truth/h1/hand_r"
+    assert exit_code(report) == EXIT_VIOLATION
+    assert "VIOLATION" in format_report(report)
+
+
+def test_a_stopped_robot_touched_is_no_violation(auditor: TruthAuditor) -> None:
+    feed(auditor, 10, (0.45, -0.35, 1.15), override=0.0)
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert r["violations"] == 0
+    assert r["min_distance_m"] == 0.0
+    assert r["time_stopped_s"] == pytest.approx(10 * 0.004)
+
+
+def test_the_age_of_the_human_truth_shrinks_the_margin_conservatively(cell_config: CellConfig, ur5: RobotModel) -> None:
+    margins = []
+    for age_ns in (0, 20_000_000, -20_000_000):  # truth 20 ms older, then 20 ms newer than the state
+        auditor = TruthAuditor(cell_config, {"ur5": ur5}, START_NS)
+        auditor.on_truth_humans(humans(1, START_NS - age_ns, (0.9, -0.35, 1.1)))
+        auditor.on_truth_state(STATE_KEY, state(0, START_NS))
+        auditor.process()
+        r = auditor.report(1.0)["robots"]["ur5"]
+        assert r["cycles"] == 1
+        margins.append(r["smallest_margin_m"])
+        assert r["max_human_truth_age_s"] == pytest.approx(abs(age_ns) / 1e9)
+    k = cell_config.safety.human_speed_mps
+    assert margins[0] - margins[1] == pytest.approx(k * 0.02, abs=1e-9)
+    assert margins[0] - margins[2] == pytest.approx(k * 0.02, abs=1e-9)
+
+
+def test_the_nearest_truth_sample_is_used_and_a_gap_is_not_audited(auditor: TruthAuditor) -> None:
+    auditor.on_truth_humans(humans(1, START_NS, (0.45, -0.35, 1.15)))  # touching
+    auditor.on_truth_humans(humans(2, START_NS + 50_000_000, (4.0, 0.0, 1.0)))  # far, 50 ms later
+    auditor.on_truth_state(STATE_KEY, state(0, START_NS + 10_000_000))  # nearest: the touching one
+    auditor.on_truth_state(STATE_KEY, state(1, START_NS + 45_000_000))  # nearest: the far one
+    gap_ns = int((MAX_HUMAN_TRUTH_GAP_S + 0.05) * 1e9)
+    auditor.on_truth_state(STATE_KEY, state(2, START_NS + 50_000_000 + gap_ns))  # no truth near: not judged
+    auditor.process()
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert r["cycles"] == 2
+    assert r["violations"] == 1
+    assert r["unaudited_cycles"] == 1
+
+
+def test_without_any_human_truth_nothing_is_audited(auditor: TruthAuditor) -> None:
+    for k in range(5):
+        auditor.on_truth_state(STATE_KEY, state(k, START_NS + k * CYCLE_NS))
+    auditor.process()
+    report = auditor.report(1.0)
+    assert report["cycles_audited"] == 0
+    assert report["robots"]["ur5"]["unaudited_cycles"] == 5
+    assert exit_code(report) == EXIT_INCONCLUSIVE
+    assert report["verdict"] == "inconclusive"
+
+
+def test_zones_program_cycles_gaps_and_rejections(auditor: TruthAuditor) -> None:
+    status = ex.gateway_status(START_NS, ur5=ex.robot_status(delta=0.5, zone="reduced_speed", t_delay_s=0.12))
+    auditor.on_status(status.model_dump_json().encode())
+    auditor.on_emu_stats("ur5", json.dumps({"robot": "ur5", "cycles_completed": 7}).encode())
+    for k in (0, 1, 2, 5):  # seq 3 and 4 lost
+        stamp = START_NS + k * CYCLE_NS
+        auditor.on_truth_humans(humans(k + 1, stamp, None))
+        auditor.on_truth_state(STATE_KEY, state(k, stamp))
+    for payload in (b"not json", b'{"schema": "hrc.joint_state/1"}', b"\xff"):
+        auditor.on_truth_state(STATE_KEY, payload)
+        auditor.on_truth_humans(payload)
+        auditor.on_status(payload)
+        auditor.on_emu_stats("ur5", payload)
+    auditor.on_truth_state(keys.truth_robot_state("demo", "ghost"), state(9, START_NS))
+    auditor.process()
+    report = auditor.report(1.0)
+    r = report["robots"]["ur5"]
+    assert r["time_in_zone_s"] == {"reduced_speed": pytest.approx(4 * 0.004 + 2 * 0.004)}
+    assert r["program_cycles_completed"] == 7
+    assert r["truth_gaps"] == 2
+    assert r["smallest_margin_m"] is None  # nobody present: the margin is infinite
+    assert r["gateway"]["t_delay_s_median"] == 0.12
+    assert report["rejected"]["truth_state/unknown_robot"] == 1
+    assert sum(v for k, v in report["rejected"].items() if k.startswith("truth_humans/")) == 3
+    assert report["rejected"]["status/invalid"] == 3
+    assert report["rejected"]["emu_stats/invalid"] == 3
+    json.dumps(report, allow_nan=False)  # the report is strict JSON
+
+
+# -- the program ---------------------------------------------------------------------------------------
+
+
+def _start_audit(tmp_path: Path, extra: list[str]) -> tuple[Program, str, Path]:
+    endpoint = free_endpoint()
+    log_path = tmp_path / "audit.log"
+    proc = start_program("hrc_tools.audit", ["--zenoh-listen", endpoint, *extra], log_path)
+    wait_or_fail(lambda: "auditing cell" in log_path.read_text(), 30.0, "the auditor's start", [log_path], [proc])
+    return proc, endpoint, log_path
+
+
+def _play(endpoint: str, seconds: float, human_at: tuple[float, float, float]) -> None:
+    """Play controller (250 Hz truth + emu stats) and tracker truth (100 Hz) in real time."""
+    with zenoh.open(session_config(connect=[endpoint])) as session:
+        time.sleep(0.3)
+        start = time.monotonic()
+        k = 0
+        while time.monotonic() - start < seconds:
+            now = time.time_ns()
+            if k % 2 == 0:
+                session.put(keys.truth_humans("demo"), humans(k // 2 + 1, now, human_at))
+            session.put(STATE_KEY, state(k, now))
+            k += 1
+            time.sleep(0.004)
+        session.put(keys.robot_emu_stats("demo", "ur5"), json.dumps({"cycles_completed": 3}).encode())
+        time.sleep(0.2)
+
+
+def test_program_exits_1_on_a_violation_with_summary_and_json(tmp_path: Path) -> None:
+    json_path = tmp_path / "audit.json"
+    proc, endpoint, log_path = _start_audit(tmp_path, ["--duration-s", "2.5", "--json", str(json_path)])
+    try:
+        _play(endpoint, 1.0, (0.45, -0.35, 1.15))
+        assert proc.wait(30) == EXIT_VIOLATION, log_path.read_text()
+    finally:
+        stop_all([proc])
+    report = json.loads(json_path.read_text())
+    r = report["robots"]["ur5"]
+    assert r["violations"] > 100
+    assert r["program_cycles_completed"] == 3
+    assert report["human_truth_received"] > 50
+    out = log_path.read_text()
+    assert "VIOLATION" in out
+    assert "smallest margin" in out
+    assert "first violation" in out
+
+
+def test_program_until_sigterm_passes_a_safe_run(tmp_path: Path) -> None:
+    json_path = tmp_path / "audit.json"
+    proc, endpoint, log_path = _start_audit(tmp_path, ["--json", str(json_path)])
+    try:
+        _play(endpoint, 0.8, (4.0, 0.0, 1.0))
+        assert stop_program(proc, signal.SIGTERM) == EXIT_OK, log_path.read_text()
+    finally:
+        stop_all([proc])
+    report = json.loads(json_path.read_text())
+    assert report["verdict"] == "pass"
+    assert report["robots"]["ur5"]["cycles"] > 100
+
+
+def test_help_names_the_exit_codes_and_bad_options_exit_2() -> None:
+    help_text = subprocess.run(
+        [sys.executable, "-m", "hrc_tools.audit", "--help"], capture_output=True, text=True, timeout=60, cwd=REPO_ROOT
+    ).stdout
+    assert "1 at least one violation" in " ".join(help_text.split())
+    result = subprocess.run(
+        [sys.executable, "-m", "hrc_tools.audit", "--duration-s", "-1"], capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_nothing_to_audit_is_inconclusive(tmp_path: Path) -> None:
+    proc, _, log_path = _start_audit(tmp_path, ["--duration-s", "0.3"])
+    assert proc.wait(30) == EXIT_INCONCLUSIVE, log_path.read_text()
+    assert "INCONCLUSIVE" in log_path.read_text()

@@ -1,0 +1,1 @@
+"""Helpers shared by the tests: known cases, cell files, the secured cell, status examples, a headless browser."""

@@ -70,15 +70,27 @@ class HttpReply(NamedTuple):
 
     status_code: int
     content: bytes
+    headers: dict[str, str] = {}  # noqa: RUF012 (a NamedTuple default, never mutated)
+    """Response headers, names in lower case."""
+
+    @property
+    def text(self) -> str:
+        """The body as UTF-8 text."""
+        return self.content.decode("utf-8", errors="replace")
+
+    def json(self) -> Any:
+        """The body as JSON (raises ``ValueError`` if it is not)."""
+        return json.loads(self.content)
 
 
 def http_get(url: str, timeout_s: float) -> HttpReply:
     """GET ``url``; an HTTP error status is an answer, a network failure raises :class:`OSError`."""
     try:
         with urllib.request.urlopen(url, timeout=timeout_s) as response:
-            return HttpReply(response.status, response.read())
+            headers = {k.lower(): v for k, v in response.headers.items()}
+            return HttpReply(response.status, response.read(), headers)
     except urllib.error.HTTPError as exc:
-        return HttpReply(exc.code, exc.read())
+        return HttpReply(exc.code, exc.read(), {k.lower(): v for k, v in exc.headers.items()})
 
 
 def with_retries(run: Callable[[], T], what: str, attempts: int = START_ATTEMPTS) -> T:

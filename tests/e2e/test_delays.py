@@ -162,7 +162,7 @@ def _healthy(port: int) -> bool:
     """Whether the gateway's ``/healthz`` answers 200."""
     try:
         return httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0).status_code == 200
-    except httpx.HTTPError:
+    except (httpx.HTTPError, OSError):
         return False
 
 

@@ -281,7 +281,7 @@ def test_hrc_cell_creates_the_pki_and_runs_over_mutual_tls(tmp_path: Path) -> No
     def ready() -> bool:
         try:
             return httpx.get(f"http://127.0.0.1:{http_port}/readyz", timeout=2.0).status_code == 200
-        except httpx.HTTPError:
+        except (httpx.HTTPError, OSError):
             return False
 
     try:

@@ -167,7 +167,7 @@ def test_cell_across_namespaces_through_a_router(lan: Lan, tmp_path: Path) -> No
                     "int",
                     [
                         sys.executable,
-                        str(REPO_ROOT / "tests" / "securecell.py"),
+                        str(REPO_ROOT / "tests" / "support" / "securecell.py"),
                         "--connect",
                         router_eps["int"],
                         *args,

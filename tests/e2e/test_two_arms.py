@@ -202,7 +202,7 @@ class TwoArms:
         """``GET /api/v1/status``, None while the gateway does not answer."""
         try:
             response = self.cell.get("/api/v1/status")
-        except httpx.HTTPError:
+        except (httpx.HTTPError, OSError):
             return None
         return GatewayStatus.model_validate_json(response.content) if response.status_code == 200 else None
 

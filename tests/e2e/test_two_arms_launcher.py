@@ -32,7 +32,7 @@ AUDIT_S = 6.0
 def _status(http_port: int) -> GatewayStatus | None:
     try:
         response = httpx.get(f"http://127.0.0.1:{http_port}/api/v1/status", timeout=2.0)
-    except httpx.HTTPError:
+    except (httpx.HTTPError, OSError):
         return None
     return GatewayStatus.model_validate_json(response.content) if response.status_code == 200 else None
 

@@ -371,7 +371,7 @@ class Child:
     def answers(self) -> bool:
         try:
             return httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200
-        except httpx.HTTPError:
+        except (httpx.HTTPError, OSError):
             return False
 
 

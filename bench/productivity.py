@@ -48,9 +48,8 @@ from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from hrc_tools.sim.links import LinkFault, LinkFaults
-from hrc_tools.sim.scenarios import COLLABORATIVE_KINDS, SweepCase, generate_case, generate_collaborative_case
+from hrc_tools.sim.scenarios import COLLABORATIVE_KINDS, SweepCase, case_of_cell
 from tracker_emu.scenario import Scenario
-from tracker_emu.sensor import covered_volume
 
 NAME = "productivity"
 METHODS = ("zanchettin2016", "zanchettin2016_speed_aware", "iso15066", "three_zones", "stop_only")
@@ -160,15 +159,8 @@ def _case(
     suite: str = "stress",
     occlusion: bool = False,
 ) -> SweepCase:
-    generate = generate_collaborative_case if suite == "collaborative" else generate_case
-    return generate(
-        suite_seed,
-        index,
-        duration_s,
-        config.safety.max_data_age_s,
-        watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
-        coverage=covered_volume(config.tracking),
-        occlusion=occlusion,
+    return case_of_cell(
+        config, suite_seed, index, duration_s, collaborative=suite == "collaborative", occlusion=occlusion
     )
 
 

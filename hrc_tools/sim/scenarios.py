@@ -633,3 +633,27 @@ def generate_collaborative_case(
     }
     seed = int(rng.integers(0, 2**31 - 1))
     return SweepCase(index, seed, scenario, trackers, links, False, params)
+
+
+def case_of_cell(
+    config: CellConfig,
+    suite_seed: int,
+    index: int,
+    duration_s: float,
+    *,
+    collaborative: bool = False,
+    occlusion: bool = False,
+) -> SweepCase:
+    """Case ``index`` of a suite for the cell ``config``: its data-age limit, its controllers' shortest watchdog and
+    its covered volume (the stress suite of the sweep, or the collaborative one; trackers with line of sight if
+    ``occlusion``)."""
+    generate = generate_collaborative_case if collaborative else generate_case
+    return generate(
+        suite_seed,
+        index,
+        duration_s,
+        config.safety.max_data_age_s,
+        watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
+        coverage=covered_volume(config.tracking),
+        occlusion=occlusion,
+    )

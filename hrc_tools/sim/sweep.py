@@ -46,8 +46,7 @@ from hrc_runtime.config import load_cell_config, read_toml, resolve_urdf
 from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
-from hrc_tools.sim.scenarios import generate_case
-from tracker_emu.sensor import covered_volume
+from hrc_tools.sim.scenarios import case_of_cell
 
 DEFAULT_DURATION_S = 10.0
 
@@ -254,15 +253,7 @@ def run_case(
 ) -> CaseResult:
     """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``) and
     simulate it."""
-    case = generate_case(
-        sweep_seed,
-        index,
-        duration_s,
-        config.safety.max_data_age_s,
-        watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
-        coverage=covered_volume(config.tracking),
-        occlusion=occlusion,
-    )
+    case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion)
     result = simulate(case.config(config), robots, case.scenario, case.links, duration_s, case.seed)
     audit = result.audit
     approach_mps = fastest_approach_mps(case.scenario, robot_bases_xy_m(config))

@@ -31,9 +31,10 @@ import numpy as np
 from controller_emu.program import Trajectory
 from hrc_contract.config import ConfigError, ControllerConfig
 from hrc_contract.messages import JointState, Override
+from hrc_contract.vocabulary import ControllerMode
 from hrc_runtime.robot_model import RobotModel
 
-Mode = Literal["running", "stopped", "protective_stop"]
+Mode = ControllerMode
 
 Rejection = Literal["wrong_robot", "old_or_repeated", "stale", "stamp_in_future"]
 """Why a schema-valid override was not accepted (:func:`check_override`)."""

@@ -17,6 +17,7 @@ from typing import Annotated, Literal, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from hrc_contract.errors import HrcError
+from hrc_contract.vocabulary import ControllerMode
 
 NAME_PATTERN = r"^[a-z0-9_-]+$"
 """Cell, robot and tracker names: the characters allowed in a key expression segment."""
@@ -51,7 +52,7 @@ class JointState(_Message):
     qd_nominal: JointVector
     override: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
     override_seq: int = Field(ge=-1)
-    mode: Literal["running", "stopped", "protective_stop"]
+    mode: ControllerMode
 
     @model_validator(mode="after")
     def _same_lengths(self) -> JointState:

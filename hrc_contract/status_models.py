@@ -28,12 +28,7 @@ from hrc_contract.config import (
     TrackingConfig,
     ZonesConfig,
 )
-
-ZoneName = Literal["autonomous", "guarded_distance", "reduced_speed", "safety_exception"]
-"""The zones of ``hrc_contract.vocabulary.Zone`` (safety-math.md §6)."""
-
-ControllerMode = Literal["running", "stopped", "protective_stop"]
-"""``mode`` of the controller's joint state (``hrc_contract.messages.JointState``)."""
+from hrc_contract.vocabulary import ControllerMode, ZoneName
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(ge=0.0, allow_inf_nan=False)]

@@ -23,7 +23,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from hrc_contract.messages import Humans
-from hrc_contract.status_models import CapsuleStatus, GatewayStatus, ZoneName
+from hrc_contract.status_models import CapsuleStatus, GatewayStatus
+from hrc_contract.vocabulary import ZoneName
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 FOXGLOVE_SCHEMAS_VERSION = "2.1.0"

@@ -242,3 +242,11 @@ def test_the_controller_emulator_reasons_are_documented() -> None:
 def test_zone_and_mode_names_are_the_codes() -> None:
     assert set(get_args(ZoneName)) == {zone.value for zone in Zone}
     assert set(get_args(ControllerMode)) == set(get_args(JointState.model_fields["mode"].annotation))
+
+
+def test_the_zone_names_of_the_status_are_the_zones() -> None:
+    from typing import get_args
+
+    from hrc_contract.vocabulary import Zone, ZoneName
+
+    assert get_args(ZoneName) == tuple(zone.value for zone in Zone)

@@ -144,8 +144,11 @@ class Track:
     last_centre: FloatArray | None = None
     claim: bool = False
     """It appeared inside the covered volume (nobody enters there): it may be someone lost before it appeared, and may
-    release one such lost track it covers (then the claim is spent). A track that appears at the boundary is a
-    newcomer."""
+    release such lost tracks it covers, of one person only: once it released one, only the other fragments of that
+    one (the same tracker and id, e.g. the tracks a person left behind while parts of them were hidden one after the
+    other). A track that appears at the boundary is a newcomer."""
+    claimed: tuple[str, str] | None = None
+    """The (tracker, id) of the lost person its claim was spent on."""
     first_seen_mono_ns: int = 0
     twins: frozenset[int] = frozenset()
     """Serials of other trackers' tracks that covered it when it was lost: the same person, still seen elsewhere."""
@@ -477,9 +480,15 @@ class TrackSet:
                 for k in near:  # a person is at most ~2.5 m across: one whose centre is farther cannot cover it
                     finder = people.tracks[int(k)]
                     twin = finder.serial in track.twins
-                    claim = finder.claim and finder.first_seen_mono_ns > track.last_seen_mono_ns
+                    person = (track.tracker, track.human_id)
+                    claim = (
+                        finder.claim
+                        and finder.claimed in (None, person)
+                        and finder.first_seen_mono_ns > track.last_seen_mono_ns
+                    )
                     if (twin or claim) and _continues(track.capsules, people.person(int(k)), reach_m):
-                        finder.claim = finder.claim and twin
+                        if not twin:
+                            finder.claimed = person
                         by = f"redetected by {finder.label}" + (" (the same person, seen by another tracker)" * twin)
                         released = self._release(track, people.captured_ns, ReleaseCause.REDETECTED, by)
                         break

@@ -443,3 +443,17 @@ def test_another_trackers_view_of_the_same_person_releases_them(feed: Feed) -> N
     events = feed.see(2 * FRAME_NS, "side", body("side", "p3", 1.03, 0.0))
     assert events == ["track_released:front/h1:redetected"]
     assert "seen by another tracker" in (feed.tracks.released[-1].released_by or "")
+
+
+def test_the_fragments_a_person_left_while_parts_were_hidden_are_released_when_seen_whole(feed: Feed) -> None:
+    """Collaborative suite case 2 with occlusion: a person walking behind the robot loses one part after another; each
+    loss leaves the fuller track lost (never shrink a person). Seen whole again, the person releases every fragment of
+    theirs (same tracker and id) with one claim, and no one else's."""
+    feed.see(0, "front", body("front", "h1", 1.0, 0.0), body("front", "h2", 1.0, 2.0))
+    feed.see(FRAME_NS, "front", body("front", "h1", 1.0, 0.0, ("legs",)))  # torso hidden; h2 hidden
+    feed.see(2 * FRAME_NS, "front")  # all hidden: the legs fragment is lost too
+    feed.see(3 * FRAME_NS, "front", body("front", "h9", 1.0, 0.0, ("legs",)))  # legs seen, another id: a claim
+    feed.see(4 * FRAME_NS, "front", body("front", "h9", 1.0, 0.0))  # ... then seen whole
+    released = [t.label for t in feed.tracks.released]
+    assert sorted(released) == ["front/h1", "front/h1#3"], "both fragments of h1"
+    assert [t.label for t in feed.tracks.lost()] == ["front/h2"], "h2 is someone else"

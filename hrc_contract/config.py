@@ -60,6 +60,20 @@ def unsafe_allowed(setting: str, environ: Mapping[str, str] | None = None) -> bo
     return setting in {name.strip() for name in value.split(",")}
 
 
+def refuse_unless_named(value: bool, setting: str, what: str) -> bool:
+    """``value`` of a test-only switch: true is refused unless :data:`UNSAFE_ENV_VAR` names ``setting``.
+
+    Raises:
+        ValueError: true, and the environment does not name it (the message says what it does and what is allowed).
+    """
+    if value and not unsafe_allowed(setting):
+        raise ValueError(
+            f"true is refused: a test-only setting ({what}) that makes the gateway unsafe; allowed: false, "
+            f"or true with the environment variable {UNSAFE_ENV_VAR}={setting}"
+        )
+    return value
+
+
 SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware"]
 """The override methods the gateway can run (safety-math.md §4, §7, §8, §10; ``gateway/methods.py``)."""
 SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
@@ -163,12 +177,7 @@ class SafetyConfig(_Frozen):
     @field_validator("unsafe_ignore_delay_for_tests")
     @classmethod
     def _unsafe_only_when_named(cls, value: bool) -> bool:
-        if value and not unsafe_allowed("unsafe_ignore_delay_for_tests"):
-            raise ValueError(
-                "true is refused: a test-only setting (t_delay = 0) that makes the gateway unsafe; allowed: false, "
-                f"or true with the environment variable {UNSAFE_ENV_VAR}=unsafe_ignore_delay_for_tests"
-            )
-        return value
+        return refuse_unless_named(value, "unsafe_ignore_delay_for_tests", "t_delay = 0")
 
     @model_validator(mode="after")
     def _three_zones_are_ordered(self) -> SafetyConfig:
@@ -511,12 +520,7 @@ class TrackingConfig(_Frozen):
     @field_validator("unsafe_forget_lost_for_tests")
     @classmethod
     def _unsafe_only_when_named(cls, value: bool) -> bool:
-        if value and not unsafe_allowed("unsafe_forget_lost_for_tests"):
-            raise ValueError(
-                "true is refused: a test-only setting (lost people are forgotten) that makes the gateway unsafe; "
-                f"allowed: false, or true with {UNSAFE_ENV_VAR}=unsafe_forget_lost_for_tests"
-            )
-        return value
+        return refuse_unless_named(value, "unsafe_forget_lost_for_tests", "lost people are forgotten")
 
     @model_validator(mode="after")
     def _coverage_is_a_volume(self) -> TrackingConfig:

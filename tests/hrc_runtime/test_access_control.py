@@ -93,3 +93,18 @@ def test_zenoh_block_denies_by_default_and_loads() -> None:
     assert {k for r in put_rules for k in r["key_exprs"]} >= set(EVERY_KEY)
     config = zenoh.Config.from_json5(json.dumps({"access_control": block}))
     assert json.loads(config.get_json("access_control/default_permission")) == "deny"
+
+
+def test_only_the_operator_may_reset_a_lost_person() -> None:
+    """A reset releases a lost person: no program but the operator station may put it (not even the gateway's
+    peers' own roles); the operator may put nothing else."""
+    from hrc_contract import keys as cell_keys
+    from hrc_runtime.access_control import OPERATOR, CellPolicy, may_put
+
+    policy = CellPolicy("demo", ("ur5",), ("front",))
+    reset = cell_keys.operator_track_reset("demo")
+    assert may_put(policy, OPERATOR, reset)
+    for stranger in ("tracker-front", "controller-ur5", "tracker-emu", "observer-audit", "recorder"):
+        assert not may_put(policy, stranger, reset), stranger
+    assert not may_put(policy, OPERATOR, cell_keys.tracker_humans("demo", "front"))
+    assert not may_put(policy, OPERATOR, cell_keys.robot_override("demo", "ur5"))

@@ -13,6 +13,8 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
     ├── RuleError          (hrc_tools.faultinject.rules)   a fault-injection rule that does not parse
     ├── RelayError         (hrc_tools.faultinject.relay)   the fault relay cannot run
+    ├── VendorError        (controller_bridge.vendor)      a controller's vendor interface failed or answered
+    │                                                      something invalid
     └── BenchError         (hrc_tools.cell.procs)          a benchmark or process test could not run
         └── StartupError   (hrc_tools.cell.procs)          a program did not start
 

@@ -1,0 +1,9 @@
+"""The controller bridge: the cell's Zenoh contract on one side, a real controller's vendor interface on the other.
+
+A closed controller offers an outside PC one speed input and a read-back; it reports no override echo and no
+programmed velocity. The bridge writes the gateway's δ to the controller, confirms an override only when the
+controller's read-back shows it, derives the programmed velocity honestly, and publishes the robot's joint state
+on the cell's key (docs/contract.md).
+"""
+
+__all__ = ["vendor"]

@@ -74,9 +74,39 @@ def refuse_unless_named(value: bool, setting: str, what: str) -> bool:
     return value
 
 
-SafetyMethod = Literal["zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware"]
-"""The override methods the gateway can run (safety-math.md §4, §7, §8, §10; ``gateway/methods.py``)."""
+SafetyMethod = Literal[
+    "zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware", "lucci2020_pfl"
+]
+"""The override methods the gateway can run (safety-math.md §4, §7, §8, §10, §12; ``gateway/methods.py``)."""
 SAFETY_METHODS: tuple[str, ...] = get_args(SafetyMethod)
+
+
+class BodyRegion(_Frozen):
+    """A body region's biomechanical limits for transient contact (ISO/TS 15066 Annex A; ``configs/body_regions.toml``).
+
+    The contact-safe relative speed is F_max / sqrt(μ k) (force form) and sqrt(2 E_max / μ) (energy form), the
+    smaller where both are given, with μ = (1/m_H + 1/m_R)⁻¹ (``gateway/contact.py``, safety-math.md §12). A region
+    that is not ``transient`` (the head) has contact-safe speed 0: separation monitoring.
+    """
+
+    capsules: Annotated[list[str], Field(min_length=1)] = Field(
+        description="The human capsule names of this region (``hand_l``, ``torso``, ...)."
+    )
+    transient: bool = Field(True, description="Transient contact allowed at all; false = contact-safe speed 0.")
+    max_force_n: PositiveFloat | None = Field(None, description="F_max of transient contact [N].")
+    spring_constant_n_per_m: PositiveFloat | None = Field(None, description="k of the region [N/m].")
+    max_energy_j: PositiveFloat | None = Field(None, description="E_max of transient contact [J].")
+    mass_kg: PositiveFloat = Field(description="m_H, the region's effective mass [kg].")
+
+    @model_validator(mode="after")
+    def _a_limit(self) -> BodyRegion:
+        force = self.max_force_n is not None and self.spring_constant_n_per_m is not None
+        if self.transient and not force and self.max_energy_j is None:
+            raise ValueError(
+                "a transient region needs max_force_n with spring_constant_n_per_m, or max_energy_j; "
+                "allowed: one of them, or transient = false"
+            )
+        return self
 
 
 class SafetyConfig(_Frozen):
@@ -158,6 +188,32 @@ class SafetyConfig(_Frozen):
         0.1,
         description="This method's safety exception ends only once its bound is above this (hysteresis on δ; at "
         "least speed_aware_stop_below_delta). At most 0.5.",
+    )
+    # -- method "lucci2020_pfl" (separation down to a contact-safe speed; safety-math.md §12) ---------------
+    pfl_body_regions: dict[str, BodyRegion] = Field(
+        default_factory=dict,
+        description="Body regions and their limits; in the cell file a path to a TOML file (configs/body_regions.toml) "
+        "whose [regions] the loader reads in. A capsule of no region has contact-safe speed 0.",
+    )
+    pfl_payload_kg: NonNegativeFloat = Field(0.0, description="m_payload of the simple mass form M/2 + m_payload [kg].")
+    pfl_mass_model: Literal["simple", "reflected"] = Field(
+        "simple",
+        description="m_R of the decision: ISO/TS 15066's M/2 + m_payload (constant), or the reflected mass of each "
+        "link along its programmed velocity from the inertia matrix (Pinocchio, every decision).",
+    )
+    pfl_speed_fraction: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.8,
+        description="The method plans with this fraction of each region's contact-safe speed: the margin for the "
+        "program's speed rising during the slow-down. At most 1.",
+    )
+    pfl_clamp_margin_m: NonNegativeFloat = Field(
+        0.1,
+        description="A human capsule within this of a clamping surface, with a link moving toward that surface, "
+        "may be clamped: contact-safe speed 0 [m].",
+    )
+    pfl_clamping_surfaces: list[Box] = Field(
+        default_factory=list,
+        description="The table, walls, fixtures against which a body part can be pinned, as boxes (world frame) [m].",
     )
     # -- replan request, eq. (16) of Pupa et al. 2021 (every method) --------------------------------------
     replan_delta_below: Annotated[float, Field(ge=0.0, le=1.0)] = Field(
@@ -344,11 +400,94 @@ class Pose(_Frozen):
     rpy: tuple[Finite, Finite, Finite] = (0.0, 0.0, 0.0)
 
 
+class ZenohInterfaceConfig(_Frozen):
+    """The controller speaks the cell's Zenoh contract itself (the emulator's own face): no bridge."""
+
+    kind: Literal["zenoh"] = "zenoh"
+
+
+class _BridgeInterfaceConfig(_Frozen):
+    """What every controller bridge (``controller_bridge``) needs besides its vendor's address."""
+
+    watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="No valid override for this long → the bridge writes 0 itself [s]. A real controller keeps its "
+        "speed input forever; at most the robot's controller.watchdog_s (checked) and 1 s.",
+    )
+    read_timeout_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="No valid read-back for this long → the bridge stops publishing the joint state (the gateway's "
+        "staleness check stops the robot) and reconnects [s]. At most 1 s.",
+    )
+    write_rate_hz: Annotated[float, Field(ge=1.0, le=500.0, allow_inf_nan=False)] = Field(
+        125.0,
+        description="The speed input is written at least this often, as a heartbeat, and at once on a new override.",
+    )
+
+
+class UrRtdeInterfaceConfig(_BridgeInterfaceConfig):
+    """Universal Robots over RTDE (port 30004): the speed slider in, ``target_speed_fraction`` etc. out."""
+
+    kind: Literal["ur_rtde"]
+    host: Annotated[str, Field(min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:_-]+$")] = Field(
+        description="The controller's address (IPv4, IPv6 or host name, no port: RTDE's port is 30004)."
+    )
+    frequency_hz: Literal[125, 500] = Field(
+        500, description="RTDE output frequency: 125 (CB3) or 500 (e-Series) [Hz]."
+    )
+
+
+class AbbRwsInterfaceConfig(_BridgeInterfaceConfig):
+    """ABB over Robot Web Services: the speed ratio (integer percent, rounded down), HTTP Digest authentication."""
+
+    kind: Literal["abb_rws"]
+    url: Annotated[str, Field(pattern=r"^https?://[^\s/]+(/[^\s]*)?$", max_length=400)] = Field(
+        description="Base URL of the controller's RWS, e.g. http://192.168.125.1 (RWS 1.0) or https://… (2.0)."
+    )
+    user: Annotated[str, Field(min_length=1, max_length=64)] = "Default User"
+    password_env: Annotated[str, Field(pattern=r"^[A-Z_][A-Z0-9_]*$", max_length=64)] = Field(
+        description="Name of the environment variable holding the RWS password (never the password itself)."
+    )
+    poll_rate_hz: Annotated[float, Field(gt=0.0, le=250.0, allow_inf_nan=False)] = Field(
+        50.0, description="How often the speed ratio and the joint positions are read back [Hz]."
+    )
+    write_rate_hz: Annotated[float, Field(ge=1.0, le=100.0, allow_inf_nan=False)] = Field(
+        25.0, description="Heartbeat writes of the speed ratio per second (each is an HTTP POST) [Hz]."
+    )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_password_here(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "password" in data:
+            raise ValueError(
+                "a password in the cell file is refused; allowed: password_env, the name of an environment "
+                "variable that holds it"
+            )
+        return data
+
+
+ControllerInterfaceConfig = Annotated[
+    ZenohInterfaceConfig | UrRtdeInterfaceConfig | AbbRwsInterfaceConfig, Field(discriminator="kind")
+]
+"""How the cell reaches a robot's controller: ``zenoh`` (default), ``ur_rtde`` or ``abb_rws`` (a bridge)."""
+
+
 class RobotConfig(_Frozen):
     model: RobotModelConfig
     base_pose_world: Pose = Pose()
     program: str = Field(description="Absolute path of the program file of the controller emulator.")
     controller: ControllerConfig = ControllerConfig()
+    interface: ControllerInterfaceConfig = ZenohInterfaceConfig()
+
+    @model_validator(mode="after")
+    def _bridge_watchdog_within_the_controllers(self) -> RobotConfig:
+        interface = self.interface
+        if isinstance(interface, _BridgeInterfaceConfig) and interface.watchdog_s > self.controller.watchdog_s:
+            raise ValueError(
+                f"interface.watchdog_s = {interface.watchdog_s} s is longer than controller.watchdog_s = "
+                f"{self.controller.watchdog_s} s; allowed: <= it"
+            )
+        return self
 
 
 class TrackerConfig(_Frozen):
@@ -528,6 +667,61 @@ class TrackingConfig(_Frozen):
         return self
 
 
+Ros2Distro = Literal["humble", "jazzy", "kilted"]
+"""ROS 2 distributions whose rmw_zenoh key form the gateway speaks: Humble's keys end in ``TypeHashNotSupported``,
+the later ones in ``RIHS01_<sha256>`` (docs/ros2.md)."""
+ROS2_NAME_PATTERN = r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$"
+
+
+class Ros2Config(_Frozen):
+    """The gateway's ROS 2 face over rmw_zenoh (``gateway/ros2_face.py``, docs/ros2.md): off unless enabled.
+
+    It publishes what the status shows, on a Zenoh session of its own (its own endpoints, certificate CN ``ros2``
+    with TLS), and reads nothing: no ROS 2 message can reach the safety loop through it.
+    """
+
+    enabled: bool = False
+    domain_id: Annotated[int, Field(ge=0, le=232)] = Field(0, description="ROS_DOMAIN_ID of the ROS 2 side.")
+    distro: Ros2Distro = Field("jazzy", description="Key form and message definitions: humble, jazzy, kilted.")
+    namespace: Annotated[str, Field(pattern=r"^(/?|" + ROS2_NAME_PATTERN[1:-1] + ")$")] = Field(
+        "", description="ROS namespace of the gateway's node and topics ('' = none)."
+    )
+    node_name: Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")] = "hrc_gateway"
+    speed_override_topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        "speed_override",
+        description="Per robot, under <robot>/: std_msgs/Float64, the commanded δ in [0, 1] (not percent).",
+    )
+    joint_states_topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        "joint_states", description="Per robot, under <robot>/: sensor_msgs/JointState as the gateway last used it."
+    )
+    diagnostics_topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        "diagnostics", description="diagnostic_msgs/DiagnosticArray: one status per robot (zone, δ, faults)."
+    )
+    markers_topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        "hrc_markers", description="visualization_msgs/MarkerArray: robot and human capsules coloured by zone."
+    )
+    frame_id: Annotated[str, Field(min_length=1, max_length=256)] = Field(
+        "world", description="frame_id of the markers and joint states: the cell's world frame."
+    )
+    publish_rate_hz: Annotated[float, Field(gt=0.0, le=100.0)] = Field(
+        10.0, description="At most this many rounds of messages per second (never above gateway.status_rate_hz)."
+    )
+    mode: Literal["peer", "client"] = "peer"
+    listen: list[str] = Field(default_factory=list, description="Zenoh endpoints the ROS 2 session listens on.")
+    connect: list[str] = Field(
+        default_factory=list, description='Zenoh endpoints it connects to, e.g. rmw_zenohd: ["tcp/127.0.0.1:7447"].'
+    )
+
+    @model_validator(mode="after")
+    def _reachable(self) -> Ros2Config:
+        if self.enabled and not (self.listen or self.connect):
+            raise ValueError(
+                "enabled without endpoints; allowed: listen and/or connect, e.g. connect = "
+                '["tcp/127.0.0.1:7447"] for the rmw_zenohd router of the host'
+            )
+        return self
+
+
 class CellConfig(_Frozen):
     cell: Name
     safety: SafetyConfig = SafetyConfig()
@@ -536,6 +730,7 @@ class CellConfig(_Frozen):
     plausibility: PlausibilityConfig = PlausibilityConfig()
     streams: StreamsConfig = StreamsConfig()
     tracking: TrackingConfig = TrackingConfig()
+    ros2: Ros2Config = Ros2Config()
     robots: dict[Name, RobotConfig]
     trackers: dict[Name, TrackerConfig]
     default_scenario: str = "walk_in_reach_leave"

@@ -1,0 +1,536 @@
+"""The controller bridge's pure core: overrides in, speed writes out, read-backs in, joint states out.
+
+    bridge = Bridge(settings, locate=model.locate)     # locate: the recorded program model, or None
+    bridge.on_override(payload, now)                   # every override payload (any thread); now: Clocks
+    fraction = bridge.next_write(now)                  # at the heartbeat rate and on a new override
+    if fraction is not None: bridge.on_written(interface.write_speed_fraction(fraction), now)
+    state = bridge.on_reading(interface.read(timeout_s))   # every read-back; None = nothing to publish
+
+No I/O and no clock is read here: ``controller_bridge/main.py`` passes the process's clocks, tests pass theirs.
+
+**Writing δ.** The newest valid override is quantised as the vendor does (:func:`quantise`: never above δ; below
+the vendor's floor the value is the vendor's stop, see :data:`SPEED_INPUTS`) and written at once, then again at
+the heartbeat rate. A real controller keeps its speed input forever, so the bridge runs the watchdog the contract
+gives the controller: with no valid override for ``watchdog_s`` it writes 0 itself.
+
+**The override echo.** ``override_seq`` is the seq of the newest override whose quantised value the controller's
+read-back shows (``speed_fraction``: UR ``target_speed_fraction``, ABB ratio / 100), in a reading received after
+the override was accepted and after that value was written; never on write. The gateway's measured override path
+therefore includes the real actuation latency. A read-back can only prove a *change*: an override that asks for
+the value already in force is confirmed by the next reading, so the gateway learns the path's latency from the
+overrides that change the value (the read-back latency in the statistics is measured on those only).
+
+**What is reported, and why (ramps).** Let s be the controller's read-back of the scaling it applies
+(``speed_fraction × speed_scaling``; 0 while the program does not run). After the slider drops, the controller
+decelerates over its braking time: the robot's real ratio ``a`` then lags above s. The bridge reports
+
+- ``override`` = U, the *braking envelope* of s: ``U = max(s, U_prev − Δt / t_b)``, t_b the smallest braking time
+  the gateway plans with for a moving link (the controller must stop at least that fast: ``check_braking_time``).
+  U ≥ a whenever the controller behaves, so the gateway is never told a lower speed than the robot's, and U exceeds
+  every recent command only when s does: the gateway's ``override_above_commanded`` check keeps its meaning (the
+  envelope is the gateway's own braking allowance). With a program model, ``override`` = min(a_measured, U), the
+  ratio measured along the programmed velocity (``qd · p / p · p``; U where the program stands nearly still).
+- ``qd``: the measured joint velocity (``actual_qd``; for ABB the difference of q over the sample times),
+  never derived from the override: the gateway's check ``qd ≈ override · qd_nominal`` compares reality with
+  the claim.
+- ``qd_nominal``, from the first source that applies (counted per source in the statistics):
+  1. ``program_model``: the recorded program's velocity at the located point (``ProgramModel.locate``): independent
+     of the scaling, exact through ramps and at δ ≈ 0.
+  2. ``target_qd``: ``target_qd / U`` while U ≥ ``min_scaling`` (the gateway's ``streams.qd_tolerance_ratio``,
+     0.02): exact when the read-back shows the applied scaling (UR's combined scaling) or the controller brakes at
+     the envelope, and then ``override · qd_nominal = target_qd ≈ qd``. During a ramp that the read-back runs
+     *ahead* of (the controller brakes faster than t_b, or accelerates after the slider rose) it is below the
+     programmed velocity by a / U while the reported speed ``override · qd_nominal`` stays the robot's: commission a
+     program model (source 1) for such a controller. ``qd`` replaces ``target_qd`` for an interface without it
+     (ABB); then the gateway's qd check says nothing about that controller.
+  3. ``velocity_limits``: the URDF's joint velocity limits with the sign of the motion (+ for a joint at rest):
+     never zero. Used below ``min_scaling``, where ``|qd − U · limit| ≤ U · limit ≤ min_scaling · limit`` stays
+     within the gateway's tolerance whenever the robot moves no faster than U allows.
+
+**Hostile answers.** A reading with the wrong joint count, a non-finite value, a fraction outside [0, 1] or a
+time not after the previous one is refused and counted by reason (as are the interface's own
+:class:`~controller_bridge.vendor.VendorError` reasons, through :meth:`Bridge.count_rejected`); nothing is published
+for it. With no valid reading for ``read_timeout_s`` the shell stops publishing (there is nothing to publish) and
+reconnects: the gateway's staleness check then stops the robot.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import Counter, deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+from controller_bridge.vendor import ControllerReading
+from hrc_contract.messages import JointState, MessageError, Override, parse_message
+from hrc_contract.vocabulary import ControllerMode
+from hrc_runtime.clocks import Clocks
+
+FloatArray = npt.NDArray[np.float64]
+Locate = Callable[[FloatArray, FloatArray], "FloatArray | None"]
+"""The recorded program model (``ProgramModel.locate``): joint positions [rad] and the measured velocity (its
+direction tells retraced stretches apart) [rad/s] → the programmed velocity there [rad/s], or None."""
+
+NS_PER_S = 1e9
+
+MAX_FUTURE_STAMP_S = 0.005
+"""An override stamped further ahead of this host's wall clock is refused [s] (the contract's controller rule)."""
+
+READBACK_TOLERANCE = 1e-4
+"""A read-back within this of a written value shows it (far below the coarsest step, ABB's 1 %)."""
+
+MAX_PENDING_OVERRIDES = 1024
+"""Accepted overrides kept awaiting their read-back (4 s at the gateway's 250 Hz)."""
+
+MODEL_STANDSTILL_RADPS = 0.01
+"""Where the program model's velocity is below this on every joint, the ratio is not measured along it (U is
+reported instead): ``|qd − U · p| ≤ U · |p|`` stays within the gateway's absolute tolerance (0.01 rad/s) [rad/s]."""
+
+
+@dataclass(frozen=True)
+class SpeedInput:
+    """A vendor's speed input.
+
+    Attributes:
+        floor: the smallest value the input is written with; below it the bridge writes ``stop`` [1].
+        step: the resolution, rounded down to (None: continuous) [1].
+        stop: what is written below the floor, and why (for the documentation and the log).
+    """
+
+    floor: float
+    step: float | None
+    stop: str
+
+
+SPEED_INPUTS: Mapping[str, SpeedInput] = MappingProxyType(
+    {
+        "ur_rtde": SpeedInput(
+            floor=0.01,
+            step=None,
+            stop="speed slider 0.0: the robot stands still (some versions then end in a protective stop, the safe "
+            "side); the ROS 2 driver refuses values below 0.01, and anything between is a crawl, not a stop",
+        ),
+        "abb_rws": SpeedInput(
+            floor=0.01,
+            step=0.01,
+            stop="speed ratio 0 %: RWS accepts 0..100 (integer percent, rounded down, so any δ < 1 % is 0 %)",
+        ),
+    }
+)
+"""The speed input of each vendor interface (``kind`` of :class:`~controller_bridge.vendor.VendorInterface`)."""
+
+
+def quantise(delta: float, speed_input: SpeedInput) -> float:
+    """The value to write for δ: rounded down to the step, 0 below the floor; never above δ.
+
+    Args:
+        delta: the override δ, in [0, 1] (outside: clipped; not finite: 0).
+        speed_input: the vendor's input.
+    """
+    if not math.isfinite(delta):
+        return 0.0
+    delta = min(max(delta, 0.0), 1.0)
+    value = delta
+    if speed_input.step is not None:
+        n = math.floor(delta / speed_input.step + 1e-9)  # 0.29 / 0.01 = 28.999…: one step, not two
+        value = n * speed_input.step
+        if value > delta:
+            value = (n - 1) * speed_input.step
+    return 0.0 if value < speed_input.floor - 1e-12 else value
+
+
+@dataclass(frozen=True)
+class BridgeSettings:
+    """What the core needs to know of the robot, the cell and the interface.
+
+    Attributes:
+        robot: the robot's name (overrides for another are refused; the joint state carries it).
+        speed_input: the vendor's speed input (:data:`SPEED_INPUTS`).
+        velocity_limit_radps: the URDF's joint velocity limits, one per joint [rad/s].
+        braking_time_s: t_b of the envelope: the smallest braking time the gateway plans with for a moving link [s].
+        watchdog_s: no valid override for this long → write 0 [s].
+        heartbeat_s: the speed input is written at least this often [s].
+        min_scaling: below this applied scaling ``qd_nominal`` is not derived from the controller [1].
+        max_diff_gap_s: q is not differentiated over a longer gap between readings [s].
+    """
+
+    robot: str
+    speed_input: SpeedInput
+    velocity_limit_radps: tuple[float, ...]
+    braking_time_s: float
+    watchdog_s: float
+    heartbeat_s: float
+    min_scaling: float = 0.02
+    max_diff_gap_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.velocity_limit_radps or not all(v > 0 and math.isfinite(v) for v in self.velocity_limit_radps):
+            raise ValueError(f"velocity_limit_radps = {self.velocity_limit_radps}; allowed: > 0, finite, one a joint")
+        for name in ("braking_time_s", "watchdog_s", "heartbeat_s", "min_scaling", "max_diff_gap_s"):
+            value = getattr(self, name)
+            if not (value > 0 and math.isfinite(value)):
+                raise ValueError(f"{name} = {value}; allowed: > 0, finite")
+
+
+@dataclass(frozen=True)
+class BridgeStats:
+    """The figures of the stats document and the progress lines.
+
+    Attributes:
+        readings: valid readings so far.
+        published: joint states composed.
+        rejected: refused readings and interface errors, by reason (sorted).
+        overrides_rejected: refused override payloads, by reason (sorted).
+        writes: speed writes made.
+        last_readback: the last valid read-back of the speed input (``speed_fraction``), None before any [1].
+        last_applied: the last reported ``override`` [1].
+        readback_latency_s: write → first reading showing a changed value, the last one measured [s].
+        readback_latency_max_s: the largest since the last :meth:`Bridge.take_latency_max` [s].
+        override_seq: the seq confirmed by the read-back, -1 before any.
+        watchdog_expired: the bridge writes 0 because no valid override came for ``watchdog_s``.
+        qd_nominal_sources: joint states per ``qd_nominal`` source.
+        mode: the mode of the last joint state (None before any).
+    """
+
+    readings: int
+    published: int
+    rejected: Mapping[str, int]
+    overrides_rejected: Mapping[str, int]
+    writes: int
+    last_readback: float | None
+    last_applied: float | None
+    readback_latency_s: float | None
+    readback_latency_max_s: float | None
+    override_seq: int
+    watchdog_expired: bool
+    qd_nominal_sources: Mapping[str, int]
+    mode: ControllerMode | None
+
+
+class _Accepted(NamedTuple):
+    seq: int
+    value: float
+    """Quantised δ."""
+    accepted_mono_ns: int
+
+
+@dataclass
+class _Pending:
+    """An accepted override awaiting its read-back."""
+
+    seq: int
+    value: float
+    accepted_mono_ns: int
+    written_mono_ns: int | None
+
+
+class NominalVelocity(NamedTuple):
+    """``qd_nominal`` [rad/s], the reported ``override`` [1] and the source they came from."""
+
+    qd_nominal_radps: FloatArray
+    override: float
+    source: str
+
+
+def braking_envelope(previous: float | None, dt_s: float, readback: float, braking_time_s: float) -> float:
+    """U = max(s, U_prev − Δt / t_b): the highest ratio a controller braking within t_b may still apply [1]."""
+    if previous is None:
+        return readback
+    return max(readback, previous - max(dt_s, 0.0) / braking_time_s)
+
+
+def nominal_velocity(
+    envelope: float,
+    qd_radps: FloatArray,
+    target_qd_radps: FloatArray | None,
+    model_qd_radps: FloatArray | None,
+    velocity_limit_radps: FloatArray,
+    min_scaling: float,
+) -> NominalVelocity:
+    """``qd_nominal`` and ``override`` from the first source that applies (the module docstring, 1–3).
+
+    Args:
+        envelope: U, the braking envelope of the applied scaling (0 when the program does not run) [1].
+        qd_radps: the measured joint velocity [rad/s].
+        target_qd_radps: the controller's target velocity, None without [rad/s].
+        model_qd_radps: the program model's velocity at the robot's position, None without [rad/s].
+        velocity_limit_radps: the URDF's limits [rad/s].
+        min_scaling: below this U, source 2 is not used [1].
+    """
+    if model_qd_radps is not None:
+        override = envelope
+        speed2 = float(model_qd_radps @ model_qd_radps)
+        if np.max(np.abs(model_qd_radps)) >= MODEL_STANDSTILL_RADPS and speed2 > 0.0:
+            measured = float(qd_radps @ model_qd_radps) / speed2
+            override = min(max(measured, 0.0), envelope, 1.0)
+        return NominalVelocity(model_qd_radps, override, "program_model")
+    if envelope >= min_scaling:
+        if target_qd_radps is not None:
+            return NominalVelocity(target_qd_radps / envelope, envelope, "target_qd")
+        return NominalVelocity(qd_radps / envelope, envelope, "qd")
+    motion = target_qd_radps if target_qd_radps is not None and np.any(target_qd_radps) else qd_radps
+    sign = np.where(motion < 0.0, -1.0, 1.0)
+    return NominalVelocity(sign * velocity_limit_radps, envelope, "velocity_limits")
+
+
+def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns: int | None) -> str | None:
+    """Why a reading cannot be used (``wrong_joint_count``, ``non_finite``, ``out_of_range``, ``time_backwards``)."""
+    vectors = [reading.q_rad, reading.qd_radps, reading.target_qd_radps]
+    if any(v is not None and len(v) != n_joints for v in vectors):
+        return "wrong_joint_count"
+    scalars = [reading.speed_fraction, 1.0 if reading.speed_scaling is None else reading.speed_scaling]
+    values = [x for v in vectors if v is not None for x in v] + scalars
+    if not all(isinstance(x, int | float) and math.isfinite(x) for x in values):
+        return "non_finite"
+    if not all(0.0 <= x <= 1.0 for x in scalars):
+        return "out_of_range"
+    if previous_mono_ns is not None and reading.received_mono_ns <= previous_mono_ns:
+        return "time_backwards"
+    if reading.received_wall_ns < 0:
+        return "out_of_range"
+    return None
+
+
+class Bridge:
+    """One controller bridge: override watchdog, speed writes, read-back echo and the joint state it reports.
+
+    Args:
+        settings: the robot, the vendor's input and the limits.
+        locate: the recorded program model's ``locate`` (q [rad] → programmed velocity [rad/s] or None); None
+            without a model.
+    """
+
+    def __init__(self, settings: BridgeSettings, locate: Locate | None = None) -> None:
+        self.settings = settings
+        self._locate = locate
+        self._limits = np.asarray(settings.velocity_limit_radps, dtype=float)
+        self._n = len(settings.velocity_limit_radps)
+        self._lock = threading.Lock()
+        self._newest: _Accepted | None = None
+        self._newest_stamp_ns = -1
+        self._pending: deque[_Pending] = deque(maxlen=MAX_PENDING_OVERRIDES)
+        self._overrides_rejected: Counter[str] = Counter()
+        # writes
+        self._handed: tuple[float, int | None] | None = None
+        self._last_write: tuple[float, int] | None = None  # (value, mono_ns)
+        self._change: tuple[float, int] | None = None  # a write that changed the value, awaiting its read-back
+        self._writes = 0
+        self._watchdog_expired = False
+        # readings
+        self._previous: ControllerReading | None = None
+        self._envelope: float | None = None
+        self._override_seq = -1
+        self._seq = 0
+        self._readings = 0
+        self._rejected: Counter[str] = Counter()
+        self._sources: Counter[str] = Counter()
+        self._last_readback: float | None = None
+        self._last_applied: float | None = None
+        self._latency_s: float | None = None
+        self._latency_max_s: float | None = None
+        self._mode: ControllerMode | None = None
+
+    # -- overrides (the subscriber's thread) ---------------------------------------------------------
+
+    def on_override(self, payload: bytes, now: Clocks) -> str | None:
+        """Parse and check an override on arrival; keep it if it is the newest valid one.
+
+        Order is by ``stamp_ns`` (a restarted gateway starts again at seq 0, as the contract says); an override for
+        another robot (``wrong_robot``), not newer than the newest accepted (``old_or_repeated``), older than the
+        watchdog time (``stale``) or stamped ahead of ``now.wall_ns`` by more than :data:`MAX_FUTURE_STAMP_S`
+        (``stamp_in_future``) is refused, as is one that does not parse (its :class:`MessageError` reason).
+
+        Returns:
+            None if accepted, else the reason (also counted).
+        """
+        try:
+            message = parse_message(payload, Override)
+        except MessageError as exc:
+            self.count_override_rejected(exc.reason)
+            return exc.reason
+        age_s = (now.wall_ns - message.stamp_ns) / NS_PER_S
+        with self._lock:
+            reason: str | None = None
+            if message.robot != self.settings.robot:
+                reason = "wrong_robot"
+            elif message.stamp_ns <= self._newest_stamp_ns:
+                reason = "old_or_repeated"
+            elif age_s > self.settings.watchdog_s:
+                reason = "stale"
+            elif -age_s > MAX_FUTURE_STAMP_S:
+                reason = "stamp_in_future"
+            if reason is not None:
+                self._overrides_rejected[reason] += 1
+                return reason
+            value = quantise(message.delta, self.settings.speed_input)
+            self._newest = _Accepted(message.seq, value, now.mono_ns)
+            self._newest_stamp_ns = message.stamp_ns
+            in_force = self._last_write is not None and abs(self._last_write[0] - value) <= READBACK_TOLERANCE
+            self._pending.append(_Pending(message.seq, value, now.mono_ns, now.mono_ns if in_force else None))
+        return None
+
+    def count_override_rejected(self, reason: str) -> None:
+        """Count an override refused outside :meth:`on_override` (e.g. ``internal_error`` in a callback)."""
+        with self._lock:
+            self._overrides_rejected[reason] += 1
+
+    # -- writes (the writer's loop) --------------------------------------------------------------
+
+    def next_write(self, now: Clocks) -> float | None:
+        """What to write to the speed input now, or None (the value is written and the heartbeat is not due).
+
+        The newest accepted override's quantised δ, or 0 once no valid override came for ``watchdog_s``.
+        """
+        with self._lock:
+            newest = self._newest
+            silent = newest is None or now.mono_ns - newest.accepted_mono_ns > self.settings.watchdog_s * NS_PER_S
+            self._watchdog_expired = silent
+            value, seq = (0.0, None) if silent or newest is None else (newest.value, newest.seq)
+            last = self._last_write
+            due = last is None or value != last[0] or now.mono_ns - last[1] >= self.settings.heartbeat_s * NS_PER_S
+            if not due:
+                return None
+            self._handed = (value, seq)
+            return value
+
+    def on_written(self, written: float, now: Clocks) -> None:
+        """The value :meth:`next_write` handed out was written at ``now`` (``written``: as the vendor quantised it)."""
+        with self._lock:
+            if self._last_write is None or abs(self._last_write[0] - written) > READBACK_TOLERANCE:
+                self._change = (written, now.mono_ns)
+            self._last_write = (written, now.mono_ns)
+            self._writes += 1
+            for pending in self._pending:
+                if pending.written_mono_ns is None and abs(pending.value - written) <= READBACK_TOLERANCE:
+                    pending.written_mono_ns = now.mono_ns
+
+    # -- readings (the reader's loop) ------------------------------------------------------------
+
+    def count_rejected(self, reason: str) -> None:
+        """Count a failed read or write (a :class:`~controller_bridge.vendor.VendorError` reason)."""
+        with self._lock:
+            self._rejected[reason] += 1
+
+    def on_reading(self, reading: ControllerReading) -> JointState | None:
+        """Compose the contract's joint state from a read-back; None for a refused reading (counted), or while q
+        must be differentiated and no earlier reading within ``max_diff_gap_s`` exists."""
+        with self._lock:
+            previous = self._previous
+            problem = reading_problem(reading, self._n, None if previous is None else previous.received_mono_ns)
+            if problem is not None:
+                self._rejected[problem] += 1
+                return None
+            self._previous = reading
+            self._readings += 1
+            self._last_readback = reading.speed_fraction
+            self._confirm(reading)
+            dt_s = None if previous is None else (reading.received_mono_ns - previous.received_mono_ns) / NS_PER_S
+            scaling = reading.speed_fraction * (1.0 if reading.speed_scaling is None else reading.speed_scaling)
+            applied = scaling if reading.running else 0.0
+            self._envelope = envelope = braking_envelope(
+                self._envelope, dt_s or 0.0, applied, self.settings.braking_time_s
+            )
+            if not reading.running:
+                self._envelope = envelope = 0.0
+            q = np.asarray(reading.q_rad, dtype=float)
+            if reading.qd_radps is not None:
+                qd = np.asarray(reading.qd_radps, dtype=float)
+            elif previous is not None and dt_s is not None and dt_s <= self.settings.max_diff_gap_s:
+                qd = (q - np.asarray(previous.q_rad, dtype=float)) / dt_s
+            else:
+                return None  # nothing to differentiate yet: no joint state rather than a guessed velocity
+            target = None if reading.target_qd_radps is None else np.asarray(reading.target_qd_radps, dtype=float)
+            model = self._locate_model(q, qd)
+            nominal = nominal_velocity(envelope, qd, target, model, self._limits, self.settings.min_scaling)
+            self._sources[nominal.source] += 1
+            mode: ControllerMode = "running"
+            if not reading.running or self._watchdog_expired:
+                mode = "protective_stop"
+            elif nominal.override == 0.0:
+                mode = "stopped"
+            state = JointState(
+                robot=self.settings.robot,
+                seq=self._seq,
+                stamp_ns=reading.received_wall_ns,
+                q=q.tolist(),
+                qd=qd.tolist(),
+                qd_nominal=nominal.qd_nominal_radps.tolist(),
+                override=min(max(nominal.override, 0.0), 1.0),
+                override_seq=self._override_seq,
+                mode=mode,
+            )
+            self._seq += 1
+            self._last_applied = state.override
+            self._mode = mode
+            return state
+
+    def silence_s(self, now_mono_ns: int) -> float | None:
+        """Time since the last valid reading, None before any [s]."""
+        with self._lock:
+            previous = self._previous
+        return None if previous is None else (now_mono_ns - previous.received_mono_ns) / NS_PER_S
+
+    def take_latency_max(self) -> float | None:
+        """The largest read-back latency since the previous call [s]; starts again empty."""
+        with self._lock:
+            value, self._latency_max_s = self._latency_max_s, None
+        return value
+
+    def stats(self) -> BridgeStats:
+        """The current figures (any thread)."""
+        with self._lock:
+            return BridgeStats(
+                readings=self._readings,
+                published=self._seq,
+                rejected=MappingProxyType(dict(sorted(self._rejected.items()))),
+                overrides_rejected=MappingProxyType(dict(sorted(self._overrides_rejected.items()))),
+                writes=self._writes,
+                last_readback=self._last_readback,
+                last_applied=self._last_applied,
+                readback_latency_s=self._latency_s,
+                readback_latency_max_s=self._latency_max_s,
+                override_seq=self._override_seq,
+                watchdog_expired=self._watchdog_expired,
+                qd_nominal_sources=MappingProxyType(dict(sorted(self._sources.items()))),
+                mode=self._mode,
+            )
+
+    # -- internals (lock held) -------------------------------------------------------------------
+
+    def _confirm(self, reading: ControllerReading) -> None:
+        """Advance ``override_seq`` to the newest pending override the read-back shows (written before it)."""
+        shown, t_ns = reading.speed_fraction, reading.received_mono_ns
+        confirmed: int | None = None
+        for index, pending in enumerate(self._pending):
+            written = pending.written_mono_ns
+            if written is not None and written <= t_ns and abs(pending.value - shown) <= READBACK_TOLERANCE:
+                confirmed = index
+        if confirmed is not None:
+            self._override_seq = self._pending[confirmed].seq
+            for _ in range(confirmed + 1):
+                self._pending.popleft()
+        change = self._change
+        if change is not None and change[1] <= t_ns and abs(change[0] - shown) <= READBACK_TOLERANCE:
+            self._latency_s = (t_ns - change[1]) / NS_PER_S
+            self._latency_max_s = max(self._latency_s, self._latency_max_s or 0.0)
+            self._change = None
+
+    def _locate_model(self, q_rad: FloatArray, qd_radps: FloatArray) -> FloatArray | None:
+        """The program model's velocity at ``q_rad`` (counted ``model_miss`` when it cannot locate the robot)."""
+        if self._locate is None:
+            return None
+        qd = self._locate(q_rad, qd_radps)
+        if qd is None:
+            self._sources["model_miss"] += 1
+            return None
+        qd = np.asarray(qd, dtype=float)
+        if qd.shape != (self._n,) or not np.isfinite(qd).all():
+            self._sources["model_invalid"] += 1
+            return None
+        return qd

@@ -1,0 +1,481 @@
+"""The controller bridge process: Zenoh, clocks, threads and logging around :class:`controller_bridge.bridge.Bridge`.
+
+    override payload → bridge.on_override(payload, read_clocks())        (the subscriber's thread; wakes the writer)
+    writer loop (write_rate_hz, and at once on an override): bridge.next_write(now) → interface.write_speed_fraction
+    reader thread: interface.read(timeout) → bridge.on_reading(reading) → publish the joint state
+
+The vendor interface is the cell file's ``interface`` of ``--robot NAME`` (``ur_rtde`` or ``abb_rws``; a robot whose
+interface is ``zenoh`` needs no bridge). The reader connects, and reconnects with a doubling backoff
+(:data:`BACKOFF_MIN_S` … :data:`BACKOFF_MAX_S`) when the connection fails or no valid reading came for
+``read_timeout_s``; meanwhile nothing is published, and the gateway's staleness check stops the robot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import numpy as np
+import zenoh
+
+from controller_bridge.bridge import SPEED_INPUTS, Bridge, BridgeSettings, BridgeStats, FloatArray, Locate
+from controller_bridge.vendor import VendorError, VendorInterface
+from hrc_contract import keys
+from hrc_contract.config import (
+    AbbRwsInterfaceConfig,
+    CellConfig,
+    ConfigError,
+    UrRtdeInterfaceConfig,
+)
+from hrc_contract.messages import JointState, to_payload
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.clocks import read_clocks
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.logs import configure_logging
+from hrc_runtime.rate_loop import RateLoop
+from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_runtime.sd_notify import LoopNotifier
+from hrc_runtime.signals import StopEvent, stop_on_signals
+from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+
+PROG = "hrc-controller-bridge"
+
+log = logging.getLogger(PROG)
+
+BridgeInterfaceConfig = UrRtdeInterfaceConfig | AbbRwsInterfaceConfig
+
+STATS_EVERY_S = 1.0
+PROGRESS_EVERY_S = 5.0
+BACKOFF_MIN_S = 0.1
+BACKOFF_MAX_S = 2.0
+"""Reconnection attempts start this far apart and double up to BACKOFF_MAX_S [s]."""
+RECONNECT_ON = frozenset({"connect", "closed", "auth", "refused"})
+"""VendorError reasons after which the connection is closed and opened again (others: the next read may do)."""
+
+
+def select_robot(config: CellConfig, robot: str | None) -> str:
+    """The robot to bridge: the given name, or the cell's only robot whose interface is a bridge.
+
+    Raises:
+        ConfigError: unknown name; no name and not exactly one bridged robot; a robot on the ``zenoh`` interface.
+    """
+    bridged = sorted(name for name, r in config.robots.items() if r.interface.kind != "zenoh")
+    if robot is None:
+        if len(bridged) == 1:
+            return bridged[0]
+        raise ConfigError(
+            f"cell {config.cell!r} has {len(bridged)} robots with a bridged interface; allowed: --robot with one of "
+            f"{', '.join(bridged) or '(none: set [robots.<name>.interface] kind = ur_rtde or abb_rws)'}"
+        )
+    if robot not in config.robots:
+        raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(sorted(config.robots))}")
+    if config.robots[robot].interface.kind == "zenoh":
+        raise ConfigError(
+            f"robot {robot!r} has interface kind 'zenoh' (its controller speaks the cell's contract itself: no "
+            f"bridge); allowed: a robot with kind ur_rtde or abb_rws: {', '.join(bridged) or 'none in this cell'}"
+        )
+    return robot
+
+
+def braking_time_of(model: RobotModel) -> float:
+    """The smallest braking time the gateway plans with for a moving link [s] (the envelope's t_b)."""
+    moving = model.t_brake_link_s[model.t_brake_link_s > 0.0]
+    return float(moving.min()) if moving.size else float(model.braking_time_s.max())
+
+
+def bridge_settings(config: CellConfig, name: str, model: RobotModel) -> BridgeSettings:
+    """The core's settings for robot ``name`` of the cell."""
+    interface = config.robots[name].interface
+    if not isinstance(interface, UrRtdeInterfaceConfig | AbbRwsInterfaceConfig):
+        raise ConfigError(f"robot {name!r}: interface {interface.kind!r} needs no bridge")
+    return BridgeSettings(
+        robot=name,
+        speed_input=SPEED_INPUTS[interface.kind],
+        velocity_limit_radps=tuple(float(v) for v in model.velocity_limit_radps),
+        braking_time_s=braking_time_of(model),
+        watchdog_s=interface.watchdog_s,
+        heartbeat_s=1.0 / interface.write_rate_hz,
+        min_scaling=max(config.streams.qd_tolerance_ratio, 1e-3),
+        max_diff_gap_s=interface.read_timeout_s,
+    )
+
+
+def make_interface(
+    interface: BridgeInterfaceConfig, n_joints: int, environ: Mapping[str, str] | None = None
+) -> VendorInterface:
+    """The vendor interface the cell file asks for (not yet connected).
+
+    Raises:
+        ConfigError: the interface's module is missing, the password variable is unset, or the URL is not served.
+    """
+    env = os.environ if environ is None else environ
+    if isinstance(interface, AbbRwsInterfaceConfig):
+        password = env.get(interface.password_env)
+        if password is None:
+            raise ConfigError(
+                f"environment variable {interface.password_env} (interface.password_env) is not set; allowed: set it "
+                "to the RWS password"
+            )
+        url = urlsplit(interface.url)
+        if url.scheme != "http" or url.hostname is None:
+            raise ConfigError(
+                f"interface.url = {interface.url!r}: this bridge speaks RWS 1.0 over plain HTTP only; allowed: "
+                "http://HOST[:PORT] (RWS 2.0 over HTTPS is not supported yet)"
+            )
+        from controller_bridge.abb_rws import AbbRwsInterface
+
+        return AbbRwsInterface(
+            url.hostname,
+            url.port or 80,
+            interface.user,
+            password,
+            n_joints=n_joints,
+            timeout_s=interface.read_timeout_s,
+        )
+    try:
+        from controller_bridge import ur_rtde  # type: ignore[attr-defined,unused-ignore]
+    except ImportError as exc:
+        raise ConfigError(f"interface ur_rtde is not available in this installation ({exc})") from None
+    made: VendorInterface = ur_rtde.UrRtdeInterface(interface.host, frequency_hz=float(interface.frequency_hz))
+    return made
+
+
+def model_locator(path: Path, robot: str, joint_names: Sequence[str]) -> Locate:
+    """``locate`` of the recorded program model at ``path`` (it follows the robot along the program).
+
+    Raises:
+        ConfigError: the file is not a program model of this robot.
+    """
+    from controller_bridge.program_model import load_model
+
+    model = load_model(path, robot, list(joint_names))
+    previous: list[int | None] = [None]
+
+    def locate(q_rad: FloatArray, qd_radps: FloatArray) -> FloatArray | None:
+        where = model.locate(q_rad, previous[0], qd_radps)
+        previous[0] = None if where is None else where.index
+        return None if where is None else np.asarray(where.qd_nominal_radps, dtype=float)
+
+    log.info("program model %s: %s", path, model.summary())
+    return locate
+
+
+def _stats_doc(robot: str, kind: str, stats: BridgeStats, readings_per_s: float, latency_max_s: float | None) -> bytes:
+    """The bridge's statistics payload (``hrc/<cell>/robot/<robot>/bridge_stats``)."""
+    doc = {
+        "robot": robot,
+        "interface": kind,
+        "mode": stats.mode,
+        "override": stats.last_applied,
+        "override_seq": stats.override_seq,
+        "readback": stats.last_readback,
+        "readback_latency_s": stats.readback_latency_s,
+        "readback_latency_max_s": latency_max_s,
+        "readings_per_s": round(readings_per_s, 1),
+        "published": stats.published,
+        "writes": stats.writes,
+        "watchdog_expired": stats.watchdog_expired,
+        "qd_nominal_sources": dict(stats.qd_nominal_sources),
+        "rejected": dict(stats.rejected),
+        "overrides_rejected": dict(stats.overrides_rejected),
+    }
+    return json.dumps(doc).encode()
+
+
+def bridge_stats_key(cell: str, robot: str) -> str:
+    """Where the bridge puts its statistics (beside the emulator's ``emu_stats``)."""
+    return keys.robot_emu_stats(cell, robot).rsplit("/", 1)[0] + "/bridge_stats"
+
+
+def service_status_line(robot: str, kind: str, stats: BridgeStats) -> str:
+    readback = "-" if stats.last_readback is None else f"{stats.last_readback:.2f}"
+    return f"{robot} {kind} {stats.mode or 'no reading'} readback={readback} rejected={sum(stats.rejected.values())}"
+
+
+class _Reader:
+    """The reader thread: connect (with backoff), read, compose, publish; reconnect when the link fails."""
+
+    def __init__(
+        self, bridge: Bridge, interface: VendorInterface, publish: Callable[[JointState], None], stop: threading.Event
+    ) -> None:
+        self.bridge = bridge
+        self.interface = interface
+        self.publish = publish
+        self.stop = stop
+        self.connected = threading.Event()
+        self.read_timeout_s = bridge.settings.max_diff_gap_s
+        self.thread = threading.Thread(target=self._run, name="bridge-reader", daemon=True)
+
+    def _run(self) -> None:
+        backoff_s = BACKOFF_MIN_S
+        while not self.stop.is_set():
+            try:
+                self.interface.connect()
+            except VendorError as exc:
+                self.bridge.count_rejected(exc.reason)
+                log.warning(
+                    "%s: cannot connect (%s): %s; retry in %.1f s", self.interface.kind, exc.reason, exc, backoff_s
+                )
+                self.stop.wait(backoff_s)
+                backoff_s = min(2 * backoff_s, BACKOFF_MAX_S)
+                continue
+            log.info("%s: connected", self.interface.kind)
+            self.connected.set()
+            try:
+                if self._read_until_failure():
+                    backoff_s = BACKOFF_MIN_S
+            finally:
+                self.connected.clear()
+                self.interface.close()
+            if not self.stop.is_set():
+                self.stop.wait(backoff_s)
+                backoff_s = min(2 * backoff_s, BACKOFF_MAX_S)
+
+    def _read_until_failure(self) -> bool:
+        """Read until stopped or the link fails. Returns whether any joint state was published."""
+        published = False
+        started_ns = time.monotonic_ns()
+        while not self.stop.is_set():
+            try:
+                state = self.bridge.on_reading(self.interface.read(self.read_timeout_s))
+            except VendorError as exc:
+                self.bridge.count_rejected(exc.reason)
+                if exc.reason in RECONNECT_ON:
+                    log.warning("%s: %s (%s): not publishing; reconnecting", self.interface.kind, exc, exc.reason)
+                    return published
+                state = None
+            except Exception:  # a bug must not kill the thread silently: count it, reconnect
+                log.exception("error while reading the controller")
+                self.bridge.count_rejected("internal_error")
+                return published
+            if state is not None:
+                self.publish(state)
+                published = True
+                continue
+            now_ns = time.monotonic_ns()
+            silence_s = self.bridge.silence_s(now_ns)
+            silent_s = (now_ns - started_ns) / 1e9 if silence_s is None else silence_s
+            if silent_s > self.read_timeout_s:
+                log.warning(
+                    "%s: no valid reading for %.3f s (limit %.3f s): not publishing; reconnecting (rejected: %s)",
+                    self.interface.kind,
+                    silent_s,
+                    self.read_timeout_s,
+                    dict(self.bridge.stats().rejected),
+                )
+                return published
+        return published
+
+
+def _write_loop(
+    bridge: Bridge,
+    interface: VendorInterface,
+    reader: _Reader,
+    stop: StopEvent,
+    wake: threading.Event,
+    on_cycle: Callable[[float], None],
+) -> None:
+    """Write the speed input at the heartbeat rate and at once on a new override, until ``stop``."""
+    rate = RateLoop(bridge.settings.heartbeat_s)
+    expired = False
+    while rate.sleep(stop, wake):
+        now = read_clocks()
+        value = bridge.next_write(now)
+        stats_expired = bridge.stats().watchdog_expired
+        if stats_expired != expired:
+            expired = stats_expired
+            if expired:
+                log.warning("no valid override for %.2f s: writing 0", bridge.settings.watchdog_s)
+            else:
+                log.info("valid overrides again")
+        if value is not None and reader.connected.is_set():
+            try:
+                written = interface.write_speed_fraction(value)
+            except VendorError as exc:
+                bridge.count_rejected(f"write_{exc.reason}")
+            else:
+                bridge.on_written(written, read_clocks())
+        on_cycle(now.mono_ns / 1e9)
+
+
+def run_bridge(
+    cell: str,
+    bridge: Bridge,
+    interface: VendorInterface,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    stop: StopEvent,
+    *,
+    zenoh_options: SessionOptions,
+) -> BridgeStats:
+    """Run the bridge until ``stop`` is set. Returns the final statistics.
+
+    Raises:
+        ConfigError: the Zenoh session cannot be opened with these endpoints.
+    """
+    robot, kind = bridge.settings.robot, interface.kind
+    wake = stop.wake_event()
+    try:
+        session = zenoh.open(session_config(listen, connect, zenoh_options))
+    except zenoh.ZError as exc:
+        reason = str(exc).split(" at /", 1)[0]
+        raise ConfigError(
+            f"cannot open a Zenoh session (listen {list(listen)}, connect {list(connect)}): {reason}"
+        ) from None
+    with session:
+        state_pub = session.declare_publisher(
+            keys.robot_state(cell, robot),
+            express=True,
+            priority=zenoh.Priority.REAL_TIME,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        stats_pub = session.declare_publisher(bridge_stats_key(cell, robot))
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                reason = bridge.on_override(sample.payload.to_bytes(), read_clocks())
+            except Exception:  # a callback must never die: count it, the watchdog writes 0
+                log.exception("error while handling an override")
+                bridge.count_override_rejected("internal_error")
+                return
+            if reason is None:
+                wake.set()
+            else:
+                log.debug("override rejected: %s", reason)
+
+        subscriber = session.declare_subscriber(keys.robot_override(cell, robot), on_sample)
+        token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
+        reader = _Reader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop)
+        service = LoopNotifier.from_environment()
+        timers = {"stats": time.monotonic() + STATS_EVERY_S, "progress": time.monotonic() + PROGRESS_EVERY_S}
+        last_readings = [0, time.monotonic()]
+
+        def on_cycle(now_s: float) -> None:
+            stats = bridge.stats()
+            service.cycle_done(now_s, lambda: service_status_line(robot, kind, stats), ready=stats.published > 0)
+            if now_s >= timers["stats"]:
+                timers["stats"] = now_s + STATS_EVERY_S
+                rate = (stats.readings - last_readings[0]) / max(now_s - last_readings[1], 1e-9)
+                last_readings[:] = [stats.readings, now_s]
+                stats_pub.put(_stats_doc(robot, kind, stats, rate, bridge.take_latency_max()))
+            if now_s >= timers["progress"]:
+                timers["progress"] = now_s + PROGRESS_EVERY_S
+                log.info(
+                    "%s via %s: %s override=%s readback=%s override_seq=%d latency=%s published=%d rejected=%s "
+                    "overrides_rejected=%s",
+                    robot,
+                    kind,
+                    stats.mode,
+                    stats.last_applied,
+                    stats.last_readback,
+                    stats.override_seq,
+                    stats.readback_latency_s,
+                    stats.published,
+                    dict(stats.rejected),
+                    dict(stats.overrides_rejected),
+                )
+
+        log.info(
+            "bridge %s of cell %r via %s: overrides from %s, joint states on %s",
+            robot,
+            cell,
+            kind,
+            keys.robot_override(cell, robot),
+            keys.robot_state(cell, robot),
+        )
+        reader.thread.start()
+        try:
+            _write_loop(bridge, interface, reader, stop, wake, on_cycle)
+        finally:
+            service.stopping()
+            stop.set()
+            reader.thread.join(timeout=2.0)
+            del token, subscriber
+    stats = bridge.stats()
+    log.info(
+        "bridge %s stopped: %d readings, %d joint states published, %d writes, rejected %s, overrides rejected %s",
+        robot,
+        stats.readings,
+        stats.published,
+        stats.writes,
+        dict(stats.rejected) or "none",
+        dict(stats.overrides_rejected) or "none",
+    )
+    return stats
+
+
+def main(
+    config: CellConfig,
+    robot: str | None,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    stop: StopEvent,
+    *,
+    zenoh_options: SessionOptions,
+    program_model: Path | None = None,
+) -> int:
+    """Load the robot, build the bridge and its vendor interface, run until ``stop`` is set.
+
+    Raises:
+        ConfigError: unknown robot or one without a bridged interface, invalid robot model or program model, a
+            missing password variable, unusable Zenoh endpoints.
+    """
+    name = select_robot(config, robot)
+    robot_config = config.robots[name]
+    model = load_robot_model(name, robot_config)
+    settings = bridge_settings(config, name, model)
+    locate = None if program_model is None else model_locator(program_model, name, model.joint_names)
+    interface_config = robot_config.interface
+    if not isinstance(interface_config, UrRtdeInterfaceConfig | AbbRwsInterfaceConfig):
+        raise ConfigError(f"robot {name!r} needs no bridge")
+    interface = make_interface(interface_config, model.n_joints)
+    if not listen and not connect:
+        connect = [DEFAULT_ENDPOINT]
+    run_bridge(config.cell, Bridge(settings, locate), interface, listen, connect, stop, zenoh_options=zenoh_options)
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="Controller bridge: the cell's Zenoh contract to a real controller (UR RTDE, ABB RWS)"
+    )
+    add_config_argument(parser)
+    parser.add_argument(
+        "--robot", default=None, metavar="NAME", help="robot of the cell (default: its only bridged one)"
+    )
+    parser.add_argument(
+        "--program-model", type=Path, default=None, metavar="PATH", help="recorded program model (qd_nominal source 1)"
+    )
+    add_zenoh_arguments(parser)
+    args = parser.parse_args(argv)
+    configure_logging(args.log_level)
+    with stop_on_signals() as stop:
+        try:
+            config = load_cell_config(args.config)
+            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
+            code = main(
+                config,
+                args.robot,
+                args.zenoh_listen,
+                args.zenoh_connect,
+                stop,
+                zenoh_options=zenoh_options,
+                program_model=args.program_model,
+            )
+        except ConfigError as exc:
+            reason = " ".join(str(exc).split())
+            sys.stderr.write(f"{PROG}: invalid configuration: {reason}\n")
+            sys.exit(2)
+    sys.exit(code)
+
+
+if __name__ == "__main__":
+    cli()

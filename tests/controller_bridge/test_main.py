@@ -1,0 +1,134 @@
+"""The bridge program: its choice of robot and interface, and the real processes (emulator RTDE face + bridge)."""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from support.cell_files import CONFIGS, replace_once, write_cell
+from support.paths import REPO_ROOT
+
+from controller_bridge.main import make_interface, select_robot
+from hrc_contract import keys
+from hrc_contract.config import AbbRwsInterfaceConfig, ConfigError
+from hrc_contract.messages import JointState, Override, parse_message, to_payload
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import free_endpoint, start_program, stop_all, wait_or_fail
+
+CELL, ROBOT = "demo", "ur5"
+RTDE_HOST = "127.0.41.19"
+ROBOT_TABLE = "[robots.ur5]\n"
+
+
+def _bridged_cell(tmp_path: Path, interface: str) -> Path:
+    for extra in CONFIGS.glob("*.toml"):  # files the cell references beside it (e.g. body_regions.toml)
+        if extra.name != "cell.toml":
+            shutil.copy(extra, tmp_path / extra.name)
+    return write_cell(tmp_path, cell=replace_once(ROBOT_TABLE, f"{ROBOT_TABLE}interface = {interface}\n"))
+
+
+def test_a_robot_on_the_zenoh_interface_needs_no_bridge() -> None:
+    config = load_cell_config()
+    with pytest.raises(ConfigError, match="no bridge"):
+        select_robot(config, ROBOT)
+    with pytest.raises(ConfigError, match="0 robots with a bridged interface"):
+        select_robot(config, None)
+
+
+def test_the_cell_file_chooses_the_interface(tmp_path: Path) -> None:
+    config = load_cell_config(_bridged_cell(tmp_path, f'{{ kind = "ur_rtde", host = "{RTDE_HOST}" }}'))
+    assert select_robot(config, None) == ROBOT
+    interface = config.robots[ROBOT].interface
+    assert (interface.kind, getattr(interface, "frequency_hz", None)) == ("ur_rtde", 500)
+
+
+def test_a_password_in_the_cell_file_is_refused(tmp_path: Path) -> None:
+    path = _bridged_cell(
+        tmp_path, '{ kind = "abb_rws", url = "http://127.0.0.1:8080", password_env = "RWS_PW", password = "robotics" }'
+    )
+    with pytest.raises(ConfigError, match="password in the cell file is refused"):
+        load_cell_config(path)
+
+
+def test_the_abb_password_comes_from_the_named_environment_variable() -> None:
+    interface = AbbRwsInterfaceConfig(kind="abb_rws", url="http://127.0.0.1:8080", password_env="RWS_PW")
+    with pytest.raises(ConfigError, match="RWS_PW"):
+        make_interface(interface, 6, environ={})
+    assert make_interface(interface, 6, environ={"RWS_PW": "robotics"}).kind == "abb_rws"
+    https = AbbRwsInterfaceConfig(kind="abb_rws", url="https://127.0.0.1", password_env="RWS_PW")
+    with pytest.raises(ConfigError, match="plain HTTP only"):
+        make_interface(https, 6, environ={"RWS_PW": "x"})
+
+
+def test_a_bridge_watchdog_longer_than_the_controllers_is_refused(tmp_path: Path) -> None:
+    path = _bridged_cell(tmp_path, f'{{ kind = "ur_rtde", host = "{RTDE_HOST}", watchdog_s = 0.5 }}')
+    with pytest.raises(ConfigError, match=r"interface\.watchdog_s"):
+        load_cell_config(path)
+
+
+def _rtde_pieces_missing() -> str | None:
+    if importlib.util.find_spec("controller_bridge.ur_rtde") is None:
+        return "controller_bridge/ur_rtde.py is not there yet"
+    help_text = subprocess.run(
+        [sys.executable, "-m", "controller_emu", "--help"], cwd=REPO_ROOT, capture_output=True, text=True, check=False
+    ).stdout
+    if "--rtde" not in help_text:
+        return "hrc-controller-emu has no --rtde face yet"
+    return None
+
+
+@pytest.mark.e2e
+def test_the_bridge_confirms_an_override_only_once_the_rtde_read_back_shows_it(tmp_path: Path) -> None:
+    missing = _rtde_pieces_missing()
+    if missing is not None:
+        pytest.skip(missing)
+    cell = _bridged_cell(tmp_path, f'{{ kind = "ur_rtde", host = "{RTDE_HOST}", frequency_hz = 500 }}')
+    emu_endpoint, endpoint = free_endpoint(), free_endpoint()  # the emulator's own Zenoh face is not on the test's
+    logs = [tmp_path / "emu.log", tmp_path / "bridge.log"]
+    emu = start_program(
+        "controller_emu", ["--config", str(cell), "--rtde", RTDE_HOST, "--zenoh-listen", emu_endpoint], logs[0]
+    )
+    bridge = start_program("controller_bridge", ["--config", str(cell), "--zenoh-listen", endpoint], logs[1])
+    procs = [emu, bridge]
+    states: list[JointState] = []
+    lock = threading.Lock()
+
+    def on_state(sample: zenoh.Sample) -> None:
+        with lock:
+            states.append(parse_message(sample.payload.to_bytes(), JointState))
+
+    try:
+        with zenoh.open(session_config(connect=[endpoint])) as session:
+            sub = session.declare_subscriber(keys.robot_state(CELL, ROBOT), on_state)
+            pub = session.declare_publisher(keys.robot_override(CELL, ROBOT), express=True)
+            wait_or_fail(lambda: len(states) >= 10, 20.0, "joint states from the bridge", logs, procs)
+            with lock:
+                assert all(s.override_seq == -1 for s in states), "no override put yet: nothing confirmed"
+            sent: dict[int, int] = {}
+            seq, end_s = 0, time.monotonic() + 2.0
+            while time.monotonic() < end_s:  # play the gateway at 250 Hz: δ = 0.5, then 0.25
+                delta = 0.5 if seq < 250 else 0.25
+                sent[seq] = time.time_ns()
+                pub.put(to_payload(Override(robot=ROBOT, seq=seq, stamp_ns=sent[seq], delta=delta)))
+                seq += 1
+                time.sleep(0.004)
+            with lock:
+                echoed = [s for s in states if s.override_seq >= 0]
+            assert echoed, "the read-back confirmed an override"
+            for state in echoed:
+                assert state.override_seq in sent
+                assert state.stamp_ns >= sent[state.override_seq], "confirmed after it was sent, never before"
+            assert echoed[-1].override_seq >= 250, "the change to 0.25 was confirmed"
+            assert echoed[-1].override <= 0.25 + 1e-6
+            del sub
+    finally:
+        stop_all(procs)
+    assert bridge.returncode == 0

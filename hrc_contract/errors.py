@@ -10,6 +10,7 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     │   └── SecurityError  (hrc_runtime.zenoh_session)     a Zenoh session cannot be secured as asked
     ├── MessageError       (hrc_contract.messages)         a payload that is not a valid message: count it, fail
     │                                                      closed
+    ├── DigestError        (hrc_runtime.http_digest)       an HTTP Digest header that does not parse: refuse it (401)
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
     ├── RuleError          (hrc_tools.faultinject.rules)   a fault-injection rule that does not parse
     ├── RelayError         (hrc_tools.faultinject.relay)   the fault relay cannot run

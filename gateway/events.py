@@ -76,6 +76,10 @@ class EventLog:
         """The gateway stops (``why``: e.g. ``"signal"``)."""
         return [self._event(stamp_ns, "stop", f"gateway stopped: {why}")]
 
+    def stalled(self, stamp_ns: int, cause: str, message: str) -> list[Event]:
+        """The loop stalled (:mod:`gateway.stalls`): ``loop_stall`` with its cause."""
+        return [self._event(stamp_ns, "loop_stall", message, cause=cause)]
+
     def observe(
         self,
         mono_ns: int,

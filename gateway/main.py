@@ -36,6 +36,8 @@ from gateway.events import EventLog
 from gateway.http.server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
 from gateway.recording import GatewayRecorder
+from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
+from gateway.stalls import Phase, StallMonitor
 from gateway.status import cycle_status, effective_config, loop_status
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
@@ -107,6 +109,8 @@ def _log_events(events: list[Event]) -> None:
             log.warning("%s%s (δ = 0)", robot, event.message)
         elif event.kind in ("zone_changed", "fault_cleared"):
             log.info("%s%s", robot, event.message)
+        elif event.kind == "loop_stall":
+            log.warning("%s", event.message)
 
 
 def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int, budget_overruns: int) -> None:
@@ -328,18 +332,32 @@ class _Outputs:
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
     events: EventLog = field(default_factory=EventLog)
+    ros2: Ros2Face | None = None
+    """The ROS 2 face (``[ros2]``), offered the same snapshots as the status thread."""
 
     def publish_overrides(self, messages: dict[str, Override]) -> None:
         for name, message in messages.items():
             self.overrides[name].put(to_payload(message))
 
     def offer_status(
-        self, config: CellConfig, cycle: GatewayCycle, rate: RateLoop, node: GatewayNode, intervals: DecisionIntervals
+        self,
+        config: CellConfig,
+        cycle: GatewayCycle,
+        rate: RateLoop,
+        node: GatewayNode,
+        intervals: DecisionIntervals,
+        stalls: StallMonitor | None = None,
     ) -> None:
         """Hand ``cycle`` to the status thread with the loop's numbers now (a few µs on the loop thread)."""
         loop = loop_status(rate, self.compute_max_s, config.gateway.event_driven, self.event_seqs)
-        loop = loop.model_copy(update={"budget_overruns": intervals.overruns})
-        self.status_thread.offer(StatusJob(cycle, node.counters(), loop, time.time_ns()))
+        update: dict[str, Any] = {"budget_overruns": intervals.overruns}
+        if stalls is not None:
+            update |= {"stalls": dict(stalls.stalls), "missed_by_cause": dict(stalls.missed)}
+        loop = loop.model_copy(update=update)
+        job = StatusJob(cycle, node.counters(), loop, time.time_ns())
+        self.status_thread.offer(job)
+        if self.ros2 is not None:
+            self.ros2.offer(job)
         self.compute_max_s = 0.0
         self.event_seqs = []
 
@@ -366,7 +384,20 @@ def _moving(overrides: Mapping[str, Override]) -> bool:
 
 
 def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent, wake: threading.Event | None) -> int:
-    """Cycle until ``stop`` is set; returns the exit code (1 if the HTTP server died)."""
+    """Cycle until ``stop`` is set; returns the exit code (1 if the HTTP server died). Each tick later than a
+    period is recorded with its cause (:mod:`gateway.stalls`): an event, and counted in the status."""
+    with StallMonitor(1.0 / config.gateway.rate_hz) as stalls:  # on this thread: it reads this thread's schedstat
+        return _cycle(config, node, out, stop, wake, stalls)
+
+
+def _cycle(
+    config: CellConfig,
+    node: GatewayNode,
+    out: _Outputs,
+    stop: StopEvent,
+    wake: threading.Event | None,
+    stalls: StallMonitor,
+) -> int:
     gateway = config.gateway
     period_s = 1.0 / gateway.rate_hz
     status_every = max(1, round(gateway.rate_hz / gateway.status_rate_hz))
@@ -378,20 +409,27 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
     service = LoopNotifier.from_environment()  # READY=1, WATCHDOG=1 from this loop, STATUS=, STOPPING=1
     while rate.sleep(stop, wake):
         woke_s = time.monotonic()
+        stall = stalls.woke(time.monotonic_ns(), not rate.last_was_event, rate.last_lateness_s, rate.missed_cycles)
         now = read_clocks()
+        stalls.enter(Phase.DECIDE)
         cycle = node.cycle(now, intervals.start(now.mono_ns))
+        stalls.enter(Phase.PUBLISH)
         out.publish_overrides(cycle.overrides)
         intervals.commanded(_moving(cycle.overrides))
+        stalls.enter(Phase.EVENTS)
         service.cycle_done(woke_s, functools.partial(service_status_line, cycle.decisions, rate.missed_cycles))
         service.stall_for_tests(stop)  # TEST ONLY (HRC_TEST_STALL_AFTER_CYCLES): a stalled loop stops the pings
         if rate.last_was_event and len(out.event_seqs) < MAX_EVENT_SEQS_PER_STATUS:
             out.event_seqs.append(cycle.seq)
         events = out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions, cycle.track_events)
+        if stall is not None:  # built after the decision is out; logged and written by other threads
+            events += out.events.stalled(time.time_ns(), stall.cause, stall.message())
         if events:
             _log_events(events)
             out.http.offer_events(events)
         if not rate.last_was_event and rate.tick_cycles % status_every == 0:
-            out.offer_status(config, cycle, rate, node, intervals)
+            stalls.enter(Phase.STATUS)
+            out.offer_status(config, cycle, rate, node, intervals, stalls)
             if out.http.exit_code() is not None:
                 log.error("the HTTP server exited (code %s); is its port in use?", out.http.exit_code())
                 service.stopping()
@@ -410,6 +448,7 @@ def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent,
         compute_s = time.monotonic() - woke_s
         rate.cycle_took(compute_s)
         out.compute_max_s = max(out.compute_max_s, compute_s)
+        stalls.enter(Phase.SLEEP)
     service.stopping()
     log.info(
         "gateway stopped after %d cycles (%d ticks, %d missed; %d event cycles; %d budget overruns)",
@@ -434,15 +473,21 @@ def run_gateway(
     *,
     zenoh_options: SessionOptions,
     events_log: Path | None = None,
+    ros2_options: SessionOptions | None = None,
 ) -> int:
     """Run the gateway until ``stop`` is set. Returns the process exit code.
+
+    ``ros2_options``: the ROS 2 face's own session (:func:`gateway.ros2_face.ros2_session_options`), when enabled.
 
     ``events_log``: a JSON Lines file of the event log (zone changes, faults, start, stop), rotated by size.
 
     The loop decides at every tick of ``gateway.rate_hz`` and, given ``wake`` (set by the node when a tracker
     frame arrives, see :class:`GatewayNode`), also at once between ticks (an event cycle, see :class:`RateLoop`).
     """
-    with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
+    with (
+        zenoh.open(session_config(listen, connect, zenoh_options)) as session,
+        running_ros2_face(config, node.robots, ros2_options) as ros2,
+    ):
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
         on_sample = _callback(node, config.gateway.io_realtime_priority)
         subscribers = [
@@ -453,7 +498,7 @@ def run_gateway(
         effective = effective_config(config)
         http = HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority)
         sink = _StatusSink(config, node.robots, session.declare_publisher(keys.gateway_status(config.cell)), http)
-        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish))
+        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish), ros2=ros2)
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
@@ -512,6 +557,7 @@ def cli(argv: list[str] | None = None) -> None:
         try:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
+            ros2_options = ros2_session_options(args, config.ros2) if config.ros2.enabled else None
             wake = stop.wake_event() if config.gateway.event_driven else None
             recorder = None if args.record is None else GatewayRecorder(args.record, config)
             node = build_node(config, wake, recorder)
@@ -536,6 +582,7 @@ def cli(argv: list[str] | None = None) -> None:
                 wake,
                 zenoh_options=zenoh_options,
                 events_log=args.events_log,
+                ros2_options=ros2_options,
             )
         if recorder is not None:
             _close_recording(recorder)

@@ -6,12 +6,18 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     ├── ConfigError        (hrc_contract.config)           a configuration that cannot load or is unsafe: refuse
     │   │                                                  to start
     │   ├── NotFoundError  (hrc_runtime.locate)            no cell file or state folder given nor found
+    │   ├── ProgramModelError (controller_bridge.program_model) a recorded program model that cannot be made,
+    │   │                                                  loaded or used for this robot
     │   ├── PkiError       (hrc_runtime.pki)               the cell's PKI is missing, invalid or expired
     │   └── SecurityError  (hrc_runtime.zenoh_session)     a Zenoh session cannot be secured as asked
     ├── MessageError       (hrc_contract.messages)         a payload that is not a valid message: count it, fail
-    │                                                      closed
+    │   │                                                  closed
+    │   ├── SkeletonError  (hrc_runtime.skeletons)         keypoints that cannot describe a person
+    │   └── Ros2MessageError (hrc_runtime.ros2_people)     a ROS 2 tracker message that does not decode or is absurd
     ├── DigestError        (hrc_runtime.http_digest)       an HTTP Digest header that does not parse: refuse it (401)
+    ├── AttachmentError    (hrc_runtime.rmw_zenoh)         an rmw_zenoh sample attachment that rmw_zenoh would drop
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
+    ├── RtdeError          (hrc_runtime.rtde)              bytes that are not a valid RTDE package
     ├── RuleError          (hrc_tools.faultinject.rules)   a fault-injection rule that does not parse
     ├── RelayError         (hrc_tools.faultinject.relay)   the fault relay cannot run
     ├── VendorError        (controller_bridge.vendor)      a controller's vendor interface failed or answered

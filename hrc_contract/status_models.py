@@ -122,6 +122,14 @@ class RobotStatus(_Strict):
         "not a finite number [m]."
     )
     closest: ClosestPair | None = Field(description="The pair at ``min_distance_m``; null with nobody seen.")
+    bounded_by: str | None = Field(
+        None,
+        max_length=80,
+        description="What bounded ``delta_bound``, for the methods that say (``lucci2020_pfl``): "
+        "``separation:<region>`` (head, or a body part of no region: stop before contact), ``contact:<region>`` "
+        "(slow to that region's contact-safe speed), ``clamping:<region>`` (a body part that may be pinned against a "
+        "clamping surface: stop before contact) or ``none`` (δ = 1); null for the other methods.",
+    )
     t_delay_s: NonNegative = Field(description="The whole delay this decision used: the sum of ``delay_budget_s`` [s].")
     delay_budget_s: DelayBudgetStatus
     clearance_m: NonNegative = Field(description="Δ = c + K (max t_b + t_delay) at the nominal human speed [m].")
@@ -232,6 +240,17 @@ class LoopStatus(_Strict):
         description="Decisions that commanded δ > 0 whose next decision started later than the "
         "``delay_budget_s.gateway_period_s`` they counted, since the gateway started (the loop was held up).",
     )
+    stalls: dict[str, Count] = Field(
+        default_factory=dict,
+        description="Ticks later than a period (each made the loop skip ticks), by cause, since the gateway started: "
+        "``gc``, ``runqueue`` (runnable, another thread or program ran), ``phase:<name>`` (the loop's own work ran "
+        "past the due time), ``blocked`` (woke late without being runnable: the interpreter lock or the process "
+        "stopped), ``unknown``. Each is logged as an event ``loop_stall`` with its figures.",
+    )
+    missed_by_cause: dict[str, Count] = Field(
+        default_factory=dict,
+        description="``missed_cycles`` by the cause of the stall that skipped them (they add up to it).",
+    )
 
 
 class GatewayStatus(_Strict):
@@ -257,7 +276,15 @@ class GatewayStatus(_Strict):
 
 
 EventKind = Literal[
-    "start", "stop", "config_loaded", "zone_changed", "fault_raised", "fault_cleared", "track_lost", "track_released"
+    "start",
+    "stop",
+    "config_loaded",
+    "zone_changed",
+    "fault_raised",
+    "fault_cleared",
+    "track_lost",
+    "track_released",
+    "loop_stall",
 ]
 """What an :class:`Event` records (contract, "Events")."""
 
@@ -278,7 +305,8 @@ class Event(_Strict):
     track: str | None = Field(default=None, description="``track_lost`` / ``track_released``: the track's label.")
     cause: str | None = Field(
         default=None,
-        description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom).",
+        description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom); "
+        "``loop_stall``: the stall's cause (``loop.stalls``).",
     )
 
 

@@ -23,6 +23,7 @@ from prometheus_client import CollectorRegistry, Counter, Histogram, generate_la
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+from gateway.stalls import CAUSES as STALL_CAUSES
 from hrc_contract.status_models import Event, GatewayStatus
 
 MS_BUCKETS_S = (0.0005, 0.001, 0.002, 0.003, 0.004, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.05, 0.1)
@@ -53,12 +54,27 @@ class _StatusCollector(Collector):
         loop = status.loop
         yield CounterMetricFamily("hrc_loop_cycles", "Decisions taken (ticks and event cycles).", value=loop.cycles)
         yield CounterMetricFamily("hrc_loop_missed_cycles", "Ticks skipped after an overrun.", value=loop.missed_cycles)
+        yield from _stall_metrics(status)
         if loop.rate_hz > 0.0:
             yield GaugeMetricFamily(
                 "hrc_loop_nominal_period_seconds",
                 "Configured tick period of the safety loop.",
                 value=1.0 / loop.rate_hz,
             )
+
+
+def _stall_metrics(status: GatewayStatus) -> Iterator[Metric]:
+    """Stalls and the ticks they skipped, by cause (every cause of :mod:`gateway.stalls` at 0 before the first)."""
+    stalls = CounterMetricFamily("hrc_loop_stalls", "Ticks later than a period, by cause.", labels=["cause"])
+    missed = CounterMetricFamily(
+        "hrc_loop_missed_cycles_by_cause", "Ticks skipped, by the cause of the stall.", labels=["cause"]
+    )
+    loop = status.loop
+    for cause in dict.fromkeys((*STALL_CAUSES, *loop.stalls, *loop.missed_by_cause)):
+        stalls.add_metric([cause], loop.stalls.get(cause, 0))
+        missed.add_metric([cause], loop.missed_by_cause.get(cause, 0))
+    yield stalls
+    yield missed
 
 
 def _robot_metrics(status: GatewayStatus) -> Iterator[Metric]:

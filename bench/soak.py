@@ -1,0 +1,672 @@
+"""The soak: the real cell under a seeded chaos schedule for M minutes, audited on truth the whole time.
+
+    tracker ──relay-tracker──┐                       ┌── hrc-audit (truth, status: straight from the programs)
+                             ├── gateway (mutual TLS) ┤
+    controller ──relay-ctrl──┘   └─ HTTP child ◀──── this process: status, events, stream clients, faults
+
+Every program runs as in the default cell (mutual TLS and the cell's access control, certificates from a fresh CA);
+the tracker and controller emulators reach the gateway only through ``hrc-fault-relay`` (one per link), the
+auditor reaches every program directly. This process supervises them as systemd would (a program that dies is
+started again after :data:`RESTART_AFTER_S`; ``hrc-cell`` itself stops the cell instead) and injects, in a seeded
+order, one fault at a time: kill each program, freeze (SIGSTOP) the tracker and the controller, delay, loss and
+partitions on each link, a flood of valid frames from an authenticated tracker, stream clients coming and going,
+a gateway restart while a person is near. After each fault it waits until the gateway shows no fault again (the
+recovery time) and keeps what the status showed meanwhile (the reason).
+
+The report (printed and ``DIR/soak.json``): violations within K (the auditor), missed ticks by cause (the
+``loop_stall`` events, every gateway run), budget overruns, memory, descriptors and threads per program at start
+and end, events lost (each gateway run's seqs contiguous in the JSON Lines file, and the file agreeing with
+``GET /api/v1/events``), the gateway recordings after a SIGKILL (readable, how many messages), every fault with
+its reason and recovery. A fault that cannot be injected is listed as such. Ctrl-C ends it with the report of
+what ran.
+
+    .venv/bin/python -m bench.soak --minutes 5 --seed 1 [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import itertools
+import json
+import os
+import random
+import re
+import signal
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+import zenoh
+
+from bench._report import machine_info
+from hrc_contract.config import CellConfig
+from hrc_contract.messages import Humans, parse_message
+from hrc_runtime.access_control import CellPolicy, control_key
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.pki import CellPki
+from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
+from hrc_tools.cell.procs import (
+    Program,
+    free_port,
+    http_get,
+    program_env,
+    start_program,
+    stop_program,
+    with_gateway_rate,
+    write_cell_config,
+)
+from hrc_tools.cert.main import provision_cell
+
+RESTART_AFTER_S = 1.0
+"""A program that died is started again this long after (systemd's ``RestartSec``) [s]."""
+RECOVERY_TIMEOUT_S = 60.0
+"""A fault not recovered from within this long after it ended is reported as not recovered [s]."""
+SETTLE_S = 2.0
+"""Quiet time between the recovery from one fault and the next fault [s]."""
+WARMUP_S = 20.0
+"""The cell runs this long before the first fault; resources are sampled at its end ("start") [s]."""
+POLL_S = 0.1
+"""The status is polled this often [s]."""
+FLOOD_RATE_HZ = 2000.0
+"""Frames per second of the flooding tracker."""
+PROGRAMS = ("gateway", "controller", "tracker", "relay-controller", "relay-tracker", "audit")
+FAULT_KINDS = (
+    "kill:gateway",
+    "kill:controller",
+    "kill:tracker",
+    "kill:relay-controller",
+    "kill:relay-tracker",
+    "freeze:tracker",
+    "freeze:controller",
+    "delay:controller",
+    "delay:tracker",
+    "loss:controller",
+    "loss:tracker",
+    "partition:controller",
+    "partition:tracker",
+    "flood:tracker",
+    "streams",
+    "restart-near:gateway",
+    "clock-step:tracker",
+)
+"""Every fault of the schedule; each round plays them all, in a seeded order."""
+_MISSED = re.compile(r"\((\d+) missed\)")
+
+
+@dataclass
+class FaultResult:
+    """One injected fault: when, what the status showed, how long the recovery took."""
+
+    kind: str
+    t_s: float
+    injected: bool
+    note: str = ""
+    held_s: float = 0.0
+    reasons: list[str] = field(default_factory=list)
+    recovered: bool | None = None
+    recovery_s: float | None = None
+
+
+class NotInjectedError(Exception):
+    """A fault that cannot be injected here; the message says why."""
+
+
+def fault_schedule(seed: int, rounds: int) -> list[str]:
+    """``rounds`` rounds of :data:`FAULT_KINDS`, each shuffled by a generator seeded with ``seed``."""
+    rng = random.Random(seed)
+    schedule: list[str] = []
+    for _ in range(rounds):
+        kinds = list(FAULT_KINDS)
+        rng.shuffle(kinds)
+        schedule += kinds
+    return schedule
+
+
+def split_runs(events: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """The events of the JSON Lines file split into gateway runs (each begins with its seq 1)."""
+    runs: list[list[dict[str, Any]]] = []
+    for event in events:
+        if event["seq"] == 1 or not runs:
+            runs.append([])
+        runs[-1].append(event)
+    return runs
+
+
+def seq_gaps(run: list[dict[str, Any]]) -> list[int]:
+    """Seqs missing in one gateway run's events (they should be 1, 2, 3, ...)."""
+    seqs = [e["seq"] for e in run]
+    missing = sorted(set(range(1, max(seqs, default=0) + 1)) - set(seqs))
+    return missing
+
+
+def stalls_by_cause(events: list[dict[str, Any]]) -> tuple[dict[str, int], dict[str, int]]:
+    """``(stalls, missed ticks)`` by cause, from the ``loop_stall`` events."""
+    stalls: dict[str, int] = {}
+    missed: dict[str, int] = {}
+    for event in events:
+        if event["kind"] != "loop_stall":
+            continue
+        cause = event.get("cause") or "unknown"
+        stalls[cause] = stalls.get(cause, 0) + 1
+        match = _MISSED.search(event["message"])
+        missed[cause] = missed.get(cause, 0) + (int(match.group(1)) if match else 0)
+    return stalls, missed
+
+
+def resources(pid: int) -> dict[str, int] | None:
+    """RSS [kB], open descriptors and threads of a process (None if it is gone)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+        fds = len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return None
+    fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
+    return {"rss_kb": int(fields["VmRSS"].split()[0]), "fds": fds, "threads": int(fields["Threads"])}
+
+
+def _children(pid: int) -> list[int]:
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+class Soak:
+    """The cell, its supervision, the status watch and the faults."""
+
+    def __init__(self, work: Path, seed: int, stop: threading.Event) -> None:
+        self.work = work
+        self.stop = stop
+        self.rng = random.Random(seed)
+        self.start_s = time.monotonic()
+        base = load_cell_config(None)
+        self.http_port = free_port()
+        self.config: CellConfig = with_gateway_rate(base, base.gateway.rate_hz, self.http_port)
+        self.config_path = write_cell_config(self.config, work / "cell.toml")
+        self.pki_dir = work / "pki"
+        pki = CellPki(self.pki_dir)
+        pki.ensure_ca()
+        self.policy = CellPolicy.from_config(self.config)
+        provision_cell(pki, self.policy)
+        self.ports = {name: free_port() for name in ("gateway", "controller", "tracker", "rc", "rt")}
+        self.procs: dict[str, Program] = {}
+        self.paused: set[str] = set()  # not restarted meanwhile (a fault is being played)
+        self.gateway_runs = 0
+        self.recordings: list[dict[str, Any]] = []
+        self.latest: dict[str, Any] | None = None
+        self.latest_s = 0.0
+        self.status_lock = threading.Lock()
+        self.relay_rules: dict[str, list[str]] = {"relay-controller": [], "relay-tracker": []}
+        self.events_checks: list[dict[str, Any]] = []
+        self.incarnation_loops: list[dict[str, Any]] = []
+
+    # -- programs -------------------------------------------------------------------------------
+
+    def ep(self, name: str) -> str:
+        return f"tls/127.0.0.1:{self.ports[name]}"
+
+    def _command(self, name: str) -> tuple[str, list[str]]:
+        common = ["--config", str(self.config_path), "--pki-dir", str(self.pki_dir)]
+        if name == "gateway":
+            self.gateway_runs += 1
+            record = self.work / f"gateway-{self.gateway_runs}.mcap"
+            self.recordings.append({"path": str(record), "killed": False})
+            return "gateway", [
+                *common,
+                *("--zenoh-listen", self.ep("gateway"), "--http-port", str(self.http_port)),
+                *("--events-log", str(self.work / "events.jsonl"), "--record", str(record)),
+            ]
+        if name == "controller":
+            links = ["--zenoh-listen", self.ep("controller"), "--zenoh-connect", self.ep("rc")]
+            return "controller_emu", [*common, *links]
+        if name == "tracker":
+            return "tracker_emu", [*common, "--zenoh-listen", self.ep("tracker"), "--zenoh-connect", self.ep("rt")]
+        if name in ("relay-controller", "relay-tracker"):
+            side_a = self.ep("rc" if name == "relay-controller" else "rt")
+            rules = [arg for rule in self.relay_rules[name] for arg in ("--rule", rule)]
+            return "hrc_tools.faultinject", [
+                *common,
+                *("--a-listen", side_a, "--b-connect", self.ep("gateway"), "--seed", str(self.rng.randrange(1 << 30))),
+                *rules,
+            ]
+        if name == "audit":
+            connect = [arg for n in ("gateway", "controller", "tracker") for arg in ("--zenoh-connect", self.ep(n))]
+            return "hrc_tools.audit", [*common, *connect, "--json", str(self.work / "audit.json")]
+        raise KeyError(name)
+
+    def start(self, name: str) -> None:
+        module, args = self._command(name)
+        self.procs[name] = start_program(module, args, self.work / f"{name}.log", env=program_env(plain_tcp=False))
+
+    def supervise(self) -> None:
+        """Start again, after :data:`RESTART_AFTER_S`, every program that exited (not one a fault holds)."""
+        for name, proc in list(self.procs.items()):
+            if name not in self.paused and proc.poll() is not None:
+                self.sleep(RESTART_AFTER_S)
+                self.start(name)
+
+    def sleep(self, duration_s: float) -> None:
+        """Wait ``duration_s``, polling the status meanwhile (returns early on Ctrl-C)."""
+        end_s = time.monotonic() + duration_s
+        while not self.stop.is_set() and time.monotonic() < end_s:
+            self.poll_status()
+            self.stop.wait(min(POLL_S, max(0.0, end_s - time.monotonic())))
+
+    # -- the status -----------------------------------------------------------------------------
+
+    def poll_status(self) -> dict[str, Any] | None:
+        try:
+            reply = http_get(f"http://127.0.0.1:{self.http_port}/api/v1/status", timeout_s=2.0)
+        except OSError:
+            return None
+        if reply.status_code != 200:
+            return None
+        doc: dict[str, Any] = reply.json()
+        with self.status_lock:
+            self.latest, self.latest_s = doc, time.monotonic()
+        return doc
+
+    def reasons(self, doc: dict[str, Any] | None) -> dict[str, str]:
+        """The active faults' codes, each with its reason (the first robot's); a missing status is one too."""
+        if doc is None:
+            return {"no_status": "the gateway does not answer"}
+        return {f["code"]: f["reason"] for r in doc["robots"].values() for f in r["faults"]}
+
+    def healthy(self) -> bool:
+        """Every program runs, and a fresh status shows no fault on any robot."""
+        if any(p.poll() is not None for p in self.procs.values()):
+            return False
+        doc = self.poll_status()
+        return doc is not None and not self.reasons(doc)
+
+    def someone_near(self) -> bool:
+        doc = self.poll_status()
+        return doc is not None and any(r["zone"] != "autonomous" for r in doc["robots"].values())
+
+    # -- faults ---------------------------------------------------------------------------------
+
+    def play(self, kind: str) -> FaultResult:
+        """Inject one fault, end it, wait for the recovery; what the status showed meanwhile."""
+        result = FaultResult(kind, round(time.monotonic() - self.start_s, 1), injected=True)
+        seen: dict[str, str] = {}
+        began_s = time.monotonic()
+
+        def watch(duration_s: float) -> None:
+            end_s = time.monotonic() + duration_s
+            while not self.stop.is_set() and time.monotonic() < end_s:
+                seen.update({k: v for k, v in self.reasons(self.poll_status()).items() if k not in seen})
+                self.stop.wait(POLL_S)
+
+        try:
+            result.note = self._inject(kind, self.rng.uniform(2.0, 6.0), watch)
+        except NotInjectedError as exc:
+            result.injected, result.note = False, str(exc)
+            return result
+        except (OSError, zenoh.ZError, httpx.HTTPError) as exc:
+            result.injected, result.note = False, f"could not inject: {exc}"
+        result.held_s = round(time.monotonic() - began_s, 2)
+        result.recovered, result.recovery_s = self._recover(seen)
+        result.reasons = [f"{code}: {reason}" for code, reason in sorted(seen.items())]
+        return result
+
+    def _inject(self, kind: str, hold_s: float, watch: Callable[[float], None]) -> str:
+        """Play fault ``kind`` for about ``hold_s`` [s] and end it; a note on what was done.
+
+        Raises:
+            NotInjectedError: this fault cannot be injected here (the message says why).
+        """
+        action, _, target = kind.partition(":")
+        if action in ("kill", "restart-near"):
+            if action == "restart-near" and not self._wait_near(30.0):
+                raise NotInjectedError("nobody came near the robot within 30 s")
+            self._restart(target, signal.SIGKILL if action == "kill" else signal.SIGINT, watch)
+        elif action == "freeze":
+            proc = self.procs[target]
+            self.paused.add(target)
+            proc.send_signal(signal.SIGSTOP)
+            try:
+                watch(hold_s)
+            finally:
+                proc.send_signal(signal.SIGCONT)
+                self.paused.discard(target)
+        elif action in ("delay", "loss"):
+            relay = f"relay-{target}"
+            self.relay_rules[relay] = ["hrc/**:delay=0.08,jitter=0.03" if action == "delay" else "hrc/**:loss=0.3"]
+            try:
+                self._restart(relay, signal.SIGINT, watch)
+                watch(hold_s)
+            finally:
+                self.relay_rules[relay] = []
+                self._restart(relay, signal.SIGINT, watch)
+            return f"relay restarted with {action} for {hold_s:.1f} s, then restarted without"
+        elif action == "partition":
+            self._partition(f"relay-{target}", hold_s)
+            watch(hold_s + 0.5)
+        elif action == "flood":
+            return self._flood(hold_s, watch)
+        elif action == "streams":
+            return self._streams(hold_s)
+        elif action == "clock-step":
+            raise NotInjectedError(
+                "not injected: the emulators have no test-only clock offset, and this benchmark does not change the "
+                "machine's clock"
+            )
+        return ""
+
+    def _recover(self, seen: dict[str, str]) -> tuple[bool | None, float | None]:
+        """Wait until every program runs and the gateway shows no fault: ``(recovered, after how long [s])``."""
+        ended_s = time.monotonic()
+        while not self.stop.is_set() and time.monotonic() - ended_s < RECOVERY_TIMEOUT_S:
+            self.supervise()
+            if self.healthy():
+                return True, round(time.monotonic() - ended_s, 2)
+            seen.update({k: v for k, v in self.reasons(self.latest).items() if k not in seen})
+            self.stop.wait(POLL_S)
+        return (None if self.stop.is_set() else False), None
+
+    def _wait_near(self, timeout_s: float) -> bool:
+        end_s = time.monotonic() + timeout_s
+        while not self.stop.is_set() and time.monotonic() < end_s:
+            if self.someone_near():
+                return True
+            self.stop.wait(POLL_S)
+        return False
+
+    def _restart(self, name: str, sig: int, watch: Callable[[float], None]) -> None:
+        """Stop ``name`` with ``sig`` and start it again after :data:`RESTART_AFTER_S` (watching meanwhile)."""
+        self.paused.add(name)
+        try:
+            if name == "gateway":
+                self._before_gateway_stop()
+                if sig == signal.SIGKILL:
+                    self.recordings[-1]["killed"] = True
+                    self.recordings[-1]["killed_ns"] = time.time_ns()
+            proc = self.procs[name]
+            if sig == signal.SIGKILL:
+                proc.kill()
+                proc.wait()
+            else:
+                with contextlib.suppress(Exception):
+                    stop_program(proc, sig)
+            watch(RESTART_AFTER_S)
+            self.start(name)
+        finally:
+            self.paused.discard(name)
+
+    def _before_gateway_stop(self) -> None:
+        """This gateway run's last status (loop counts) and its events as the API has them."""
+        doc = self.poll_status()
+        if doc is not None:
+            self.incarnation_loops.append(doc["loop"])
+        self.events_checks.append(self.check_events_api())
+
+    def _session(self, common_name: str, connect: list[str]) -> zenoh.Session:
+        tls = mutual_tls(self.pki_dir, common_name, self.policy, create=False)
+        return zenoh.open(session_config(connect=connect, options=SessionOptions("client", tls)))
+
+    def _partition(self, relay: str, duration_s: float) -> None:
+        side_a = self.ep("rc" if relay == "relay-controller" else "rt")
+        with self._session("relay", [side_a]) as session:
+            time.sleep(0.5)  # the route to the relay's control subscriber
+            session.put(control_key(self.config.cell), json.dumps({"partition_for_s": duration_s}))
+            time.sleep(0.2)
+
+    def _flood(self, duration_s: float, watch: Callable[[float], None]) -> str:
+        """The tracker emulator's identity puts copies of its newest real frames at :data:`FLOOD_RATE_HZ`."""
+        newest: dict[str, bytes] = {}
+        lock = threading.Lock()
+
+        def on_frame(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            parse_message(payload, Humans)  # raises on an invalid frame: only valid frames are copied
+            with lock:
+                newest[str(sample.key_expr)] = payload
+
+        puts = 0
+        with self._session("tracker-emu", [self.ep("gateway")]) as session:
+            session.declare_subscriber(f"hrc/{self.config.cell}/tracker/*/humans", on_frame)
+            end_s = time.monotonic() + duration_s
+            publishers: dict[str, Any] = {}
+            while not self.stop.is_set() and time.monotonic() < end_s:
+                with lock:
+                    frames = dict(newest)
+                for key, payload in frames.items():
+                    if key not in publishers:
+                        publishers[key] = session.declare_publisher(key, express=True)
+                    publishers[key].put(payload)
+                    puts += 1
+                time.sleep(1.0 / FLOOD_RATE_HZ)  # pacing the flood, not synchronisation
+        if puts == 0:
+            raise OSError("no tracker frame to copy arrived")
+        watch(0.5)
+        return f"{puts} copies of real frames put in {duration_s:.1f} s"
+
+    def _streams(self, duration_s: float) -> str:
+        """Stream clients (``/api/v1/stream``) come and go: each reads a random while, then drops the connection."""
+        url = f"http://127.0.0.1:{self.http_port}/api/v1/stream"
+        opened = lines = 0
+        end_s = time.monotonic() + duration_s
+        while not self.stop.is_set() and time.monotonic() < end_s:
+            stay_s = self.rng.uniform(0.1, 1.5)
+            with httpx.stream("GET", url, timeout=5.0) as response:
+                opened += 1
+                until_s = time.monotonic() + stay_s
+                for _ in response.iter_lines():
+                    lines += 1
+                    if time.monotonic() > until_s:
+                        break
+        return f"{opened} stream clients, {lines} lines read"
+
+    # -- checks ---------------------------------------------------------------------------------
+
+    def read_events_file(self) -> list[dict[str, Any]]:
+        path = self.work / "events.jsonl"
+        rotated = sorted(self.work.glob("events.jsonl.*"), key=lambda p: -int(p.suffix[1:]))
+        events = []
+        for p in [*rotated, path]:
+            if p.exists():
+                events += [json.loads(line) for line in p.read_text().splitlines() if line.strip()]
+        return events
+
+    def check_events_api(self) -> dict[str, Any]:
+        """The current gateway run's events: the API's (the newest 1000) against the file's, seq by seq."""
+        try:
+            api = http_get(f"http://127.0.0.1:{self.http_port}/api/v1/events?since=0", timeout_s=5.0).json()["events"]
+        except (OSError, ValueError, KeyError):
+            return {"checked": False}
+        runs = split_runs(self.read_events_file())
+        current = {e["seq"]: e for e in runs[-1]} if runs else {}
+        differing = [e["seq"] for e in api if current.get(e["seq"]) != {k: v for k, v in e.items() if v is not None}]
+        return {"checked": True, "api_events": len(api), "file_events": len(current), "differing_seqs": differing}
+
+    def sample_resources(self) -> dict[str, Any]:
+        out = {}
+        for name, proc in self.procs.items():
+            out[name] = {"pid": proc.pid, **(resources(proc.pid) or {})}
+            if name == "gateway":
+                for child in _children(proc.pid):
+                    out["gateway-http"] = {"pid": child, **(resources(child) or {})}
+        return out
+
+
+def check_recording(path: Path) -> dict[str, Any]:
+    """A gateway recording read after a SIGKILL: messages readable, the sequence numbers gapless per channel."""
+    from mcap.records import Message
+    from mcap.stream_reader import StreamReader  # record by record: a killed writer left no summary
+
+    read = 0
+    last_ns = 0
+    error = None
+    sequences: list[int] = []  # one counter over every channel (hrc_runtime.mcap_sink)
+    try:
+        with path.open("rb") as f:
+            for record in StreamReader(f).records:
+                if isinstance(record, Message):
+                    read += 1
+                    last_ns = max(last_ns, record.log_time)
+                    sequences.append(record.sequence)
+    except Exception as exc:  # a truncated tail ends the reading: how far it got is the result
+        error = f"{type(exc).__name__}: {str(exc)[:120]}"
+    gaps = sum(1 for a, b in itertools.pairwise(sorted(sequences)) if b != a + 1)
+    return {"path": str(path), "messages_read": read, "last_log_ns": last_ns, "sequence_gaps": gaps, "tail": error}
+
+
+def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> dict[str, Any]:
+    soak = Soak(work, seed, stop)
+    faults: list[FaultResult] = []
+    started: dict[str, Any] = {}
+    end_s = soak.start_s + minutes * 60.0
+    try:
+        for name in ("gateway", "relay-controller", "relay-tracker", "controller", "tracker", "audit"):
+            soak.start(name)
+        print(f"soak: cell up in {work} (mutual TLS); warming up {WARMUP_S:.0f} s", flush=True)
+        soak.sleep(min(WARMUP_S, minutes * 60.0 / 4))
+        soak.supervise()
+        started = soak.sample_resources()
+        for kind in fault_schedule(seed, rounds=1000):
+            if stop.is_set() or time.monotonic() > end_s - 10.0:
+                break
+            result = soak.play(kind)
+            faults.append(result)
+            state = f"recovered in {result.recovery_s} s" if result.recovered else f"recovered={result.recovered}"
+            print(f"soak: t={result.t_s:7.1f} s {kind:24s} {state}; {'; '.join(result.reasons)[:160]}", flush=True)
+            soak.sleep(SETTLE_S)
+        soak.sleep(max(0.0, min(5.0, end_s - time.monotonic())))
+        ended = soak.sample_resources()
+        soak._before_gateway_stop()
+    finally:
+        for name in ("audit", "tracker", "controller", "relay-tracker", "relay-controller", "gateway"):
+            if name in soak.procs:
+                with contextlib.suppress(Exception):
+                    stop_program(soak.procs[name])
+    if not started:
+        started = {}
+        ended = {}
+    return build_report(soak, faults, started, ended, minutes, seed)
+
+
+def build_report(
+    soak: Soak,
+    faults: list[FaultResult],
+    started: dict[str, Any],
+    ended: dict[str, Any],
+    minutes: float,
+    seed: int,
+) -> dict[str, Any]:
+    try:
+        audit = json.loads((soak.work / "audit.json").read_text())
+    except (OSError, ValueError):
+        audit = {"violations": None, "verdict": "no audit report (the auditor did not finish)"}
+    events = soak.read_events_file()
+    runs = split_runs(events)
+    stalls, missed = stalls_by_cause(events)
+    loops = soak.incarnation_loops
+    recordings = []
+    for r in soak.recordings:
+        if r["killed"] and Path(r["path"]).exists():
+            rec = check_recording(Path(r["path"]))
+            rec["lost_tail_s"] = round((r["killed_ns"] - rec["last_log_ns"]) / 1e9, 3) if rec["last_log_ns"] else None
+            recordings.append(rec)
+    growth = {
+        name: round(100.0 * (ended[name]["rss_kb"] / started[name]["rss_kb"] - 1.0), 2)
+        for name in started
+        if name in ended and started[name].get("rss_kb") and ended[name].get("rss_kb")
+    }
+    return {
+        "schema": "hrc.bench.soak/1",
+        "machine": machine_info(),
+        "minutes": minutes,
+        "seed": seed,
+        "wall_s": round(time.monotonic() - soak.start_s, 1),
+        "work_dir": str(soak.work),
+        "audit": {
+            k: audit.get(k) for k in ("violations", "verdict", "cycles_audited", "human_speed_mps", "wall_duration_s")
+        },
+        "audit_unaudited_cycles": {n: r.get("unaudited_cycles") for n, r in audit.get("robots", {}).items()},
+        "gateway_runs": len(runs),
+        "missed_ticks": sum(loop.get("missed_cycles", 0) for loop in loops),
+        "stalls_by_cause": stalls,
+        "missed_ticks_by_cause": missed,
+        "budget_overruns": sum(loop.get("budget_overruns", 0) for loop in loops),
+        "worst_last_lateness_s": max((loop.get("last_lateness_s", 0.0) for loop in loops), default=None),
+        "events": {
+            "in_file": len(events),
+            "runs": len(runs),
+            "seq_gaps": {i + 1: gaps for i, run in enumerate(runs) if (gaps := seq_gaps(run))},
+            "api_vs_file": soak.events_checks,
+        },
+        "resources_start": started,
+        "resources_end": ended,
+        "rss_growth_percent": growth,
+        "recordings_after_sigkill": recordings,
+        "faults": [asdict(f) for f in faults],
+        "faults_not_injected": [f.kind for f in faults if not f.injected],
+        "faults_not_recovered": [f.kind for f in faults if f.recovered is False],
+    }
+
+
+def format_report(report: dict[str, Any]) -> str:
+    lines = [
+        f"soak: {report['wall_s']:.0f} s, seed {report['seed']}, {len(report['faults'])} faults, "
+        f"{report['gateway_runs']} gateway runs",
+        f"  violations within K: {report['audit']['violations']} ({report['audit']['verdict']}, "
+        f"{report['audit']['cycles_audited']} cycles audited)",
+        f"  missed ticks: {report['missed_ticks']} (status, summed over gateway runs); by cause (events): "
+        f"{report['missed_ticks_by_cause']}; stalls {report['stalls_by_cause']}",
+        f"  budget overruns: {report['budget_overruns']}; worst last lateness {report['worst_last_lateness_s']}",
+        f"  events: {report['events']['in_file']} in the file, seq gaps {report['events']['seq_gaps'] or 'none'}, "
+        f"API vs file: {[c.get('differing_seqs') for c in report['events']['api_vs_file']]}",
+        f"  RSS growth [%]: {report['rss_growth_percent']}",
+    ]
+    for name, start in report["resources_start"].items():
+        end = report["resources_end"].get(name, {})
+        restarted = "" if start.get("pid") == end.get("pid") else " (restarted meanwhile)"
+        lines.append(
+            f"    {name:18s} rss {start.get('rss_kb')}→{end.get('rss_kb')} kB, fds {start.get('fds')}→"
+            f"{end.get('fds')}, threads {start.get('threads')}→{end.get('threads')}{restarted}"
+        )
+    for rec in report["recordings_after_sigkill"]:
+        lines.append(
+            f"  recording after SIGKILL {Path(rec['path']).name}: {rec['messages_read']} messages readable, "
+            f"{rec['sequence_gaps']} sequence gaps, the last {rec['lost_tail_s']} s before the kill not on disk, "
+            f"tail: {rec['tail'] or 'clean'}"
+        )
+    lines.append("  faults:")
+    for f in report["faults"]:
+        if not f["injected"]:
+            lines.append(f"    t={f['t_s']:7.1f} {f['kind']:24s} NOT INJECTED: {f['note']}")
+            continue
+        rec = f"recovered in {f['recovery_s']} s" if f["recovered"] else f"recovered={f['recovered']}"
+        lines.append(f"    t={f['t_s']:7.1f} {f['kind']:24s} held {f['held_s']} s, {rec}; {'; '.join(f['reasons'])}")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.soak", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, required=True, help="how long the cell runs under faults")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the chaos schedule (default 0)")
+    parser.add_argument("--out", type=Path, default=None, help="folder of the logs and soak.json (default: a new one)")
+    args = parser.parse_args(argv)
+    if not 0.0 < args.minutes < 1e5:
+        parser.error(f"--minutes {args.minutes}; allowed: > 0")
+    work = args.out or Path(tempfile.mkdtemp(prefix="hrc-soak-"))
+    work.mkdir(parents=True, exist_ok=True)
+    with stop_on_signals() as stop:
+        report = run_soak(args.minutes, args.seed, work, stop)
+    (work / "soak.json").write_text(json.dumps(report, indent=2, default=str) + "\n")
+    sys.stdout.write(format_report(report))
+    print(f"soak: report {work / 'soak.json'}")
+    ok = report["audit"]["violations"] == 0 and not report["events"]["seq_gaps"]
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

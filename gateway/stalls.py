@@ -1,0 +1,368 @@
+"""The stall record: when a tick comes late by more than a period, what the loop thread was doing, and why.
+
+    loop thread:  woke(now) ──▶ read ──▶ decide ──▶ publish ──▶ events ──▶ [status] ──▶ sleep ──▶ woke(now) ...
+                    │  each mark: a phase id and a monotonic stamp into preallocated arrays (no object built)
+                    └─ a tick later than the threshold: a :class:`StallRecord` with one cause
+
+What is measured between two wake-ups of the loop thread (the interval a late tick lies in):
+
+- the phase the loop was in when the tick fell due (:class:`PhaseTrace`): ``sleep`` means the wake-up itself came
+  late, any other phase that our own work ran past the due time;
+- the garbage collections that ran meanwhile, on any thread (``gc.callbacks`` start and stop stamps,
+  :class:`GcWindows`): a collection holds the interpreter lock, so it holds the loop wherever it runs;
+- the thread's time waiting on a run queue, runnable but not running (``/proc/self/task/<tid>/schedstat``, its
+  second field), and its time on a CPU (its CPU clock: the schedstat field lags by up to a scheduler tick),
+  :class:`ThreadSchedstat`; read at each wake-up (3 µs measured: ``os.pread`` of a descriptor kept open and
+  ``time.thread_time_ns``, ~0.08 % of a core at 250 Hz);
+- what is left, neither intended sleep, nor on a CPU, nor runnable: *blocked* (waiting for the interpreter lock
+  another thread holds, for a lock or I/O, or the process was stopped). The only lock the loop takes is the HTTP
+  child's event queue (phase ``events``); a Zenoh put waits only while the link's queue is full (``publish``).
+
+:func:`attribute` gives each stall one cause, checked in this order: ``gc`` (collections overlapped at least half
+the lateness), ``runqueue`` (the thread waited on a run queue at least half of it: another thread or program ran),
+``phase:<name>`` (our own work ran past the due time, in that phase), ``blocked`` (the wake-up was late and the
+thread was blocked at least half of it), ``unknown``. A stall with ``missed`` ticks counts them all for its cause,
+so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import threading
+import time
+from array import array
+from enum import IntEnum
+from types import TracebackType
+from typing import Any, NamedTuple
+
+NS_PER_S = 1_000_000_000
+
+STALL_THRESHOLD_PERIODS = 1.0
+"""A tick later than this many periods is a stall: exactly the ticks that make the loop skip (miss) a tick."""
+
+GC_WINDOWS = 64
+"""The most recent garbage collections remembered (start and stop)."""
+
+MAX_MARKS = 16
+"""Phase marks kept per loop iteration (an iteration has at most 6)."""
+
+
+class Phase(IntEnum):
+    """What the loop thread is doing; the ids written into the marks."""
+
+    SLEEP = 0
+    """Waiting for the next tick (or a tracker frame)."""
+    READ = 1
+    """Reading the clocks and the decision's time budget."""
+    DECIDE = 2
+    """``node.cycle``: inputs to decisions."""
+    PUBLISH = 3
+    """Putting the overrides on Zenoh."""
+    EVENTS = 4
+    """The service manager's ping, the event log and its hand-off to the HTTP child."""
+    STATUS = 5
+    """Handing the cycle to the status thread."""
+
+
+PHASE_NAMES = tuple(p.name.lower() for p in Phase)
+CAUSES = ("gc", "runqueue", "blocked", "unknown", *(f"phase:{name}" for name in PHASE_NAMES[1:]))
+"""Every cause :func:`attribute` can give (the metrics export each, 0 before the first)."""
+
+
+class StallSample(NamedTuple):
+    """What was measured for one late tick, between the loop thread's previous wake-up and this one.
+
+    Attributes:
+        late_ns: how late the tick came [ns].
+        period_ns: the tick period [ns].
+        interval_ns: from the previous wake-up to this one [ns].
+        slept_ns: of the interval, time asleep on purpose: in ``sleep`` before the tick was due [ns].
+        phase: the phase the loop was in when the tick fell due (``sleep``: the wake-up came late).
+        gc_ns: garbage collections (any thread) within the interval [ns].
+        cpu_ns: the loop thread's time on a CPU within the interval [ns]; None without schedstat.
+        runqueue_ns: its time runnable but waiting for a CPU within the interval [ns]; None without schedstat.
+    """
+
+    late_ns: int
+    period_ns: int
+    interval_ns: int
+    slept_ns: int
+    phase: str
+    gc_ns: int
+    cpu_ns: int | None
+    runqueue_ns: int | None
+
+    @property
+    def blocked_ns(self) -> int | None:
+        """Neither asleep on purpose, nor on a CPU, nor runnable [ns] (None without schedstat)."""
+        if self.cpu_ns is None or self.runqueue_ns is None:
+            return None
+        return max(0, self.interval_ns - self.slept_ns - self.cpu_ns - self.runqueue_ns)
+
+
+class StallRecord(NamedTuple):
+    """One stall: a tick later than the threshold, with its cause.
+
+    Attributes:
+        cause: see :func:`attribute`.
+        missed: ticks the loop skipped because of it.
+        sample: what was measured.
+    """
+
+    cause: str
+    missed: int
+    sample: StallSample
+
+    def message(self) -> str:
+        """For people: how late, how many ticks missed, the cause and the figures behind it."""
+        s = self.sample
+
+        def ms(value_ns: int | None) -> str:
+            return "n/a" if value_ns is None else f"{value_ns / 1e6:.1f} ms"
+
+        return (
+            f"loop stall: tick {ms(s.late_ns)} late ({self.missed} missed), cause {self.cause}: in phase {s.phase} "
+            f"at the due time; gc {ms(s.gc_ns)}, run-queue wait {ms(s.runqueue_ns)}, blocked {ms(s.blocked_ns)}, "
+            f"on CPU {ms(s.cpu_ns)} of {ms(s.interval_ns)} since the previous wake-up"
+        )
+
+
+def attribute(sample: StallSample) -> str:
+    """The one cause of a late tick (the order is the module docstring's).
+
+    Returns:
+        ``gc``, ``runqueue``, ``phase:<name>``, ``blocked`` or ``unknown``.
+    """
+    half_late_ns = sample.late_ns / 2
+    if sample.gc_ns >= half_late_ns:
+        return "gc"
+    if sample.runqueue_ns is not None and sample.runqueue_ns >= half_late_ns:
+        return "runqueue"
+    if sample.phase != PHASE_NAMES[Phase.SLEEP]:
+        return f"phase:{sample.phase}"
+    blocked_ns = sample.blocked_ns
+    if blocked_ns is not None and blocked_ns >= half_late_ns:
+        return "blocked"
+    return "unknown"
+
+
+class PhaseTrace:
+    """The phases one loop iteration entered, in order, with their start [monotonic ns]; preallocated.
+
+    :meth:`enter` writes a phase id and a stamp into two arrays (no object is kept); :meth:`restart` begins the next
+    iteration. :meth:`phase_at` reads which phase was running at a given time.
+    """
+
+    def __init__(self) -> None:
+        self._phases = array("b", bytes(MAX_MARKS))
+        self._starts_ns = array("q", bytes(8 * MAX_MARKS))
+        self._count = 0
+
+    def restart(self, phase: Phase, now_ns: int) -> None:
+        """A new iteration begins with ``phase`` at ``now_ns``."""
+        self._count = 0
+        self.enter(phase, now_ns)
+
+    def enter(self, phase: Phase, now_ns: int) -> None:
+        """The loop enters ``phase`` at ``now_ns`` [monotonic ns] (beyond :data:`MAX_MARKS`: the last is replaced)."""
+        k = min(self._count, MAX_MARKS - 1)
+        self._phases[k] = phase
+        self._starts_ns[k] = now_ns
+        self._count = k + 1
+
+    def phase_at(self, when_ns: int) -> Phase:
+        """The phase running at ``when_ns``: the last entered at or before it (the first if before them all)."""
+        found = self._phases[0]
+        for k in range(self._count):
+            if self._starts_ns[k] > when_ns:
+                break
+            found = self._phases[k]
+        return Phase(found)
+
+    def slept_ns(self, due_ns: int) -> int:
+        """Time in ``sleep`` before ``due_ns`` (the intended sleep) [ns]."""
+        total = 0
+        for k in range(self._count):
+            if self._phases[k] != Phase.SLEEP:
+                continue
+            end_ns = self._starts_ns[k + 1] if k + 1 < self._count else due_ns
+            total += max(0, min(end_ns, due_ns) - self._starts_ns[k])
+        return total
+
+
+class GcWindows:
+    """When the garbage collector ran (any thread): the last :data:`GC_WINDOWS` start and stop stamps.
+
+    :meth:`install` appends :meth:`on_gc` to ``gc.callbacks``; :meth:`remove` takes it away.
+    """
+
+    def __init__(self, clock_ns: Any = time.monotonic_ns) -> None:
+        self._clock_ns = clock_ns
+        self._starts_ns = array("q", bytes(8 * GC_WINDOWS))
+        self._stops_ns = array("q", bytes(8 * GC_WINDOWS))
+        self._next = 0
+        self._started_ns = 0
+        self.collections = 0
+
+    def on_gc(self, phase: str, info: dict[str, int]) -> None:
+        """A ``gc.callbacks`` callback: ``phase`` is ``start`` or ``stop``."""
+        if phase == "start":
+            self._started_ns = self._clock_ns()
+            return
+        k = self._next
+        self._starts_ns[k] = self._started_ns
+        self._stops_ns[k] = self._clock_ns()
+        self._next = (k + 1) % GC_WINDOWS
+        self.collections += 1
+
+    def within_ns(self, start_ns: int, end_ns: int) -> int:
+        """Time collections ran between ``start_ns`` and ``end_ns`` [monotonic ns] (as far as remembered) [ns]."""
+        total = 0
+        for k in range(min(self.collections, GC_WINDOWS)):
+            total += max(0, min(self._stops_ns[k], end_ns) - max(self._starts_ns[k], start_ns))
+        return total
+
+    def install(self) -> None:
+        gc.callbacks.append(self.on_gc)
+
+    def remove(self) -> None:
+        if self.on_gc in gc.callbacks:
+            gc.callbacks.remove(self.on_gc)
+
+
+class ThreadSchedstat:
+    """The creating thread's time on a CPU (its CPU clock) and waiting on a run queue
+    (``/proc/self/task/<tid>/schedstat``, second field) [ns]; read on that thread only.
+
+    The descriptor stays open; :meth:`read` is one ``pread`` and one clock read (3 µs measured). Where the file is
+    missing (not Linux, a kernel without ``CONFIG_SCHED_INFO``), :attr:`available` is False and :meth:`read`
+    returns None.
+    """
+
+    def __init__(self, tid: int | None = None) -> None:
+        tid = threading.get_native_id() if tid is None else tid
+        try:
+            self._fd: int | None = os.open(f"/proc/self/task/{tid}/schedstat", os.O_RDONLY)
+        except OSError:
+            self._fd = None
+
+    @property
+    def available(self) -> bool:
+        return self._fd is not None
+
+    def read(self) -> tuple[int, int] | None:
+        """``(on_cpu_ns, runqueue_ns)`` since the thread started, None if unavailable."""
+        if self._fd is None:
+            return None
+        try:
+            fields = os.pread(self._fd, 128, 0).split()
+            return time.thread_time_ns(), int(fields[1])
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+
+class StallMonitor:
+    """The loop thread's stall record: phase marks, garbage collections, schedstat, counts by cause.
+
+    Create it on the loop thread (its schedstat is the creating thread's) as a context manager, call :meth:`woke`
+    right after each wake-up and :meth:`enter` at each phase; :meth:`woke` returns a :class:`StallRecord` for a
+    tick later than ``threshold_periods`` periods. Only the loop thread calls it.
+
+    Args:
+        period_s: the tick period [s].
+        threshold_periods: a tick later than this many periods is a stall (> 0).
+        schedstat: the loop thread's schedstat (default: the calling thread's).
+        gc_windows: the collections (default: new ones, installed in ``gc.callbacks`` until closed).
+
+    Raises:
+        ValueError: ``period_s`` or ``threshold_periods`` not > 0.
+    """
+
+    def __init__(
+        self,
+        period_s: float,
+        threshold_periods: float = STALL_THRESHOLD_PERIODS,
+        schedstat: ThreadSchedstat | None = None,
+        gc_windows: GcWindows | None = None,
+    ) -> None:
+        if not (period_s > 0.0 and threshold_periods > 0.0):
+            raise ValueError(f"period_s = {period_s}, threshold_periods = {threshold_periods}; allowed: > 0")
+        self.period_ns = round(period_s * NS_PER_S)
+        self.threshold_ns = round(threshold_periods * period_s * NS_PER_S)
+        self._schedstat = ThreadSchedstat() if schedstat is None else schedstat
+        self._own_gc = gc_windows is None
+        self.gc_windows = GcWindows() if gc_windows is None else gc_windows
+        if self._own_gc:
+            self.gc_windows.install()
+        self.trace = PhaseTrace()
+        self._woke_ns = time.monotonic_ns()  # the first interval starts here
+        self._stat: tuple[int, int] | None = self._schedstat.read()
+        self._missed_cycles = 0
+        self.stalls: dict[str, int] = {}
+        """Stalls by cause since the start."""
+        self.missed: dict[str, int] = {}
+        """Missed ticks by cause since the start (they add up to the loop's missed ticks)."""
+        self.trace.restart(Phase.SLEEP, self._woke_ns)
+
+    def woke(self, now_ns: int, tick: bool, late_s: float, missed_cycles: int) -> StallRecord | None:
+        """The loop thread woke at ``now_ns`` [monotonic ns] for a tick (``tick``) or an event cycle.
+
+        Args:
+            now_ns: the wake-up [monotonic ns].
+            tick: a tick (else an event cycle: never late).
+            late_s: how late the tick came [s].
+            missed_cycles: the loop's count of skipped ticks so far (what it grew by since the previous call was
+                skipped at this tick).
+
+        Returns:
+            The stall record of a tick later than the threshold or that made the loop skip ticks, else None.
+            Either way the next iteration's trace begins (phase ``read``).
+        """
+        stat = self._schedstat.read()
+        record = None
+        missed, self._missed_cycles = max(0, missed_cycles - self._missed_cycles), missed_cycles
+        late_ns = round(late_s * NS_PER_S)
+        if tick and (missed > 0 or late_ns > self.threshold_ns):
+            due_ns = now_ns - late_ns
+            cpu_ns = runq_ns = None
+            if stat is not None and self._stat is not None:
+                cpu_ns, runq_ns = stat[0] - self._stat[0], stat[1] - self._stat[1]
+            sample = StallSample(
+                late_ns=late_ns,
+                period_ns=self.period_ns,
+                interval_ns=now_ns - self._woke_ns,
+                slept_ns=self.trace.slept_ns(due_ns),
+                phase=PHASE_NAMES[self.trace.phase_at(due_ns)],
+                gc_ns=self.gc_windows.within_ns(self._woke_ns, now_ns),
+                cpu_ns=cpu_ns,
+                runqueue_ns=runq_ns,
+            )
+            record = StallRecord(attribute(sample), missed, sample)
+            self.stalls[record.cause] = self.stalls.get(record.cause, 0) + 1
+            self.missed[record.cause] = self.missed.get(record.cause, 0) + record.missed
+        self._woke_ns, self._stat = now_ns, stat
+        self.trace.restart(Phase.READ, now_ns)
+        return record
+
+    def enter(self, phase: Phase) -> None:
+        """The loop thread enters ``phase`` now."""
+        self.trace.enter(phase, time.monotonic_ns())
+
+    def close(self) -> None:
+        if self._own_gc:
+            self.gc_windows.remove()
+        self._schedstat.close()
+
+    def __enter__(self) -> StallMonitor:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()

@@ -1,0 +1,272 @@
+"""The stall record: known answers of the attribution, the phase trace, the collections seen, the monitor's counts,
+the metrics by cause, and the real loop recording a stall it was made to have."""
+
+from __future__ import annotations
+
+import gc
+import json
+import time
+
+import pytest
+import support.status_examples as ex
+
+from gateway import main as gateway_main
+from gateway.events import EventLog
+from gateway.http.metrics import GatewayMetrics
+from gateway.stalls import (
+    CAUSES,
+    GcWindows,
+    Phase,
+    PhaseTrace,
+    StallMonitor,
+    StallSample,
+    ThreadSchedstat,
+    attribute,
+)
+from hrc_contract.config import CellConfig
+from hrc_contract.status_models import Event
+from hrc_runtime.signals import StopEvent
+
+MS = 1_000_000
+PERIOD_NS = 4 * MS
+
+
+def _sample(**fields: object) -> StallSample:
+    """A tick 10 ms late at 250 Hz, asleep at the due time, nothing measured: override what a case needs."""
+    base: dict[str, object] = {
+        "late_ns": 10 * MS,
+        "period_ns": PERIOD_NS,
+        "interval_ns": 14 * MS,
+        "slept_ns": 3 * MS,
+        "phase": "sleep",
+        "gc_ns": 0,
+        "cpu_ns": 1 * MS,
+        "runqueue_ns": 0,
+    }
+    return StallSample(**(base | fields))  # type: ignore[arg-type]
+
+
+# -- known answers --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("fields", "cause"),
+    [
+        ({"gc_ns": 6 * MS, "runqueue_ns": 9 * MS, "phase": "decide"}, "gc"),  # a collection first
+        ({"gc_ns": 4 * MS, "runqueue_ns": 5 * MS, "phase": "decide"}, "runqueue"),
+        ({"runqueue_ns": 4 * MS, "phase": "decide"}, "phase:decide"),
+        ({"phase": "publish", "cpu_ns": 1 * MS}, "phase:publish"),  # blocked in a put: still the phase
+        ({"cpu_ns": 1 * MS}, "blocked"),  # woke late, 10 ms neither running nor runnable
+        ({"cpu_ns": 9 * MS}, "unknown"),  # woke late, on a CPU all along (nothing explains it)
+        ({"cpu_ns": None, "runqueue_ns": None}, "unknown"),  # no schedstat
+        ({"cpu_ns": None, "runqueue_ns": None, "phase": "status"}, "phase:status"),
+    ],
+)
+def test_each_stall_gets_the_first_cause_that_explains_half_its_lateness(fields: dict[str, object], cause: str) -> None:
+    assert attribute(_sample(**fields)) == cause
+    assert cause in CAUSES
+
+
+def test_blocked_is_what_is_left_of_the_interval_after_intended_sleep_cpu_and_run_queue() -> None:
+    assert _sample(cpu_ns=2 * MS, runqueue_ns=1 * MS).blocked_ns == 14 * MS - 3 * MS - 2 * MS - 1 * MS
+    assert _sample(cpu_ns=20 * MS).blocked_ns == 0
+    assert _sample(cpu_ns=None).blocked_ns is None
+
+
+def test_the_trace_tells_the_phase_at_a_time_and_the_intended_sleep() -> None:
+    trace = PhaseTrace()
+    trace.restart(Phase.READ, 100)
+    for phase, at in ((Phase.DECIDE, 110), (Phase.PUBLISH, 150), (Phase.EVENTS, 160), (Phase.SLEEP, 170)):
+        trace.enter(phase, at)
+    assert trace.phase_at(90) is Phase.READ  # before them all: the first
+    assert trace.phase_at(110) is Phase.DECIDE
+    assert trace.phase_at(149) is Phase.DECIDE
+    assert trace.phase_at(165) is Phase.EVENTS
+    assert trace.phase_at(500) is Phase.SLEEP
+    assert trace.slept_ns(200) == 30
+    assert trace.slept_ns(150) == 0  # due while still at work: no intended sleep
+    trace.restart(Phase.READ, 600)
+    assert trace.phase_at(700) is Phase.READ
+
+
+def test_a_trace_keeps_its_last_place_when_an_iteration_enters_more_phases_than_it_holds() -> None:
+    trace = PhaseTrace()
+    trace.restart(Phase.READ, 0)
+    for k in range(1, 40):
+        trace.enter(Phase.DECIDE if k % 2 else Phase.PUBLISH, k)
+    trace.enter(Phase.SLEEP, 100)
+    assert trace.phase_at(100) is Phase.SLEEP
+
+
+def test_collections_are_seen_with_their_time_and_the_callback_goes_away() -> None:
+    windows = GcWindows()
+    windows.install()
+    try:
+        start_ns = time.monotonic_ns()
+        gc.collect()
+        end_ns = time.monotonic_ns()
+    finally:
+        windows.remove()
+    assert windows.collections >= 1
+    assert 0 < windows.within_ns(start_ns, end_ns) <= end_ns - start_ns
+    assert windows.within_ns(end_ns + 1, end_ns + 10**9) == 0
+    assert windows.on_gc not in gc.callbacks
+
+
+def test_collections_overlap_only_within_the_interval() -> None:
+    now = [0]
+    windows = GcWindows(clock_ns=lambda: now[0])
+    for start, stop in ((10, 20), (30, 60)):
+        now[0] = start
+        windows.on_gc("start", {})
+        now[0] = stop
+        windows.on_gc("stop", {})
+    assert windows.within_ns(0, 100) == 40
+    assert windows.within_ns(15, 40) == 5 + 10
+    assert windows.within_ns(60, 100) == 0
+
+
+def test_this_threads_schedstat_counts_cpu_time() -> None:
+    schedstat = ThreadSchedstat()
+    if not schedstat.available:
+        pytest.skip("no /proc/self/task/<tid>/schedstat here")
+    try:
+        before = schedstat.read()
+        sum(range(200_000))
+        after = schedstat.read()
+    finally:
+        schedstat.close()
+    assert before is not None
+    assert after is not None
+    assert after[0] > before[0]
+    assert after[1] >= before[1]
+    assert schedstat.read() is None  # closed
+
+
+# -- the monitor ----------------------------------------------------------------------------------
+
+
+class _Schedstat(ThreadSchedstat):
+    """Scripted ``(on_cpu_ns, runqueue_ns)`` readings."""
+
+    def __init__(self, readings: list[tuple[int, int]]) -> None:
+        self._fd = None
+        self._readings = readings
+
+    def read(self) -> tuple[int, int] | None:
+        return self._readings.pop(0)
+
+
+def test_the_monitor_records_late_ticks_only_and_counts_every_missed_tick_by_cause() -> None:
+    schedstat = _Schedstat([(0, 0), (1 * MS, 0), (2 * MS, 0), (3 * MS, 0), (4 * MS, 12 * MS)])
+    with StallMonitor(0.004, schedstat=schedstat, gc_windows=GcWindows()) as monitor:
+        t0 = time.monotonic_ns()
+        assert monitor.woke(t0, tick=True, late_s=0.0001, missed_cycles=0) is None
+        assert monitor.woke(t0 + 3 * MS, tick=False, late_s=0.0, missed_cycles=0) is None  # an event cycle
+        # Work ran past the due time: decide from t0 + 3 ms to t0 + 20 ms, the tick due at t0 + 4 ms.
+        monitor.trace.enter(Phase.DECIDE, t0 + 3 * MS)
+        record = monitor.woke(t0 + 20 * MS, tick=True, late_s=0.016, missed_cycles=4)
+        assert record is not None
+        assert (record.cause, record.missed, record.sample.phase) == ("phase:decide", 4, "decide")
+        # Asleep at the due time, and 12 ms on the run queue: another program ran.
+        monitor.trace.enter(Phase.SLEEP, t0 + 21 * MS)
+        record = monitor.woke(t0 + 40 * MS, tick=True, late_s=0.015, missed_cycles=7)
+        assert record is not None
+        assert (record.cause, record.missed) == ("runqueue", 3)
+        assert "runqueue" in record.message()
+        assert "12.0 ms" in record.message()
+    assert monitor.stalls == {"phase:decide": 1, "runqueue": 1}
+    assert monitor.missed == {"phase:decide": 4, "runqueue": 3}
+    assert sum(monitor.missed.values()) == 7  # the loop's missed_cycles
+
+
+def test_the_monitor_refuses_a_period_or_threshold_that_is_not_positive() -> None:
+    for period_s, threshold in ((0.0, 1.0), (0.004, 0.0), (float("nan"), 1.0)):
+        with pytest.raises(ValueError, match="allowed: > 0"):
+            StallMonitor(period_s, threshold, schedstat=_Schedstat([]), gc_windows=GcWindows())
+
+
+def test_a_stall_is_an_event_of_the_log_with_its_cause() -> None:
+    log = EventLog()
+    log.started(1, "demo", "0" * 64)
+    (event,) = log.stalled(2, "gc", "loop stall: ...")
+    assert (event.seq, event.kind, event.cause) == (3, "loop_stall", "gc")
+    assert Event.model_validate_json(event.model_dump_json()) == event
+
+
+def test_the_metrics_count_stalls_and_missed_ticks_by_cause() -> None:
+    status = ex.gateway_status(ur5=ex.robot_status())
+    loop = status.loop.model_copy(update={"stalls": {"gc": 2, "phase:decide": 1}, "missed_by_cause": {"gc": 5}})
+    metrics = GatewayMetrics(0.004)
+    metrics.observe(status.model_copy(update={"loop": loop}))
+    text = metrics.exposition().decode()
+    assert 'hrc_loop_stalls_total{cause="gc"} 2.0' in text
+    assert 'hrc_loop_stalls_total{cause="phase:decide"} 1.0' in text
+    assert 'hrc_loop_stalls_total{cause="runqueue"} 0.0' in text  # every cause exported before its first
+    assert 'hrc_loop_missed_cycles_by_cause_total{cause="gc"} 5.0' in text
+
+
+# -- the real loop --------------------------------------------------------------------------------
+
+HOLD_S = 0.05
+"""The first status hand-off is held up this long (12 periods at 250 Hz)."""
+
+
+class _Publisher:
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+
+    def put(self, payload: bytes) -> None:
+        self.payloads.append(payload)
+
+
+class _Http:
+    """The HTTP child's side the loop uses: records events; its first exit check holds the loop up."""
+
+    def __init__(self) -> None:
+        self.events: list[Event] = []
+        self.lines: list[bytes] = []
+        self.checks = 0
+
+    def offer(self, line: bytes) -> None:
+        self.lines.append(line)
+
+    def offer_events(self, events: list[Event]) -> None:
+        self.events += events
+
+    def exit_code(self) -> int | None:
+        self.checks += 1
+        if self.checks == 1:
+            time.sleep(HOLD_S)
+        return None
+
+
+def test_the_loop_records_a_hold_up_in_its_status_hand_off_as_a_stall_with_that_phase(
+    cell_config: CellConfig,
+) -> None:
+    """The real loop and node, fake outputs: the first status hand-off holds the loop 50 ms; the next tick is a
+    stall in phase ``status``, logged as an event and counted in the next status documents, and every missed tick
+    has a cause."""
+    node = gateway_main.build_node(cell_config, None)
+    http, status_key = _Http(), _Publisher()
+    sink = gateway_main._StatusSink(cell_config, node.robots, status_key, http)  # type: ignore[arg-type]
+    stop = StopEvent()
+    status_thread = gateway_main.StatusThread(sink.publish)
+
+    class _StopAfterStatuses(_Publisher):
+        def put(self, payload: bytes) -> None:
+            super().put(payload)
+            if len(status_key.payloads) >= 3 or len(self.payloads) >= 2500:
+                stop.set()
+
+    out = gateway_main._Outputs({"ur5": _StopAfterStatuses()}, http, status_thread)  # type: ignore[arg-type]
+    with status_thread:
+        assert gateway_main._loop(cell_config, node, out, stop, None) == 0
+
+    stalls = [e for e in http.events if e.kind == "loop_stall"]
+    assert stalls, http.events
+    assert stalls[0].cause == "phase:status"
+    assert "phase status at the due time" in stalls[0].message
+    last = json.loads(status_key.payloads[-1])["loop"]
+    assert last["stalls"].get("phase:status", 0) >= 1
+    assert sum(last["missed_by_cause"].values()) == last["missed_cycles"] >= round(HOLD_S * 250) - 2

@@ -1,0 +1,429 @@
+"""The gateway's ROS 2 face: what the status shows, published as ROS 2 messages over rmw_zenoh (docs/ros2.md).
+
+    loop thread ──offer(StatusJob)──▶ [one-place slot] ──▶ face thread: status document ──▶ ROS 2 messages ──▶
+                                                                         Zenoh session of its own (CN ``ros2``)
+
+Per robot ``<robot>``, under the configured namespace (``[ros2]`` of the cell file):
+
+- ``<robot>/speed_override`` — ``std_msgs/Float64``: the commanded δ in [0, 1]. Not percent: the UR ROS 2 driver's
+  ``speed_scaling_factor`` topic is in percent (0–100), and mixing the two is a known failure (a 0.62 read as
+  0.62 %, or 62 read as 62×); the name and the unit here follow the contract's ``delta``.
+- ``<robot>/joint_states`` — ``sensor_msgs/JointState``: the newest joint state the decision used (stamped when the
+  controller measured it; velocity = applied override × nominal velocity, as the controller reports).
+
+and for the cell ``diagnostics`` (``diagnostic_msgs/DiagnosticArray``: one status per robot, level OK / WARN
+(reduced speed) / ERROR (safety exception or a fault), with zone, δ and every fault's code and reason as values)
+and ``hrc_markers`` (``visualization_msgs/MarkerArray``: each robot link and human capsule as a CYLINDER with a
+SPHERE at each end, coloured by zone, after a DELETEALL so that people who left vanish in RViz).
+
+The face never runs on the safety loop's thread: :meth:`Ros2Face.offer` costs the loop an append and an eventfd
+write, and drops what comes sooner than ``publish_rate_hz`` allows. It reads nothing from ROS 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import numpy as np
+import zenoh
+
+from gateway.status import cycle_status
+from hrc_contract.config import CellConfig, Ros2Config
+from hrc_contract.status_models import CapsuleStatus, GatewayStatus
+from hrc_runtime.pki import default_pki_dir
+from hrc_runtime.realtime import collections_paused
+from hrc_runtime.rmw_zenoh import Distro, Ros2Node, Ros2Publisher, new_message, serialize
+from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.zenoh_session import (
+    PLAIN_TCP_LOOPBACK,
+    SessionOptions,
+    check_endpoints,
+    endpoint_host,
+    endpoint_protocol,
+    mutual_tls,
+    session_config,
+)
+
+if TYPE_CHECKING:
+    from gateway.main import StatusJob
+
+log = logging.getLogger("hrc-gateway.ros2")
+
+ROS2_COMMON_NAME = "ros2"
+"""The certificate CN of the face's own session when its endpoints are TLS (issued in ``--pki-dir`` on first start)."""
+
+FLOAT64 = "std_msgs/msg/Float64"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+ZONE_RGBA: dict[str, tuple[float, float, float, float]] = {
+    "autonomous": (0.1, 0.7, 0.1, 0.6),
+    "guarded_distance": (0.9, 0.8, 0.1, 0.6),
+    "reduced_speed": (1.0, 0.5, 0.0, 0.7),
+    "safety_exception": (0.9, 0.1, 0.1, 0.8),
+}
+HUMAN_RGBA = (0.3, 0.5, 0.9, 0.6)
+"""A person no robot is slowing down for."""
+ZONE_SEVERITY = ("autonomous", "guarded_distance", "reduced_speed", "safety_exception")
+LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2
+
+CYLINDER, SPHERE = 3, 2
+ADD, DELETEALL = 0, 3
+
+
+class JointView(NamedTuple):
+    """A robot's joint state as the decision used it.
+
+    Attributes:
+        names: the joints, in the order of ``q_rad``.
+        q_rad: positions [rad]. qd_radps: velocities [rad/s]. stamp_ns: when measured [ns since the epoch].
+    """
+
+    names: tuple[str, ...]
+    q_rad: np.ndarray
+    qd_radps: np.ndarray
+    stamp_ns: int
+
+
+def ros_token(name: str) -> str:
+    """A cell name (``[a-z0-9_-]``) as a ROS name token: ``-`` → ``_``, a leading digit prefixed with ``r_``."""
+    token = name.replace("-", "_")
+    return f"r_{token}" if token[:1].isdigit() else token
+
+
+# ------------------------------------------------------------------------------------------- messages (pure)
+
+
+def _time(distro: Distro, stamp_ns: int) -> Any:
+    return new_message(
+        distro, "builtin_interfaces/msg/Time", sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000
+    )
+
+
+def _header(distro: Distro, stamp_ns: int, frame_id: str) -> Any:
+    return new_message(distro, "std_msgs/msg/Header", stamp=_time(distro, stamp_ns), frame_id=frame_id)
+
+
+def speed_override_message(distro: Distro, delta: float) -> Any:
+    """``std_msgs/Float64`` with the commanded δ in [0, 1]."""
+    return new_message(distro, FLOAT64, data=float(delta))
+
+
+def joint_state_message(distro: Distro, joints: JointView) -> Any:
+    """``sensor_msgs/JointState`` of one robot (no efforts: the gateway has none)."""
+    return new_message(
+        distro,
+        JOINT_STATE,
+        header=_header(distro, joints.stamp_ns, ""),
+        name=list(joints.names),
+        position=np.asarray(joints.q_rad, dtype=np.float64),
+        velocity=np.asarray(joints.qd_radps, dtype=np.float64),
+    )
+
+
+def diagnostic_level(zone: str, faults: int) -> int:
+    """OK in the autonomous and guarded zones, WARN at reduced speed, ERROR in a safety exception or with a fault."""
+    if faults or zone == "safety_exception":
+        return LEVEL_ERROR
+    return LEVEL_WARN if zone == "reduced_speed" else LEVEL_OK
+
+
+def diagnostics_message(distro: Distro, doc: GatewayStatus, node_name: str) -> Any:
+    """``diagnostic_msgs/DiagnosticArray``: one status per robot with its zone, δ, distances and faults."""
+    statuses = []
+    for robot, status in sorted(doc.robots.items()):
+        codes = [f.code for f in status.faults]
+        pairs = {
+            "zone": status.zone,
+            "delta": f"{status.delta:.4f}",
+            "delta_bound": f"{status.delta_bound:.4f}",
+            "min_distance_m": "" if status.min_distance_m is None else f"{status.min_distance_m:.4f}",
+            "clearance_m": f"{status.clearance_m:.4f}",
+            "t_delay_s": f"{status.t_delay_s:.4f}",
+            "faults": ",".join(codes),
+        } | {f"fault/{f.code}": f.reason for f in status.faults}
+        message = f"{status.zone} δ={status.delta:.2f}" + (f" faults: {', '.join(codes)}" if codes else "")
+        statuses.append(
+            new_message(
+                distro,
+                "diagnostic_msgs/msg/DiagnosticStatus",
+                level=diagnostic_level(status.zone, len(codes)),
+                name=f"{node_name}: {robot}",
+                message=message,
+                hardware_id=robot,
+                values=[new_message(distro, "diagnostic_msgs/msg/KeyValue", key=k, value=v) for k, v in pairs.items()],
+            )
+        )
+    return new_message(distro, DIAGNOSTIC_ARRAY, header=_header(distro, doc.stamp_ns, ""), status=statuses)
+
+
+def z_to_direction_quaternion(u: Sequence[float]) -> tuple[float, float, float, float]:
+    """The shortest rotation taking +z to the unit vector ``u``, as (x, y, z, w)."""
+    ux, uy, uz = u
+    if uz < -1.0 + 1e-9:  # opposite: half a turn about x
+        return (1.0, 0.0, 0.0, 0.0)
+    x, y, z, w = -uy, ux, 0.0, 1.0 + uz  # axis z × u, angle via the half-way vector
+    n = math.sqrt(x * x + y * y + w * w)
+    return (x / n, y / n, z, w / n)
+
+
+def capsule_markers(
+    distro: Distro, capsule: CapsuleStatus, ns: str, first_id: int, rgba: tuple[float, ...], header: Any
+) -> list[Any]:
+    """A capsule as RViz draws it: a CYLINDER between the end points (none for a point) and a SPHERE at each end."""
+    a, b, r = capsule.a_m, capsule.b_m, capsule.radius_m
+    d = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+    length = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    color = new_message(distro, "std_msgs/msg/ColorRGBA", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+    def marker(kind: int, offset: int, centre: Sequence[float], q: Sequence[float], scale: Sequence[float]) -> Any:
+        pose = new_message(
+            distro,
+            "geometry_msgs/msg/Pose",
+            position=new_message(distro, "geometry_msgs/msg/Point", x=centre[0], y=centre[1], z=centre[2]),
+            orientation=new_message(distro, "geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        vector = new_message(distro, "geometry_msgs/msg/Vector3", x=scale[0], y=scale[1], z=scale[2])
+        return new_message(
+            distro, "visualization_msgs/msg/Marker", header=header, ns=ns, id=first_id + offset, type=kind,
+            action=ADD, pose=pose, scale=vector, color=color,
+        )  # fmt: skip
+
+    identity = (0.0, 0.0, 0.0, 1.0)
+    ball = (2.0 * r, 2.0 * r, 2.0 * r)
+    markers = [marker(SPHERE, 0, a, identity, ball)]
+    if length > 1e-9:
+        centre = (a[0] + d[0] / 2, a[1] + d[1] / 2, a[2] + d[2] / 2)
+        q = z_to_direction_quaternion((d[0] / length, d[1] / length, d[2] / length))
+        markers += [marker(SPHERE, 1, b, identity, ball), marker(CYLINDER, 2, centre, q, (2.0 * r, 2.0 * r, length))]
+    return markers
+
+
+def human_zones(doc: GatewayStatus) -> dict[str, str]:
+    """Per human, the most severe zone of the robots whose closest person they are (others: none)."""
+    zones: dict[str, str] = {}
+    for status in doc.robots.values():
+        if status.closest is None:
+            continue
+        human = status.closest.human.removesuffix(" (lost)")
+        previous = zones.get(human, "autonomous")
+        zones[human] = max(previous, status.zone, key=ZONE_SEVERITY.index)
+    return zones
+
+
+def markers_message(distro: Distro, doc: GatewayStatus, frame_id: str) -> Any:
+    """``visualization_msgs/MarkerArray``: DELETEALL, then every robot link (``robot/<name>``, its zone's colour)
+    and every human capsule (``human``, the zone of the robots it holds; blue if none). Ids step by 3 per capsule."""
+    header = _header(distro, doc.stamp_ns, frame_id)
+    markers = [new_message(distro, "visualization_msgs/msg/Marker", header=header, action=DELETEALL)]
+    for robot, status in sorted(doc.robots.items()):
+        rgba = ZONE_RGBA[status.zone]
+        for i, link in enumerate(status.links):
+            markers += capsule_markers(distro, link, f"robot/{robot}", 3 * i, rgba, header)
+    zones = human_zones(doc)
+    for i, capsule in enumerate(doc.human_capsules):
+        zone = zones.get(capsule.human)
+        rgba = HUMAN_RGBA if zone is None else ZONE_RGBA[zone]
+        markers += capsule_markers(distro, capsule, "human", 3 * i, rgba, header)
+    return new_message(distro, MARKER_ARRAY, markers=markers)
+
+
+def joint_views(job: StatusJob, robots: Mapping[str, RobotModel]) -> dict[str, JointView]:
+    """The joint state each robot's decision used, where it had one."""
+    views = {}
+    for name, sample in job.cycle.inputs.joint.items():
+        if sample is None or name not in robots:
+            continue
+        qd = sample.override * np.asarray(sample.qd_nominal_radps, dtype=np.float64)
+        views[name] = JointView(
+            robots[name].joint_names, np.asarray(sample.q_rad, dtype=np.float64), qd, sample.stamp_ns
+        )
+    return views
+
+
+# ---------------------------------------------------------------------------------------------------- the thread
+
+
+class Ros2Face:
+    """Publishes each offered status snapshot as ROS 2 messages, on a thread of its own (see the module).
+
+    Args:
+        config: the cell (``[ros2]`` says what and where).
+        robots: the robots' models (joint and link names).
+        session: an open Zenoh session for the ROS 2 side (the caller closes it, after :meth:`close`).
+    """
+
+    JOIN_TIMEOUT_S = 5.0
+
+    def __init__(self, config: CellConfig, robots: Mapping[str, RobotModel], session: zenoh.Session) -> None:
+        ros2 = config.ros2
+        self._config = config
+        self._robots = robots
+        self._distro: Distro = ros2.distro
+        self._period_s = 1.0 / min(ros2.publish_rate_hz, config.gateway.status_rate_hz)
+        self._next_due_s = 0.0
+        self.node = Ros2Node(session, ros2.node_name, ros2.namespace, ros2.domain_id, ros2.distro)
+        self._speed: dict[str, Ros2Publisher] = {}
+        self._joints: dict[str, Ros2Publisher] = {}
+        for robot in sorted(config.robots):
+            token = ros_token(robot)
+            self._speed[robot] = self.node.create_publisher(f"{token}/{ros2.speed_override_topic}", FLOAT64)
+            self._joints[robot] = self.node.create_publisher(f"{token}/{ros2.joint_states_topic}", JOINT_STATE)
+        self._diagnostics = self.node.create_publisher(ros2.diagnostics_topic, DIAGNOSTIC_ARRAY)
+        self._markers = self.node.create_publisher(ros2.markers_topic, MARKER_ARRAY)
+        for msgtype in (FLOAT64, JOINT_STATE, DIAGNOSTIC_ARRAY, MARKER_ARRAY):  # rosbags compiles a serialiser
+            serialize(self._distro, new_message(self._distro, msgtype))  # per type on first use: ~0.1–0.2 s, now
+        self._slot: deque[StatusJob] = deque(maxlen=1)
+        self._doorbell = os.eventfd(0)
+        self._closed = False
+        self.published = 0
+        self.skipped = 0
+        self.errors = 0
+        self.publish_s_total = 0.0
+        """Time spent building and putting snapshots, on the face's thread [s] (with :attr:`publish_s_max`)."""
+        self.publish_s_max = 0.0
+        self._thread = threading.Thread(target=self._run, name="hrc-ros2", daemon=True)
+        self._thread.start()
+
+    def offer(self, job: StatusJob) -> None:
+        """Hand over a snapshot (never blocks): dropped if it comes sooner than the publish rate allows."""
+        now_s = time.monotonic()
+        if now_s < self._next_due_s:
+            self.skipped += 1
+            return
+        self._next_due_s = now_s + self._period_s
+        self._slot.append(job)
+        os.eventfd_write(self._doorbell, 1)
+
+    def messages(self, job: StatusJob) -> list[tuple[Ros2Publisher, bytes, int]]:
+        """Every (publisher, CDR payload, source stamp [ns]) of one snapshot (what :meth:`publish` puts)."""
+        with collections_paused():
+            doc = cycle_status(self._config, job.cycle, self._robots, job.counters, job.loop, job.stamp_ns)
+        distro = self._distro
+        out = [(self._speed[r], serialize(distro, speed_override_message(distro, s.delta)), doc.stamp_ns)
+               for r, s in sorted(doc.robots.items()) if r in self._speed]  # fmt: skip
+        for robot, joints in sorted(joint_views(job, self._robots).items()):
+            out.append((self._joints[robot], serialize(distro, joint_state_message(distro, joints)), joints.stamp_ns))
+        diagnostics = diagnostics_message(distro, doc, self._config.ros2.node_name)
+        out.append((self._diagnostics, serialize(distro, diagnostics), doc.stamp_ns))
+        markers = markers_message(distro, doc, self._config.ros2.frame_id)
+        out.append((self._markers, serialize(distro, markers), doc.stamp_ns))
+        return out
+
+    def publish(self, job: StatusJob) -> None:
+        """Build and put one snapshot's messages (on the face's thread)."""
+        for publisher, payload, stamp_ns in self.messages(job):
+            publisher.put(payload, stamp_ns)
+
+    def close(self) -> None:
+        """Stop the thread, then undeclare the node's endpoints and tokens; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        os.eventfd_write(self._doorbell, 1)
+        self._thread.join(self.JOIN_TIMEOUT_S)
+        if not self._thread.is_alive():
+            os.close(self._doorbell)
+        self.node.close()
+        log.info(
+            "ROS 2 face: %d snapshots published (%d skipped by the rate, %d errors), %.2f ms each on average, "
+            "%.2f ms at most",
+            self.published,
+            self.skipped,
+            self.errors,
+            1e3 * self.publish_s_total / max(1, self.published),
+            1e3 * self.publish_s_max,
+        )
+
+    def __enter__(self) -> Ros2Face:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def _run(self) -> None:
+        while True:
+            os.eventfd_read(self._doorbell)
+            if self._closed:
+                return
+            try:
+                job = self._slot.pop()
+            except IndexError:
+                continue
+            try:
+                start_s = time.perf_counter()
+                self.publish(job)
+                took_s = time.perf_counter() - start_s
+                self.published += 1
+                self.publish_s_total += took_s
+                self.publish_s_max = max(self.publish_s_max, took_s)
+            except Exception:  # the ROS 2 side must never take the gateway down
+                self.errors += 1
+                log.exception("error while publishing ROS 2 messages (the loop goes on)")
+
+
+# ------------------------------------------------------------------------------------------- session and start
+
+
+def ros2_session_options(args: argparse.Namespace, ros2: Ros2Config) -> SessionOptions:
+    """How the face's own session joins the ROS 2 side (``args``: the gateway's command line, for ``--pki-dir``).
+
+    TLS endpoints: mutual TLS as CN :data:`ROS2_COMMON_NAME` from ``--pki-dir``, without the cell's access control
+    (the session carries only the face's own puts; it subscribes to nothing). Plain ``tcp/`` endpoints: loopback
+    only (the host's rmw_zenohd router), allowed without ``--insecure-plain-tcp`` because nothing is read from them.
+
+    Raises:
+        SecurityError: plain TCP off loopback, or TLS and plain endpoints mixed.
+        PkiError: the ``ros2`` identity cannot be had.
+    """
+    endpoints = [*ros2.listen, *ros2.connect]
+    if all(endpoint_protocol(e) == "tls" for e in endpoints):
+        hosts = [endpoint_host(e) for e in ros2.listen]
+        pki_dir = Path(args.pki_dir) if getattr(args, "pki_dir", None) else default_pki_dir()
+        return SessionOptions(ros2.mode, mutual_tls(pki_dir, ROS2_COMMON_NAME, None, hosts))
+    options = SessionOptions(ros2.mode, PLAIN_TCP_LOOPBACK.tls)
+    check_endpoints(endpoints, options)
+    log.warning(
+        "ROS 2 face on plain TCP (%s): loopback only, unauthenticated; it publishes robot state and people's "
+        "positions to anyone on this host and reads nothing",
+        ", ".join(endpoints),
+    )
+    return options
+
+
+@contextmanager
+def running_ros2_face(
+    config: CellConfig, robots: Mapping[str, RobotModel], options: SessionOptions | None
+) -> Iterator[Ros2Face | None]:
+    """The face with its own session while the block runs; None when ``[ros2]`` is not enabled."""
+    if not config.ros2.enabled or options is None:
+        yield None
+        return
+    ros2 = config.ros2
+    with zenoh.open(session_config(ros2.listen, ros2.connect, options)) as session:
+        face = Ros2Face(config, robots, session)
+        log.info(
+            "ROS 2 face: node %s in domain %d (%s keys), %s",
+            face.node.token_key.rsplit("/", 1)[-1],
+            ros2.domain_id,
+            ros2.distro,
+            ", ".join(p.key for p in face.node.publishers),
+        )
+        try:
+            yield face
+        finally:
+            face.close()

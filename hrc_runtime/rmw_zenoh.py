@@ -33,13 +33,14 @@ from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from hashlib import blake2b
+from pathlib import Path
 from types import TracebackType
 from typing import Any, Literal, NamedTuple, get_args
 
 import numpy as np
 import zenoh
 from rosbags.interfaces import Nodetype
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from hrc_contract.config import ConfigError, Ros2Distro
@@ -54,6 +55,9 @@ _STORES: dict[Distro, Stores] = {
     "jazzy": Stores.ROS2_JAZZY,
     "kilted": Stores.ROS2_KILTED,
 }
+
+VENDORED_MSG_DIR = Path(__file__).parent / "ros2_msgs"
+"""Definitions the standard stores lack (``<pkg>/msg/<Type>.msg``: zed_msgs, hri_msgs; sources in its README)."""
 
 ADMIN_SPACE = "@ros2_lv"
 """The hermetic prefix of rmw_zenoh's liveliness tokens (``*`` and ``**`` never match it)."""
@@ -83,14 +87,20 @@ class AttachmentError(HrcError):
 
 @functools.cache
 def typestore(distro: Distro) -> Typestore:
-    """The message definitions of ``distro`` (rosbags' store), shared and read-only.
+    """The message definitions of ``distro`` (rosbags' store with the vendored ones registered), shared and
+    read-only.
 
     Raises:
         ConfigError: an unknown distro; the message lists the allowed ones.
     """
     if distro not in _STORES:
         raise ConfigError(f"unknown ROS 2 distro {distro!r}; allowed: {', '.join(DISTROS)}")
-    return get_typestore(_STORES[distro])
+    store = get_typestore(_STORES[distro])
+    types: dict[str, Any] = {}
+    for path in sorted(VENDORED_MSG_DIR.glob("*/msg/*.msg")):
+        types.update(get_types_from_msg(path.read_text(), f"{path.parts[-3]}/msg/{path.stem}"))
+    store.register(types)
+    return store
 
 
 class TopicType(NamedTuple):

@@ -31,14 +31,11 @@ from __future__ import annotations
 import enum
 import struct
 from collections.abc import Mapping
-from functools import cache
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 from rosbags.serde import SerdeError
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
@@ -55,8 +52,6 @@ from hrc_runtime.skeletons import (
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-MSG_DIR = Path(__file__).parent / "ros2_msgs"
-"""The vendored message definitions, ``<pkg>/msg/<Type>.msg``."""
 
 ZED_OBJECTS = "zed_msgs/msg/ObjectsStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -68,8 +63,6 @@ MAX_MARKERS = MAX_PEOPLE * 32
 """At most this many markers in one K4ABT array (32 joints per body)."""
 K4ABT_JOINTS = 32
 
-DISTROS = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
-"""ROS 2 distributions whose standard types the decoder knows."""
 
 # rosbags raises these for bytes that are not the type (its generated deserialisers index, slice and unpack the
 # buffer); the fuzz test shows nothing else escapes
@@ -138,24 +131,7 @@ class PeopleFrame(NamedTuple):
     searching: tuple[str, ...]
 
 
-@cache
-def typestore(distro: str = "humble") -> Typestore:
-    """The ``rosbags`` type store of a distribution with the vendored types registered (built once per distro).
-
-    Raises:
-        ValueError: an unknown distribution (the known ones: :data:`DISTROS`).
-    """
-    if distro not in DISTROS:
-        raise ValueError(f"unknown ROS 2 distribution {distro!r}; known: {sorted(DISTROS)}")
-    store = get_typestore(DISTROS[distro])
-    types: dict[str, Any] = {}
-    for path in sorted(MSG_DIR.glob("*/msg/*.msg")):
-        types.update(get_types_from_msg(path.read_text(), f"{path.parts[-3]}/msg/{path.stem}"))
-    store.register(types)
-    return store
-
-
-def deserialize(payload: bytes, msgtype: str, store: Typestore) -> Any:
+def decode_cdr(payload: bytes, msgtype: str, store: Typestore) -> Any:
     """Decode CDR bytes as ``msgtype``.
 
     Raises:
@@ -196,7 +172,7 @@ def decode_zed_objects(payload: bytes, store: Typestore) -> PeopleFrame:
     Raises:
         Ros2MessageError: see the module docstring.
     """
-    msg = deserialize(payload, ZED_OBJECTS, store)
+    msg = decode_cdr(payload, ZED_OBJECTS, store)
     if len(msg.objects) > MAX_PEOPLE:
         raise Ros2MessageError("too_many_people", f"{len(msg.objects)} objects, at most {MAX_PEOPLE} allowed")
     detections: list[TrackedPerson] = []
@@ -249,7 +225,7 @@ def decode_k4abt_markers(payload: bytes, store: Typestore) -> PeopleFrame:
     Raises:
         Ros2MessageError: see the module docstring.
     """
-    msg = deserialize(payload, MARKER_ARRAY, store)
+    msg = decode_cdr(payload, MARKER_ARRAY, store)
     if len(msg.markers) > MAX_MARKERS:
         raise Ros2MessageError("too_many_markers", f"{len(msg.markers)} markers, at most {MAX_MARKERS} allowed")
     bodies: dict[int, tuple[FloatArray, BoolArray]] = {}
@@ -293,7 +269,7 @@ def decode_ids_list(payload: bytes, store: Typestore) -> tuple[int, tuple[str, .
     Raises:
         Ros2MessageError: ``too_large``, ``not_cdr``, ``bad_stamp``, ``too_many_people``.
     """
-    msg = deserialize(payload, IDS_LIST, store)
+    msg = decode_cdr(payload, IDS_LIST, store)
     if len(msg.ids) > MAX_PEOPLE:
         raise Ros2MessageError("too_many_people", f"{len(msg.ids)} ids, at most {MAX_PEOPLE} allowed")
     return stamp_ns(msg.header), tuple(str(i) for i in msg.ids)

@@ -9,6 +9,7 @@ import pytest
 from support.skeleton_poses import standing_keypoints
 
 from hrc_contract.messages import MessageError
+from hrc_runtime.rmw_zenoh import typestore
 from hrc_runtime.ros2_people import (
     IDENTITY,
     IDS_LIST,
@@ -21,7 +22,6 @@ from hrc_runtime.ros2_people import (
     decode_k4abt_markers,
     decode_zed_objects,
     people_capsules,
-    typestore,
 )
 from hrc_runtime.skeletons import COMPILED, covers
 

@@ -6,4 +6,6 @@ __all__ = [
     "main",
     "node",
     "program",
+    "rtde_face",
+    "rws_face",
 ]

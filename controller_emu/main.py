@@ -3,6 +3,12 @@
 override payload → node.on_override(payload, read_clocks())   (the subscriber's thread)
 rate.sleep() → node.cycle(read_clocks()) → publish the joint state (state and ground truth) → log, stats
 
+With ``--rtde HOST`` (Universal Robots RTDE on HOST:30004, :mod:`controller_emu.rtde_face`) or ``--rws HOST:PORT``
+(ABB Robot Web Services, :mod:`controller_emu.rws_face`) the emulator plays a vendor's controller: overrides come
+only from that face (the speed slider, the speed ratio), there is no override subscription, and nothing is
+published on the cell's state key (the controller bridge publishes the joint state it reads back). Each face gets
+the latest state every cycle; the ground-truth key and the stats are published as always.
+
 The same joint state also goes out on the ground-truth key (``hrc/<cell>/truth/robot/<robot>/state``) for
 the auditor: the emulator knows its true state exactly, so truth and report are the same message here. A
 fault injector may delay or drop the report on its way to the gateway; the truth key is not for the gateway.
@@ -17,13 +23,15 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import NamedTuple, Protocol
 
 import zenoh
 
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
 from controller_emu.program import Trajectory, load_trajectory
+from controller_emu.rtde_face import RtdeFace
+from controller_emu.rws_face import RwsFace
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
 from hrc_contract.messages import to_payload
@@ -63,7 +71,7 @@ def _callback(node: ControllerNode) -> Callable[[zenoh.Sample], None]:
 
 
 class _Publishers(NamedTuple):
-    state: zenoh.Publisher
+    state: zenoh.Publisher | None  # None when a vendor face serves the state (the bridge publishes it)
     truth: zenoh.Publisher
     stats: zenoh.Publisher
 
@@ -137,13 +145,62 @@ def service_status_line(robot: str, stats: ControllerStats) -> str:
 
 def _publish(output: ControllerOutput, publishers: _Publishers, config: ControllerConfig) -> None:
     payload = to_payload(output.joint_state)
-    publishers.state.put(payload)
+    if publishers.state is not None:
+        publishers.state.put(payload)
     publishers.truth.put(payload)
     if output.mode_change is not None:
         _log_mode_change(output.mode_change, output.state, config)
 
 
-def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Event) -> RateLoop:
+class VendorFace(Protocol):
+    """A vendor's interface served by the emulator (:class:`RtdeFace`, :class:`RwsFace`)."""
+
+    def start(self) -> None: ...
+
+    def on_cycle(self, output: ControllerOutput) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def parse_host_port(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``--rws``).
+
+    Raises:
+        ConfigError: not HOST:PORT with a port in 1-65535.
+    """
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError(f"--rws {text!r}; expected HOST:PORT with a port in 1-65535 (e.g. 127.0.0.3:8080)")
+    return host, int(port)
+
+
+def _start_faces(node: ControllerNode, rtde_host: str | None, rws_address: tuple[str, int] | None) -> list[VendorFace]:
+    """Start the vendor faces asked for.
+
+    Raises:
+        ConfigError: a face cannot listen on its address.
+    """
+    faces: list[VendorFace] = []
+    try:
+        if rtde_host is not None:
+            faces.append(RtdeFace(node, rtde_host))
+            faces[-1].start()
+        if rws_address is not None:
+            faces.append(RwsFace(node, *rws_address))
+            try:
+                faces[-1].start()
+            except OSError as exc:
+                raise ConfigError(f"RWS face cannot listen on {rws_address[0]}:{rws_address[1]}: {exc}") from None
+    except ConfigError:
+        for face in faces[:-1]:
+            face.close()
+        raise
+    return faces
+
+
+def _run_loop(
+    node: ControllerNode, publishers: _Publishers, stop: threading.Event, faces: Sequence[VendorFace] = ()
+) -> RateLoop:
     """Cycle the node at its rate until ``stop`` is set; stats every second, a progress line every 5 s."""
     freeze_startup_heap()
     rate = RateLoop(node.config.cycle_s)
@@ -152,7 +209,10 @@ def _run_loop(node: ControllerNode, publishers: _Publishers, stop: threading.Eve
     service = LoopNotifier.from_environment()  # READY=1 after the first joint state, WATCHDOG=1, STATUS=
     while rate.sleep(stop):
         now = read_clocks()
-        _publish(node.cycle(now), publishers, node.config)
+        output = node.cycle(now)
+        for face in faces:
+            face.on_cycle(output)
+        _publish(output, publishers, node.config)
         now_s = now.mono_ns / 1e9
         service.cycle_done(now_s, lambda: service_status_line(node.robot, node.stats()))
         if now_s >= next_stats_s:
@@ -181,14 +241,16 @@ def _open_session(listen: Sequence[str], connect: Sequence[str], options: Sessio
         ) from None
 
 
-def _declare_publishers(session: zenoh.Session, cell: str, robot: str) -> _Publishers:
+def _declare_publishers(session: zenoh.Session, cell: str, robot: str, *, state: bool = True) -> _Publishers:
     return _Publishers(
         state=session.declare_publisher(
             keys.robot_state(cell, robot),
             express=True,
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.DROP,
-        ),
+        )
+        if state
+        else None,
         truth=session.declare_publisher(
             keys.truth_robot_state(cell, robot),
             express=True,
@@ -208,18 +270,24 @@ def run_controller(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
+    rtde_host: str | None = None,
+    rws_address: tuple[str, int] | None = None,
 ) -> ControllerState:
     """Run the controller loop until ``stop`` is set. Returns the final state.
 
+    With ``rtde_host`` or ``rws_address`` the overrides come only from those faces (see the module docstring).
+
     Raises:
-        ConfigError: the Zenoh session cannot be opened with these endpoints.
+        ConfigError: the Zenoh session cannot be opened with these endpoints, or a face cannot listen.
     """
     node = ControllerNode(robot, trajectory, config)
     override_key = keys.robot_override(cell, robot)
+    vendor = rtde_host is not None or rws_address is not None
     with _open_session(listen, connect, zenoh_options) as session:
-        subscriber = session.declare_subscriber(override_key, _callback(node))
-        publishers = _declare_publishers(session, cell, robot)
+        subscriber = None if vendor else session.declare_subscriber(override_key, _callback(node))
+        publishers = _declare_publishers(session, cell, robot, state=not vendor)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
+        faces = _start_faces(node, rtde_host, rws_address)
         log.info(
             "controller %s of cell %r: program %.2f s per cycle, %.0f Hz; waiting for overrides on %s "
             "(protective stop until the first valid one)",
@@ -227,11 +295,17 @@ def run_controller(
             cell,
             trajectory.duration_s,
             1.0 / config.cycle_s,
-            override_key,
+            ", ".join(
+                ([f"RTDE {rtde_host}:30004"] if rtde_host else [])
+                + ([f"RWS {rws_address[0]}:{rws_address[1]}"] if rws_address else [])
+            )
+            or override_key,
         )
         try:
-            rate = _run_loop(node, publishers, stop)
+            rate = _run_loop(node, publishers, stop, faces)
         finally:
+            for face in faces:
+                face.close()
             del token, subscriber  # undeclared when the session closes
     stats = node.stats()
     log.info(
@@ -254,6 +328,8 @@ def main(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
+    rtde_host: str | None = None,
+    rws_address: tuple[str, int] | None = None,
 ) -> int:
     """Load the robot and its program, then run the controller until ``stop`` is set.
 
@@ -263,6 +339,8 @@ def main(
         listen, connect: Zenoh endpoints; with neither, connect to :data:`DEFAULT_ENDPOINT`.
         stop: set to end the loop (SIGINT, SIGTERM, or a test).
         zenoh_options: mutual TLS and access control (``zenoh_session.options_from_args``).
+        rtde_host: serve UR RTDE on this address, port 30004 (overrides only from its speed slider).
+        rws_address: serve ABB RWS on this (host, port) (overrides only from its speed ratio).
 
     Returns:
         The process exit code (0).
@@ -279,7 +357,16 @@ def main(
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
     run_controller(
-        config.cell, name, trajectory, robot_config.controller, listen, connect, stop, zenoh_options=zenoh_options
+        config.cell,
+        name,
+        trajectory,
+        robot_config.controller,
+        listen,
+        connect,
+        stop,
+        zenoh_options=zenoh_options,
+        rtde_host=rtde_host,
+        rws_address=rws_address,
     )
     return 0
 
@@ -288,6 +375,12 @@ def cli(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog=PROG, description="Emulated closed robot controller (speed override δ)")
     add_config_argument(parser)
     parser.add_argument("--robot", default=None, metavar="NAME", help="robot of the cell (default: its only robot)")
+    parser.add_argument(
+        "--rtde", default=None, metavar="HOST", help="serve UR RTDE on HOST:30004; overrides only from its speed slider"
+    )
+    parser.add_argument(
+        "--rws", default=None, metavar="HOST:PORT", help="serve ABB RWS on HOST:PORT; overrides only from its ratio"
+    )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
@@ -295,7 +388,17 @@ def cli(argv: list[str] | None = None) -> None:
         try:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
-            code = main(config, args.robot, args.zenoh_listen, args.zenoh_connect, stop, zenoh_options=zenoh_options)
+            rws_address = None if args.rws is None else parse_host_port(args.rws)
+            code = main(
+                config,
+                args.robot,
+                args.zenoh_listen,
+                args.zenoh_connect,
+                stop,
+                zenoh_options=zenoh_options,
+                rtde_host=args.rtde,
+                rws_address=rws_address,
+            )
         except ConfigError as exc:
             reason = " ".join(str(exc).split())
             sys.stderr.write(f"{PROG}: invalid configuration: {reason}\n")

@@ -1,0 +1,431 @@
+"""The emulator's RTDE face, judged by ur-rtde (the client the field uses) and by raw, hostile sockets.
+
+ur-rtde's Python bindings hold the GIL while they wait for the controller, so the face it talks to runs in a
+child process (:data:`_SERVER`); the raw-socket tests run the face in this process with ``paced=False`` and send
+each output tick themselves, so they count packages without reading a clock.
+"""
+
+from __future__ import annotations
+
+import json
+import select
+import socket
+import statistics
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from controller_emu.node import ControllerNode
+from controller_emu.program import load_trajectory
+from controller_emu.rtde_face import RtdeFace, output_values
+from hrc_contract.config import CellConfig, ControllerConfig
+from hrc_runtime import rtde
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.rtde import MessageType, Recipe
+
+OUTPUTS = [
+    "timestamp",
+    "actual_q",
+    "actual_qd",
+    "target_q",
+    "target_qd",
+    "speed_scaling",
+    "target_speed_fraction",
+    "runtime_state",
+    "safety_mode",
+    "robot_mode",
+]
+ROOT = Path(__file__).resolve().parents[2]
+
+_SERVER = r"""
+import json, sys, threading
+from controller_emu.node import ControllerNode
+from controller_emu.program import load_trajectory
+from controller_emu.rtde_face import RtdeFace
+from hrc_contract.config import ControllerConfig
+from hrc_runtime.clocks import read_clocks
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.robot_model import load_robot_model
+
+robot = load_cell_config(None).robots["ur5"]
+trajectory = load_trajectory(robot.program, load_robot_model("ur5", robot))
+node = ControllerNode("ur5", trajectory, ControllerConfig(watchdog_s=1.0))
+face = RtdeFace(node, sys.argv[1])
+stop = threading.Event()
+
+def loop():
+    while not stop.wait(node.config.cycle_s):
+        face.on_cycle(node.cycle(read_clocks()))
+
+face.on_cycle(node.cycle(read_clocks()))
+face.start()
+threading.Thread(target=loop, daemon=True).start()
+print("ready", flush=True)
+sys.stdin.readline()
+stats = face.stats()
+print(json.dumps({"slider_writes": stats.slider_writes, "errors": dict(stats.errors)}), flush=True)
+stop.set()
+face.close()
+"""
+
+
+# -- ur-rtde against the face in a child process ---------------------------------------------------------------------
+
+
+@pytest.fixture
+def face_process(request: pytest.FixtureRequest) -> Iterator[tuple[str, subprocess.Popen[str]]]:
+    host: str = request.param
+    process = subprocess.Popen(
+        [sys.executable, "-c", _SERVER, host], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    assert process.stdout is not None
+    assert process.stdout.readline().strip() == "ready"
+    yield host, process
+    if process.poll() is None:
+        process.kill()
+        process.wait()
+
+
+def _wait_for(predicate: object, what: str) -> None:
+    """Poll ``predicate`` until true; the deadline only stops a broken test, it asserts nothing about speed."""
+    deadline = time.monotonic() + 10.0
+    while not predicate():  # type: ignore[operator]
+        if time.monotonic() > deadline:
+            raise AssertionError(f"gave up waiting for {what}")
+        time.sleep(0.0002)
+
+
+@pytest.mark.parametrize(
+    ("face_process", "frequency_hz"), [("127.0.41.11", 500.0), ("127.0.41.12", 125.0)], indirect=["face_process"]
+)
+def test_ur_rtde_reads_back_the_slider_within_two_output_periods(
+    face_process: tuple[str, subprocess.Popen[str]], frequency_hz: float
+) -> None:
+    """``setSpeedSlider(x)`` → ``getTargetSpeedFraction()`` shows x; ``getSpeedScalingCombined()`` the applied
+    override ramping up to it.
+
+    Counted in output periods from the controller's own timestamps (the package seen before the write to the
+    package that shows x). The median must be <= 2; single writes may take longer when this shared machine
+    deschedules the polling test (the polling, not the face, adds those periods; the deterministic bound is
+    :func:`test_a_slider_write_is_in_the_next_package_at_every_frequency`).
+    """
+    import rtde_io
+    import rtde_receive
+
+    host, process = face_process
+    receive = rtde_receive.RTDEReceiveInterface(host, frequency_hz, OUTPUTS)
+    io = rtde_io.RTDEIOInterface(host)
+    io.setSpeedSlider(0.3)
+    _wait_for(lambda: receive.getSpeedScaling() == 1.0 and receive.getRuntimeState() == rtde.RUNTIME_PLAYING, "run")
+    periods = []
+    for i in range(40):
+        fraction = 0.2 + 0.015 * i
+        before_s = receive.getTimestamp()
+        assert io.setSpeedSlider(fraction)
+        _wait_for(lambda f=fraction: receive.getTargetSpeedFraction() == f, f"read-back of {fraction}")
+        periods.append(round((receive.getTimestamp() - before_s) * frequency_hz))
+        # the slider rises: the combined scaling is the applied override, ramping up to it, never above
+        assert 0.0 < receive.getSpeedScalingCombined() <= fraction + 1e-9
+    _wait_for(lambda: receive.getSpeedScalingCombined() == pytest.approx(fraction), "the ramp reaching the slider")
+    assert receive.getSafetyMode() == rtde.SAFETY_NORMAL
+    assert receive.getRobotMode() == rtde.ROBOT_MODE_RUNNING
+    assert statistics.median(periods) <= 2, periods
+    io.disconnect()
+    receive.disconnect()
+    assert process.stdin is not None
+    assert process.stdout is not None
+    process.stdin.write("stats\n")
+    process.stdin.flush()
+    stats = json.loads(process.stdout.readline())
+    assert stats["slider_writes"] == 41
+    assert stats["errors"] == {}
+
+
+# -- raw clients against the face in this process --------------------------------------------------------------------
+
+
+class FakeClock:
+    """The clocks the face stamps slider writes with, moved by the test [ns]."""
+
+    def __init__(self) -> None:
+        self.now = Clocks(wall_ns=1_700_000_000_000_000_000, mono_ns=1_000_000_000)
+
+    def __call__(self) -> Clocks:
+        return self.now
+
+    def advance(self, dt_s: float) -> Clocks:
+        step = round(dt_s * 1e9)
+        self.now = Clocks(self.now.wall_ns + step, self.now.mono_ns + step)
+        return self.now
+
+
+class RawClient:
+    """A minimal RTDE client on a plain socket: what a hostile or a careful client sends, byte for byte."""
+
+    def __init__(self, host: str) -> None:
+        self.sock = socket.create_connection((host, 30004), timeout=5.0)
+        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # as RTDE clients do (no Nagle wait)
+        self.buffer = bytearray()
+
+    def send(self, message_type: int, payload: bytes = b"") -> None:
+        self.sock.sendall(struct.pack(">HB", 3 + len(payload), message_type) + payload)
+
+    def receive(self) -> rtde.Message:
+        """The next message (5 s at most, else the test is broken)."""
+        deadline = time.monotonic() + 5.0
+        while True:
+            messages = rtde.take_messages(self.buffer)
+            if messages:
+                self.buffer[:0] = b"".join(rtde.pack_message(m.type_code, m.payload) for m in messages[1:])
+                return messages[0]
+            readable, _, _ = select.select([self.sock], [], [], max(0.0, deadline - time.monotonic()))
+            assert readable, "no message from the face"
+            data = self.sock.recv(65536)
+            if not data:
+                raise ConnectionError("closed by the face")
+            self.buffer += data
+
+    def request(self, message_type: int, payload: bytes = b"") -> bytes:
+        self.send(message_type, payload)
+        reply = self.receive()
+        assert reply.type_code == message_type
+        return reply.payload
+
+    def handshake(self, frequency_hz: float = 500.0, outputs: list[str] = OUTPUTS) -> Recipe:
+        assert rtde.decode_accepted(self.request(MessageType.REQUEST_PROTOCOL_VERSION, b"\x00\x02"))
+        recipe_id, types = rtde.decode_setup_reply(
+            self.request(MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_output_setup(frequency_hz, outputs))
+        )
+        return Recipe(recipe_id, tuple(outputs), types)
+
+    def closed(self) -> bool:
+        """True once the face has closed the connection (reads what is left first)."""
+        try:
+            while True:
+                self.receive()
+        except ConnectionError:
+            return True
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def node(cell_config: CellConfig, ur5: RobotModel) -> ControllerNode:
+    trajectory = load_trajectory(cell_config.robots["ur5"].program, ur5)
+    return ControllerNode("ur5", trajectory, ControllerConfig(watchdog_s=0.1))
+
+
+def _face(node: ControllerNode, host: str, clock: FakeClock) -> RtdeFace:
+    """A face sending outputs only on ``tick`` (started by ``with``)."""
+    face = RtdeFace(node, host, paced=False, clock=clock)
+    face.on_cycle(node.cycle(clock()))
+    return face
+
+
+def _slider_recipe(client: RawClient) -> Recipe:
+    names = ("input_int_register_23", "speed_slider_mask", "speed_slider_fraction")
+    recipe_id, types = rtde.decode_setup_reply(
+        client.request(MessageType.CONTROL_PACKAGE_SETUP_INPUTS, rtde.encode_input_setup(names))
+    )
+    return Recipe(recipe_id, names, types)
+
+
+@pytest.mark.parametrize(("frequency_hz", "ticks_per_package"), [(500.0, 1), (125.0, 4)])
+def test_a_slider_write_is_in_the_next_package_at_every_frequency(
+    node: ControllerNode, frequency_hz: float, ticks_per_package: int
+) -> None:
+    """Write, then one output period of control ticks: the package it brings carries the new slider value."""
+    clock = FakeClock()
+    host = "127.0.41.21" if frequency_hz == 500.0 else "127.0.41.22"
+    with _face(node, host, clock) as face:
+        reader, writer = RawClient(host), RawClient(host)
+        outputs = reader.handshake(frequency_hz)
+        assert rtde.decode_accepted(reader.request(MessageType.CONTROL_PACKAGE_START))
+        writer.handshake()
+        slider = _slider_recipe(writer)
+        for i in range(20):
+            fraction = 0.1 + 0.04 * i
+            writer.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 1, fraction)))
+            packages = 0
+            while True:
+                face.tick(ticks_per_package)
+                message = reader.receive()
+                packages += 1
+                values = dict(zip(OUTPUTS, rtde.decode_data(outputs, message.payload), strict=True))
+                if values["target_speed_fraction"] == fraction or packages > 5:
+                    break
+            assert packages <= 2  # 1 unless the kernel delivered the write after the tick request
+        assert face.stats().slider_writes == 20
+        reader.close()
+        writer.close()
+
+
+def test_output_timestamps_step_by_the_output_period(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.23", clock) as face:
+        client = RawClient("127.0.41.23")
+        outputs = client.handshake(125.0)
+        assert rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
+        face.tick(12)
+        stamps = [rtde.decode_data(outputs, client.receive().payload)[0] for _ in range(3)]
+        assert stamps == pytest.approx([0.002, 0.010, 0.018])
+        client.close()
+
+
+def test_watchdog_stop_shows_as_protective_stop_and_zero_scaling(node: ControllerNode) -> None:
+    """Slider writes stop: after watchdog_s the node stops the robot; RTDE shows it (rtde_set_watchdog "pause")."""
+    clock = FakeClock()
+    with _face(node, "127.0.41.24", clock) as face:
+        client = RawClient("127.0.41.24")
+        outputs = client.handshake()
+        slider = _slider_recipe(client)
+        assert rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
+        client.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 1, 0.6)))
+        _wait_for(lambda: face.stats().slider_writes == 1, "the slider write")
+        face.on_cycle(node.cycle(clock.advance(0.004)))
+        face.tick()
+        running = dict(zip(OUTPUTS, rtde.decode_data(outputs, client.receive().payload), strict=True))
+        assert (running["runtime_state"], running["safety_mode"]) == (2, 1)
+        # accelerating from standstill: the combined scaling is the applied override, one cycle's ramp of 0.6
+        applied = node.stats().delta_applied
+        assert 0.0 < applied < 0.6
+        assert running["speed_scaling"] * running["target_speed_fraction"] == pytest.approx(applied)
+        assert running["target_speed_fraction"] == 0.6
+        for _ in range(30):  # 0.12 s without a write
+            output = node.cycle(clock.advance(0.004))
+            face.on_cycle(output)
+        face.tick()
+        held = dict(zip(OUTPUTS, rtde.decode_data(outputs, client.receive().payload), strict=True))
+        assert held["safety_mode"] == rtde.SAFETY_PROTECTIVE_STOP
+        assert held["speed_scaling"] == 0.0
+        assert held["runtime_state"] in (rtde.RUNTIME_PAUSING, rtde.RUNTIME_PAUSED)
+        assert held["target_speed_fraction"] == 0.6  # the slider stays where it was
+        client.close()
+
+
+def test_output_values_carry_the_applied_override_in_target_qd(node: ControllerNode) -> None:
+    clock = FakeClock()
+    output = node.cycle(clock())
+    values = output_values(output, 0.7, 1.5)
+    assert values["target_qd"] == tuple(output.joint_state.qd)
+    assert values["target_speed_fraction"] == 0.7
+    assert values["timestamp"] == 1.5
+
+
+def test_second_client_gets_in_use_for_the_slider(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.25", clock) as face:
+        owner, intruder = RawClient("127.0.41.25"), RawClient("127.0.41.25")
+        owner.handshake()
+        intruder.handshake()
+        assert _slider_recipe(owner).recipe_id == 1
+        recipe_id, types = rtde.decode_setup_reply(
+            intruder.request(
+                MessageType.CONTROL_PACKAGE_SETUP_INPUTS, rtde.encode_input_setup(["speed_slider_fraction"])
+            )
+        )
+        assert (recipe_id, types) == (0, (rtde.IN_USE,))
+        owner.close()
+        _wait_for(lambda: face.stats().clients == 1, "the owner's disconnect")
+        recipe_id, types = rtde.decode_setup_reply(
+            intruder.request(
+                MessageType.CONTROL_PACKAGE_SETUP_INPUTS, rtde.encode_input_setup(["speed_slider_fraction"])
+            )
+        )
+        assert (recipe_id, types) == (2, ("DOUBLE",))  # numbered in arrival order, the refused one included
+        intruder.close()
+
+
+def test_unknown_outputs_are_not_found_and_fast_frequencies_refused(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.26", clock) as face:
+        client = RawClient("127.0.41.26")
+        client.handshake()
+        recipe_id, types = rtde.decode_setup_reply(
+            client.request(
+                MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_output_setup(500.0, ["timestamp", "tcp_force"])
+            )
+        )
+        assert (recipe_id, types) == (0, ("DOUBLE", rtde.NOT_FOUND))
+        recipe_id, _ = rtde.decode_setup_reply(
+            client.request(MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_output_setup(501.0, ["timestamp"]))
+        )
+        assert recipe_id == 0
+        assert not rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
+        assert face.stats().errors["output_setup_refused"] == 2
+        client.close()
+
+
+def test_slider_values_out_of_range_are_not_applied(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.27", clock) as face:
+        client = RawClient("127.0.41.27")
+        client.handshake()
+        slider = _slider_recipe(client)
+        for mask, fraction in [(1, 1.5), (1, -0.1), (1, float("nan")), (2, 0.5)]:
+            client.send(MessageType.DATA_PACKAGE, b"\x01" + struct.pack(">iId", 22, mask, fraction))
+        client.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 0, 0.9)))  # mask 0: no change
+        _wait_for(lambda: face.stats().errors.get("slider_value", 0) == 4, "the refusals")
+        assert face.stats().slider_writes == 0
+        assert node.stats().override_seq == -1
+        client.close()
+
+
+@pytest.mark.parametrize(
+    ("raw", "reason"),
+    [
+        (b"\x00\x01\x00garbage", "garbage"),
+        (b"\x20\x00U" + bytes(100), "oversize"),
+        (b"\x00\x05Z\x00\x02", "unknown_type"),
+        (b"\x00\x03v", "not_negotiated"),
+    ],
+)
+def test_hostile_bytes_disconnect_that_client_only(node: ControllerNode, raw: bytes, reason: str) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.28", clock) as face:
+        good = RawClient("127.0.41.28")
+        outputs = good.handshake()
+        assert rtde.decode_accepted(good.request(MessageType.CONTROL_PACKAGE_START))
+        hostile = RawClient("127.0.41.28")
+        hostile.sock.sendall(raw)
+        text = hostile.receive()
+        assert text.type_code == MessageType.TEXT_MESSAGE
+        message, _source, level = rtde.decode_text(text.payload)
+        assert level == rtde.TextLevel.ERROR
+        assert message
+        assert hostile.closed()
+        assert face.stats().errors[reason] == 1
+        face.tick()
+        assert rtde.decode_data(outputs, good.receive().payload)[0] == pytest.approx(0.002)
+        good.close()
+        hostile.close()
+
+
+def test_wrong_version_is_refused_and_the_client_may_retry(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.29", clock) as face:
+        client = RawClient("127.0.41.29")
+        assert not rtde.decode_accepted(client.request(MessageType.REQUEST_PROTOCOL_VERSION, b"\x00\x01"))
+        assert rtde.decode_accepted(client.request(MessageType.REQUEST_PROTOCOL_VERSION, b"\x00\x02"))
+        assert rtde.decode_controller_version(client.request(MessageType.GET_URCONTROL_VERSION))[0] == 5
+        assert face.stats().errors["bad_version"] == 1
+        client.close()
+
+
+def test_data_for_a_recipe_not_set_up_disconnects(node: ControllerNode) -> None:
+    clock = FakeClock()
+    with _face(node, "127.0.41.30", clock) as face:
+        client = RawClient("127.0.41.30")
+        client.handshake()
+        client.send(MessageType.DATA_PACKAGE, b"\x07" + struct.pack(">Id", 1, 1.0))
+        assert client.receive().type_code == MessageType.TEXT_MESSAGE
+        assert client.closed()
+        assert face.stats().errors["unknown_recipe"] == 1
+        assert node.stats().override_seq == -1

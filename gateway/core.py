@@ -21,7 +21,7 @@ from gateway.delay import NS_PER_S, DelayBudget, OverridePathEstimate, WindowMax
 from gateway.inputs import HumanFrame, InputSnapshot, JointSample, TopicFault, age_s
 from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
-from gateway.methods import MethodInput, OverrideMethod, ReplanMonitor, build_method
+from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.separation import decision_clearance_m
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -58,6 +58,8 @@ class RobotDecision(NamedTuple):
             for ``safety.replan_after_s`` (never while faulted).
         delta_applied: the override the controller reported applying in its newest state, None before one.
         links: the link segments' end points this decision used (world frame) [m]; None before a joint state.
+        bounded_by: what bounded ``delta_bound``, for the methods that say (``lucci2020_pfl``: ``separation:<region>``,
+            ``contact:<region>``, ``clamping:<region>`` or ``none``); None for the others.
     """
 
     robot: str
@@ -75,6 +77,7 @@ class RobotDecision(NamedTuple):
     replan_request: bool = False
     delta_applied: float | None = None
     links: LinkEnds | None = None
+    bounded_by: str | None = None
 
 
 class TrackReset(NamedTuple):
@@ -337,6 +340,7 @@ class SafetyCore:
             state.replan.update(now.mono_ns, delta, faulted=bool(faults)),
             joint.override if joint else None,
             links,
+            self._method.bounded_by(state.name) if isinstance(self._method, ContactAware) and joint else None,
         )
 
     def _bound(

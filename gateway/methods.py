@@ -12,6 +12,10 @@ to one δ bound in [0, 1]. Faults, zones and the safety-exception latch are appl
 - ``zanchettin2016_speed_aware`` — eq. (15) with the stopping time δ t_b of a controller that ramps the
   override down at a bounded rate (safety-math.md §10): a slowed robot stops sooner, so it may come closer.
   Its safety exception follows its own stopping model (:meth:`SpeedAware.protection`).
+- ``lucci2020_pfl`` — speed and separation monitoring down to a contact-safe speed (Lucci et al., RA-L 2020;
+  safety-math.md §12): the same form with the stop ending at each body region's contact-safe speed
+  (:mod:`gateway.contact`, ISO/TS 15066 Annex A) instead of 0; the head, a body part that may be pinned against a
+  clamping surface and a capsule of no region keep speed 0 (separation). Off unless the cell selects it.
 - ``stop_only`` — δ = 0 while any human surface is within the protective separation distance of any
   link, else 1. The zone is sized as a laser-scanner field would be: ISO/TS 15066 S_p (safety-math.md §7)
   for a robot point moving straight at the human at ``stop_only_robot_speed_mps``, with T_r the measured
@@ -45,6 +49,17 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from gateway import iso15066
+from gateway.contact import (
+    NO_REGION,
+    ContactBounds,
+    ReflectedMass,
+    RegionTable,
+    box_arrays,
+    clamped_pairs,
+    contact_bounds,
+    contact_delta,
+    simple_robot_mass_kg,
+)
 from gateway.delay import NS_PER_S
 from gateway.kinematics import LinkKinematics
 from gateway.separation import (
@@ -309,6 +324,99 @@ class SpeedAware:
         return Protection(protective_m, delta, safety.speed_aware_resume_above_delta)
 
 
+class ContactAware(SpeedAware):
+    """Speed and separation monitoring down to a contact-safe speed (Lucci et al. 2020; safety-math.md §12).
+
+    Per pair, δ_c = f v_c / s_i (f = ``pfl_speed_fraction``, v_c the capsule's region speed for the link's effective
+    mass, s_i the link's largest programmed point speed) is always allowed, and above it
+    :func:`gateway.contact.contact_bounds`: the slow-down from δ to δ_c must end before the person reaches the link,
+    in the rows and in the pair bound d ≥ Δ_c(δ). v_c = 0 (separation, exactly :class:`SpeedAware`'s bound) for the
+    head, a capsule of no region, and a pair that may pin the capsule against a clamping surface
+    (:func:`gateway.contact.clamped_pairs`).
+
+    The effective mass: ``pfl_mass_model = "simple"`` uses M/2 + m_payload per robot, a constant (no cost per
+    decision); ``"reflected"`` the reflected mass of each link along its programmed velocity (Pinocchio, ~one M⁻¹ and
+    14 Jacobians per decision). Its safety exception: :class:`SpeedAware`'s δ thresholds, at no distance (contact is
+    allowed): a bound at or below ``speed_aware_stop_below_delta`` stops the robot, as does any contact (d ≤ 0).
+
+    After each :meth:`bound`, :meth:`bounded_by` names what bounded δ for that robot: ``separation:<region>``,
+    ``clamping:<region>``, ``contact:<region>``, or ``none`` (δ = 1).
+    """
+
+    name = "lucci2020_pfl"
+
+    def __init__(self, safety: SafetyConfig, robots: dict[str, RobotModel]) -> None:
+        super().__init__(safety)
+        self.regions = RegionTable(safety.pfl_body_regions)
+        self._box_min_m, self._box_max_m = box_arrays(safety.pfl_clamping_surfaces)
+        self._simple_kg = {name: simple_robot_mass_kg(r.model, safety.pfl_payload_kg) for name, r in robots.items()}
+        self._reflected = (
+            {name: ReflectedMass(r, safety.pfl_payload_kg) for name, r in robots.items()}
+            if safety.pfl_mass_model == "reflected"
+            else {}
+        )
+        self._bounded_by: dict[str, str] = {}
+
+    def bounded_by(self, robot: str) -> str | None:
+        """What bounded δ in the robot's latest decision; None before one."""
+        return self._bounded_by.get(robot)
+
+    def link_masses_kg(self, x: MethodInput) -> FloatArray:
+        """m_R of every link of this decision [kg]."""
+        reflected = self._reflected.get(x.robot.name)
+        if reflected is not None:
+            return reflected.link_masses_kg(x.q_rad, x.links.v_a_world, x.links.v_b_world)
+        return np.full(len(x.robot.link_names), self._simple_kg[x.robot.name])
+
+    def bound(self, x: MethodInput) -> float:
+        d = x.rows.surface_distance_m
+        links = x.links
+        speeds = self.regions.speeds_mps(x.humans.capsule_names, self.link_masses_kg(x))
+        clamped = clamped_pairs(
+            links.v_a_world, links.v_b_world, x.humans, self._box_min_m, self._box_max_m, self.safety.pfl_clamp_margin_m
+        )
+        contact_mps = np.where(clamped, 0.0, self.safety.pfl_speed_fraction * speeds)
+        v_a, v_b = links.v_a_world, links.v_b_world
+        link_speed_mps = np.sqrt(np.maximum(np.einsum("lj,lj->l", v_a, v_a), np.einsum("lj,lj->l", v_b, v_b)))
+        bounds = contact_bounds(
+            d,
+            x.rows.e_m2ps,
+            x.robot.t_brake_link_s,
+            x.t_delay_s,
+            self.human_speed_pair_mps(d),
+            self.safety.clearance_static_m,
+            contact_delta(contact_mps, link_speed_mps),
+        )
+        lowest = bounds.min_bound
+        delta = 0.0 if lowest != lowest else min(max(lowest, 0.0), 1.0)
+        self._bounded_by[x.robot.name] = self._what_bounded(bounds, clamped, x.humans.capsule_names, delta)
+        return delta
+
+    def _what_bounded(
+        self, bounds: ContactBounds, clamped: npt.NDArray[np.bool_], names: tuple[str, ...], delta: float
+    ) -> str:
+        """The label of the pair whose bound is the smallest (``none`` at δ = 1; ``separation`` on a nan)."""
+        if delta >= 1.0 or not names:
+            return "none"
+        per_pair = np.minimum(bounds.human, bounds.row.reshape(*bounds.human.shape, 4).min(axis=-1))
+        if np.isnan(per_pair).any():
+            return "separation"
+        i, j = np.unravel_index(int(np.argmin(per_pair)), per_pair.shape)
+        region = self.regions.region_names(names)[j]
+        if clamped[i, j]:
+            return f"clamping:{region}"
+        spec = self.regions.regions.get(region)
+        if region == NO_REGION or spec is None or not spec.transient or bounds.delta_contact[i, j] <= 0.0:
+            return f"separation:{region}"
+        return f"contact:{region}"
+
+    def protection(self, t_brake_max_s: float, t_delay_s: float, clearance_m: float | None = None) -> Protection:
+        """No protective distance beyond contact (d ≤ 0 stops the robot: contact is detected, then the stop); the δ
+        thresholds of :class:`SpeedAware`."""
+        safety = self.safety
+        return Protection(0.0, safety.speed_aware_stop_below_delta, safety.speed_aware_resume_above_delta)
+
+
 def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> OverrideMethod:
     """The method named by ``safety.method``, checked against the robots.
 
@@ -323,6 +431,8 @@ def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> Overrid
         return StopOnly(safety)
     if safety.method == "zanchettin2016_speed_aware":
         return SpeedAware(safety)
+    if safety.method == "lucci2020_pfl":
+        return ContactAware(safety, robots)
     return Zanchettin2016(safety)
 
 

@@ -98,6 +98,9 @@ def load_cell_config(path: Path | str | None = None) -> CellConfig:
                 raise ConfigError(f"{cell_path}: robots.{name}.program: {program_path}: no such file")
             robot["program"] = str(program_path)
     raw["scenarios_dir"] = str(_resolve(config_dir, str(raw.get("scenarios_dir", "scenarios"))))
+    safety = raw.get("safety")
+    if isinstance(safety, dict) and isinstance(safety.get("pfl_body_regions"), str):  # a file: its [regions] read in
+        safety["pfl_body_regions"] = read_toml(_resolve(config_dir, safety["pfl_body_regions"])).get("regions", {})
     try:
         return CellConfig.model_validate(raw)
     except ValidationError as exc:

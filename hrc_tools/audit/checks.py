@@ -38,6 +38,7 @@ import pinocchio as pin
 from hrc_contract.humans import HumanCapsules
 from hrc_runtime.link_motion import LinkMotion, link_motion
 from hrc_runtime.robot_model import RobotModel
+from hrc_tools.audit.contact import Contact
 from hrc_tools.audit.distance import CapsulePairs, CapsuleSet
 
 FloatArray = npt.NDArray[np.float64]
@@ -260,6 +261,12 @@ class AuditSummary:
         time_stopped_s: time with δ_applied == 0 [s].
         mean_delta_applied: time-weighted mean of δ_applied.
         program_cycles_completed: program cycles the controller completed (as last reported).
+        contact_cycles: cycles with a contact while moving that the contact criterion judged (§12).
+        unacceptable_contacts: cycles with a contact the contact criterion does not accept (too fast for the body
+            region, at the head or a body part of no region, or clamped): the contact criterion's violations.
+        contact_speeds_mps: the speed at the onset of every contact (a link–capsule pair that was not in contact the
+            cycle before) [m/s].
+        unacceptable_onsets: the onsets among them that were not acceptable.
     """
 
     cycles: int = 0
@@ -276,6 +283,10 @@ class AuditSummary:
     time_stopped_s: float = 0.0
     mean_delta_applied: float = 0.0
     program_cycles_completed: int = 0
+    contact_cycles: int = 0
+    unacceptable_contacts: int = 0
+    contact_speeds_mps: tuple[float, ...] = ()
+    unacceptable_onsets: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (an infinite margin becomes None)."""
@@ -294,6 +305,10 @@ class AuditSummary:
             "time_stopped_s": round(self.time_stopped_s, 6),
             "mean_delta_applied": self.mean_delta_applied,
             "program_cycles_completed": self.program_cycles_completed,
+            "contact_cycles": self.contact_cycles,
+            "unacceptable_contacts": self.unacceptable_contacts,
+            "contact_speeds_mps": [round(v, 4) for v in self.contact_speeds_mps],
+            "unacceptable_onsets": self.unacceptable_onsets,
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -328,6 +343,26 @@ class AuditAccumulator:
         self._stopped_s = 0.0
         self._delta_time = 0.0
         self._program_cycles = 0
+        self._contact_cycles = 0
+        self._unacceptable = 0
+        self._onset_speeds: list[float] = []
+        self._unacceptable_onsets = 0
+        self._in_contact: frozenset[tuple[str, str]] = frozenset()
+
+    def add_contacts(self, contacts: Sequence[Contact], labels: Sequence[str]) -> None:
+        """Count one cycle's contacts (:func:`hrc_tools.audit.contact.audit_contacts`); ``labels[k]`` names the capsule
+        of ``contacts[k]`` across cycles (e.g. ``h1/hand_r``), so that a contact's onset is told from its
+        continuation."""
+        pairs = frozenset((c.link, label) for c, label in zip(contacts, labels, strict=True))
+        if contacts:
+            self._contact_cycles += 1
+            if not all(c.acceptable for c in contacts):
+                self._unacceptable += 1
+        for contact, label in zip(contacts, labels, strict=True):
+            if (contact.link, label) not in self._in_contact:
+                self._onset_speeds.append(contact.speed_mps)
+                self._unacceptable_onsets += not contact.acceptable
+        self._in_contact = pairs
 
     def add(
         self,
@@ -400,6 +435,10 @@ class AuditAccumulator:
             time_stopped_s=self._stopped_s,
             mean_delta_applied=self._delta_time / self._duration_s if self._duration_s > 0.0 else 0.0,
             program_cycles_completed=self._program_cycles,
+            contact_cycles=self._contact_cycles,
+            unacceptable_contacts=self._unacceptable,
+            contact_speeds_mps=tuple(self._onset_speeds),
+            unacceptable_onsets=self._unacceptable_onsets,
         )
 
 
@@ -436,4 +475,8 @@ def merge_summaries(summaries: Sequence[AuditSummary]) -> AuditSummary:
             sum(s.mean_delta_applied * s.duration_s for s in summaries) / duration_s if duration_s > 0.0 else 0.0
         ),
         program_cycles_completed=sum(s.program_cycles_completed for s in summaries),
+        contact_cycles=sum(s.contact_cycles for s in summaries),
+        unacceptable_contacts=sum(s.unacceptable_contacts for s in summaries),
+        contact_speeds_mps=tuple(v for s in summaries for v in s.contact_speeds_mps),
+        unacceptable_onsets=sum(s.unacceptable_onsets for s in summaries),
     )

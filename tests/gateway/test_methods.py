@@ -341,7 +341,14 @@ def test_replan_threshold_zero_never_requests() -> None:
 
 
 def test_methods_are_listed() -> None:
-    assert SAFETY_METHODS == ("zanchettin2016", "iso15066", "three_zones", "stop_only", "zanchettin2016_speed_aware")
+    assert SAFETY_METHODS == (
+        "zanchettin2016",
+        "iso15066",
+        "three_zones",
+        "stop_only",
+        "zanchettin2016_speed_aware",
+        "lucci2020_pfl",
+    )
     for method in SAFETY_METHODS:
         assert SafetyConfig(method=method).method == method  # type: ignore[arg-type]
 

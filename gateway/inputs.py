@@ -238,7 +238,7 @@ class InputStore:
                 tracker changed, e.g. ``threading.Event.set`` to wake the loop; must not block.
         """
         streams = config.streams
-        self._plausibility = config.plausibility
+        self._plausibility = {name: config.tracker_plausibility(name) for name in config.trackers}
         self._max_future_ns = round(streams.max_future_stamp_s * NS_PER_S)
         self._hold_ns = round(streams.fault_hold_s * NS_PER_S)
         self._max_clock_step_ns = round(streams.max_clock_step_s * NS_PER_S)
@@ -312,7 +312,7 @@ class InputStore:
             self._on_tracker_change()
             return
         capsules = capsules_from_message(tracker, msg) if msg.tracker == tracker else None
-        reason = "name_mismatch" if capsules is None else implausible_reason(capsules, self._plausibility)
+        reason = "name_mismatch" if capsules is None else implausible_reason(capsules, self._plausibility[tracker])
         if capsules is None or reason is not None:
             self._reject(topic, reason or "name_mismatch", f"tracker {msg.tracker!r}", received)
             self._on_tracker_change()

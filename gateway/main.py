@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 import zenoh
 from pydantic import TypeAdapter
 
+from gateway.bridge_view import BridgeView
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
@@ -37,6 +38,7 @@ from gateway.http.server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
 from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
+from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
 from gateway.stalls import Phase, StallMonitor
 from gateway.status import cycle_status, effective_config, loop_status
 from hrc_contract import keys
@@ -53,7 +55,13 @@ from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_re
 from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import StopEvent, stop_on_signals
-from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+from hrc_runtime.zenoh_session import (
+    DEFAULT_ENDPOINT,
+    SessionOptions,
+    options_from_args,
+    plain_tcp_allowed,
+    session_config,
+)
 
 log = logging.getLogger("hrc-gateway")
 
@@ -310,6 +318,8 @@ class _StatusSink:
     robots: Mapping[str, RobotModel]
     publisher: Any
     http: HttpServerProcess
+    bridges: BridgeView | None = None
+    """The controller bridges' statistics, shown in the status (never used for a decision)."""
 
     def publish(self, job: StatusJob) -> None:
         line = self.line(job)
@@ -319,7 +329,9 @@ class _StatusSink:
     def line(self, job: StatusJob) -> bytes:
         """The job's document as JSON; built and dropped with collections paused (see :class:`StatusThread`)."""
         with collections_paused():
-            return status_json(cycle_status(self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns))
+            bridges = None if self.bridges is None else self.bridges.snapshot()
+            doc = cycle_status(self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges)
+            return status_json(doc)
 
 
 @dataclass
@@ -487,6 +499,9 @@ def run_gateway(
     with (
         zenoh.open(session_config(listen, connect, zenoh_options)) as session,
         running_ros2_face(config, node.robots, ros2_options) as ros2,
+        running_ros2_trackers(  # ROS 2 body trackers through the same door (gateway/ros2_trackers.py)
+            config, None if ros2 is None else ros2.node.session, node.on_message, node.inputs.count_rejection
+        ),
     ):
         states_key, humans_key = keys.gateway_subscriptions(config.cell)
         on_sample = _callback(node, config.gateway.io_realtime_priority)
@@ -497,7 +512,11 @@ def run_gateway(
         token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
         effective = effective_config(config)
         http = HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority)
-        sink = _StatusSink(config, node.robots, session.declare_publisher(keys.gateway_status(config.cell)), http)
+        bridges = BridgeView(config)
+        if bridges.interfaces:  # display only: the bridges' read-back figures (gateway/bridge_view.py)
+            subscribers.append(session.declare_subscriber(bridges.key, bridges.on_sample))
+        status_pub = session.declare_publisher(keys.gateway_status(config.cell))
+        sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None)
         out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish), ros2=ros2)
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
@@ -558,6 +577,7 @@ def cli(argv: list[str] | None = None) -> None:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
             ros2_options = ros2_session_options(args, config.ros2) if config.ros2.enabled else None
+            check_ros2_inputs(config, ros2_options, plain_tcp_allowed(args))
             wake = stop.wake_event() if config.gateway.event_driven else None
             recorder = None if args.record is None else GatewayRecorder(args.record, config)
             node = build_node(config, wake, recorder)

@@ -514,6 +514,11 @@ class TrackerConfig(_Frozen):
         description="Probability per frame that two people the emulated sensor reports exchange their ids, "
         "from that frame on.",
     )
+    ros2: Ros2TrackerInput | None = Field(
+        None,
+        description="The tracker is a ROS 2 body tracker read over rmw_zenoh (gateway/ros2_trackers.py): its "
+        "skeletons become capsules at the gateway. None: it publishes hrc.humans/1 on the cell's Zenoh.",
+    )
 
     @model_validator(mode="after")
     def _occlusion_needs_a_position(self) -> TrackerConfig:
@@ -722,6 +727,47 @@ class Ros2Config(_Frozen):
         return self
 
 
+Ros2TrackerFormat = Literal["zed_objects", "k4abt_markers"]
+"""What a ROS 2 body tracker publishes: ``zed_msgs/ObjectsStamped`` (ZED body tracking) or the Azure Kinect
+driver's ``visualization_msgs/MarkerArray`` (``hrc_runtime/ros2_people.py``)."""
+MAX_SKELETON_CAPSULE_RADIUS_M = 2.0
+"""Largest radius a skeleton tracker's capsules may be allowed [m]: the contract's ``Capsule.radius`` limit."""
+
+
+class Ros2TrackerInput(_Frozen):
+    """A body tracker of the cell read over ROS 2 (``[ros2]``'s session, distro and domain): its keypoints become
+    the gateway's capsules (``hrc_runtime/skeletons.py``), then one ``hrc.humans/1`` frame through the same door.
+
+    Plausibility: a part the tracker did not see becomes a sphere reaching as far as it can be (a foot unseen down
+    to the pelvis: 1.52 m, P95) plus the uncertainty, which the cell's ``max_capsule_radius_m`` (at most 1 m, sized
+    for seen body parts) would refuse (δ = 0 whenever a hand is hidden). A large capsule only lowers δ; so the door
+    judges this tracker's capsules against its own radius and length limits instead, within the cell's volume.
+    """
+
+    format: Ros2TrackerFormat
+    topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        description="The tracker's topic, e.g. /zed/zed_node/body_trk/skeletons (relative: under [ros2] namespace)."
+    )
+    frame_id: Annotated[str, Field(min_length=1, max_length=256)] | None = Field(
+        None, description="The header.frame_id the tracker must use (another is refused, wrong_frame); None: any."
+    )
+    sensor_pose_world: Pose = Field(
+        Pose(), description="Pose of the messages' frame in the cell's world frame (xyz [m], rpy [rad])."
+    )
+    uncertainty_m: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = Field(
+        0.05,
+        description="The tracker's stated keypoint uncertainty (e.g. 3σ), added to every capsule radius [m]. At most "
+        "0.5 m: a tracker less certain than that does not place a hand.",
+    )
+    max_capsule_radius_m: Annotated[float, Field(gt=0.0, le=MAX_SKELETON_CAPSULE_RADIUS_M, allow_inf_nan=False)] = (
+        Field(MAX_SKELETON_CAPSULE_RADIUS_M, description="Largest capsule radius of this tracker at the door [m].")
+    )
+    max_capsule_length_m: Annotated[float, Field(gt=0.0, le=2.5, allow_inf_nan=False)] = Field(
+        2.5,
+        description="Longest capsule of this tracker at the door [m] (a part enclosed with where it was last seen).",
+    )
+
+
 class CellConfig(_Frozen):
     cell: Name
     safety: SafetyConfig = SafetyConfig()
@@ -742,6 +788,24 @@ class CellConfig(_Frozen):
         if not value:
             raise ValueError("at least one entry is required")
         return value
+
+    @model_validator(mode="after")
+    def _ros2_trackers_need_ros2(self) -> CellConfig:
+        readers = [name for name, tracker in self.trackers.items() if tracker.ros2 is not None]
+        if readers and not self.ros2.enabled:
+            raise ValueError(
+                f"tracker(s) {', '.join(readers)} read ROS 2 but [ros2] is not enabled; allowed: [ros2] enabled = "
+                "true with its endpoints, or no ros2 input"
+            )
+        return self
+
+    def tracker_plausibility(self, tracker: str) -> PlausibilityConfig:
+        """What the door allows ``tracker``: the cell's limits, a ROS 2 skeleton tracker's own radius and length."""
+        ros2 = self.trackers[tracker].ros2
+        if ros2 is None:
+            return self.plausibility
+        limits = {"max_capsule_radius_m": ros2.max_capsule_radius_m, "max_capsule_length_m": ros2.max_capsule_length_m}
+        return self.plausibility.model_copy(update=limits)
 
     def sha256(self) -> str:
         """Hex digest of the configuration as loaded (canonical JSON, referenced files included)."""

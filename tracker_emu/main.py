@@ -37,6 +37,7 @@ from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.robot_links import RobotPoses
+from tracker_emu.ros2_zed import ZedPublishers, ros2_endpoints, ros2_session_options, zed_sources
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
 from tracker_emu.sensor import covered_volume
 
@@ -95,6 +96,8 @@ class _Publishers(NamedTuple):
 
     humans: dict[str, zenoh.Publisher]
     truth: zenoh.Publisher
+    zed: ZedPublishers | None = None
+    """``--publish zed``: the trackers' frames as ZED ObjectsStamped over rmw_zenoh instead of ``humans``."""
 
 
 def _declare_publishers(session: zenoh.Session, cell: str, trackers: Iterable[str]) -> _Publishers:
@@ -152,7 +155,10 @@ def _publish_due(
     # Forward kinematics only when a sensor with occlusion captures.
     robot_links = robots.capsules() if robots is not None and emulator.capture_due(now_s) else None
     for name, message in emulator.step(now_s, now_ns, robot_links):
-        publishers.humans[name].put(to_payload(message))
+        if publishers.zed is not None:
+            publishers.zed.publish(name, message, emulator.present_ids)
+        else:
+            publishers.humans[name].put(to_payload(message))
         published = True
     truth_message = truth.step(now_s, now_ns) if truth is not None else None
     if truth_message is not None:
@@ -222,11 +228,14 @@ def main(
     *,
     zenoh_options: SessionOptions,
     robots: RobotPoses | None = None,
+    ros2_options: SessionOptions | None = None,
 ) -> int:
     """Play ``scenario`` for ``trackers`` in real time until ``stop`` is set. Returns the exit code.
 
     ``truth_rate_hz``: rate of the ground truth on ``hrc/<cell>/truth/humans`` [Hz]; 0 publishes none.
     ``robots``: the robot models the sensors with occlusion see (default: loaded here when a tracker occludes).
+    ``ros2_options``: given, the trackers speak ZED over rmw_zenoh on a session of their own (``--publish zed``,
+    :mod:`tracker_emu.ros2_zed`), to ``[ros2]``'s endpoints; the truth stays on the cell's session.
 
     Raises:
         ConfigError: a robot model does not load (only when ``robots`` is not given).
@@ -234,8 +243,15 @@ def main(
     cell = config.cell
     if robots is None and any(t.occlusion for t in trackers.values()):
         robots = robot_poses(config)
-    with zenoh.open(session_config(listen, connect, zenoh_options)) as session:
-        publishers = _declare_publishers(session, cell, trackers)
+    zed_session = None
+    if ros2_options is not None:
+        zed_session = zenoh.open(session_config(connect=ros2_endpoints(config), options=ros2_options))
+    with zenoh.open(session_config(listen, connect, zenoh_options)) as session, zed_session or session:
+        publishers = _declare_publishers(session, cell, [] if zed_session else trackers)
+        if zed_session is not None:
+            noise = {name: t.noise_std_m for name, t in trackers.items()}
+            zed = ZedPublishers(zed_session, config, zed_sources(config, trackers), noise)
+            publishers = publishers._replace(zed=zed)
         subscriber = (
             None
             if robots is None
@@ -248,6 +264,8 @@ def main(
         truth = TruthSampler(scenario, truth_rate_hz, emulator.start_s) if truth_rate_hz > 0.0 else None
         _log_start(cell, scenario_name, scenario, trackers)
         _play(emulator, truth, publishers, robots, _Course(scenario_name, scenario, emulator.start_s), stop)
+        if publishers.zed is not None:
+            publishers.zed.close()
         del token, publishers, subscriber  # undeclared when the session closes
     log.info("stopped; %s", _progress(emulator, time.monotonic()))
     return 0
@@ -273,6 +291,14 @@ def cli(argv: list[str] | None = None) -> None:
         help="rate of the ground truth on hrc/<cell>/truth/humans, for the auditor "
         f"(default {DEFAULT_TRUTH_RATE_HZ:g}; 0 = none)",
     )
+    parser.add_argument(
+        "--publish",
+        choices=("capsules", "zed"),
+        default="capsules",
+        help="what the trackers publish: hrc.humans/1 capsules on the cell's Zenoh (default), or ZED "
+        "zed_msgs/ObjectsStamped (BODY_34) over rmw_zenoh to [ros2]'s endpoints (trackers need a zed_objects "
+        "ros2 input)",
+    )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     if not 0.0 <= args.truth_rate_hz <= MAX_TRUTH_RATE_HZ:  # also rejects NaN
@@ -289,6 +315,10 @@ def cli(argv: list[str] | None = None) -> None:
         trackers = select_trackers(config, args.tracker)
         robots = robot_poses(config) if any(t.occlusion for t in trackers.values()) else None
         zenoh_options = options_from_args(args, COMPONENT, config)  # mutual TLS + access control by default
+        ros2_options = None
+        if args.publish == "zed":
+            zed_sources(config, trackers)  # refuses trackers without a ZED input before anything starts
+            ros2_options = ros2_session_options(args, ros2_endpoints(config))
     except ConfigError as exc:
         print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)
         sys.exit(2)
@@ -306,6 +336,7 @@ def cli(argv: list[str] | None = None) -> None:
             truth_rate_hz=args.truth_rate_hz,
             zenoh_options=zenoh_options,
             robots=robots,
+            ros2_options=ros2_options,
         )
     sys.exit(code)
 

@@ -1,0 +1,342 @@
+"""ROS 2 body trackers as trackers of the cell: rmw_zenoh samples → skeleton capsules → the very same door.
+
+    ROS 2 session thread (Zenoh): a sample on ``<domain>/<topic>/<type>/<hash>``
+        ──judge_sample (type, hash, attachment)──▶ SkeletonAdapter.convert: decode (hrc_runtime.ros2_people)
+        ──people_capsules (placement, uncertainty, per-person memory)──▶ an ``hrc.humans/1`` frame
+        ──door(hrc/<cell>/tracker/<name>/humans, frame, received)──▶ GatewayNode.on_message → InputStore.on_humans
+    any refusal ──count_rejection(tracker/<name>, reason, received): counted by reason, the topic faulted (δ = 0)
+
+The frame's ``seq`` is the attachment's sequence number (per publisher, from 1) and its ``stamp_ns`` the message's
+``header.stamp``, the capture time; ``received`` is read when the sample arrives, before the conversion, so the age
+the loop sees (and the delay budget) includes the conversion. The door then judges the frame as any native one:
+parse, plausibility (this tracker's limits: :meth:`hrc_contract.config.CellConfig.tracker_plausibility`), the
+stream's order (a stamp in the future or backwards, a sequence number backwards), faults and their hold. People
+the tracker marks SEARCHING or TERMINATE are left out of the frame: the gateway's tracks keep them as lost.
+
+Refused before the door, with these reasons: what rmw_zenoh itself drops (``no_attachment``,
+``attachment_malformed``, ``too_large``) and a publisher of another type or distro (``wrong_type``,
+``wrong_type_hash``); what the decoders refuse (``not_cdr``, ``bad_stamp``, ``non_finite``, ``absurd_keypoint``,
+``unknown_body_format`` … of :mod:`hrc_runtime.ros2_people` and :mod:`hrc_runtime.skeletons`); a message in
+another frame than configured (``wrong_frame``); anything else that raises (``internal_error``, logged).
+
+Cost: the conversion runs on the ROS 2 session's receiving thread, never on the safety loop's (which it shares the
+interpreter lock with); measured per frame in docs/ros2.md ("ROS 2 trackers").
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import zenoh
+
+from hrc_contract import keys
+from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2TrackerInput
+from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
+from hrc_runtime import ros2_people
+from hrc_runtime.clocks import Clocks, read_clocks
+from hrc_runtime.rmw_zenoh import (
+    Attachment,
+    AttachmentError,
+    Distro,
+    Qos,
+    Ros2Node,
+    TopicType,
+    decode_attachment,
+    endpoint_token,
+    fully_qualified_name,
+    topic_type,
+    typestore,
+)
+from hrc_runtime.robot_model import pose_to_rotation_translation
+from hrc_runtime.skeletons import BodyCapsules, PersonMemory
+from hrc_runtime.zenoh_session import SecurityError, SessionOptions
+
+log = logging.getLogger("hrc-gateway.ros2-trackers")
+
+MSGTYPES = {"zed_objects": ros2_people.ZED_OBJECTS, "k4abt_markers": ros2_people.MARKER_ARRAY}
+"""The ROS 2 message type of each tracker format."""
+
+SENSOR_DATA_QOS = Qos(reliability=2, durability=2, history=1, depth=5)
+"""What the subscriptions announce: rclcpp's sensor-data profile (best effort, volatile, keep last 5)."""
+
+NODE_ID = 1000
+"""The trackers' node id in the ROS 2 session. rmw_zenoh numbers nodes and endpoints of a session from one counter;
+the face's node counts from 0, so this node's ids start far above its few endpoints."""
+
+Door = Callable[[str, bytes, Clocks], None]
+"""Where a converted frame goes: (the tracker's cell key, ``hrc.humans/1`` payload, arrival clocks)."""
+Rejection = Callable[[str, str, Clocks], None]
+"""Where a refusal goes: (``tracker/<name>``, reason, arrival clocks): counted and faulted."""
+
+
+class Ros2TrackerError(MessageError):
+    """A sample refused before the door; ``reason`` is a short key for counting."""
+
+
+# ---------------------------------------------------------------------------------------------------- the wire
+
+
+def judge_sample(key: str, size: int, attachment: bytes | None, wire: TopicType) -> Attachment:
+    """What rmw_zenoh checks before it hands a sample on (and a wrong type or hash, which it would not match).
+
+    Raises:
+        Ros2TrackerError: ``too_large``, ``wrong_type``, ``wrong_type_hash``, ``no_attachment``,
+            ``attachment_malformed``.
+    """
+    head, _, type_hash = key.rpartition("/")
+    dds_name = head.rpartition("/")[2]
+    if size > MAX_PAYLOAD_BYTES:
+        raise Ros2TrackerError("too_large", f"{size} bytes, at most {MAX_PAYLOAD_BYTES} allowed")
+    if dds_name != wire.dds_name:
+        raise Ros2TrackerError("wrong_type", f"type {dds_name[:80]!r} on the topic; expected {wire.dds_name}")
+    if type_hash != wire.type_hash:
+        raise Ros2TrackerError("wrong_type_hash", f"type hash {type_hash[:80]!r}; expected {wire.type_hash}")
+    if attachment is None:
+        raise Ros2TrackerError("no_attachment", "a sample without rmw_zenoh's attachment (rmw_zenoh drops it)")
+    try:
+        return decode_attachment(attachment)
+    except AttachmentError as exc:
+        raise Ros2TrackerError("attachment_malformed", str(exc)) from None
+
+
+# ------------------------------------------------------------------------------------------- conversion (pure)
+
+
+def placement_of(pose: Pose) -> ros2_people.Placement:
+    """The sensor frame's pose in the world (xyz [m], roll-pitch-yaw [rad] as a robot's base pose) as a placement."""
+    return ros2_people.Placement(*pose_to_rotation_translation(pose))
+
+
+def humans_payload(tracker: str, seq: int, stamp_ns: int, people: tuple[tuple[str, BodyCapsules], ...]) -> bytes:
+    """The ``hrc.humans/1`` frame of the people's capsules, as JSON bytes for the door (which validates it).
+
+    Raises:
+        Ros2TrackerError: ``non_finite`` (a coordinate the JSON cannot carry; never from a checked skeleton).
+    """
+    humans = []
+    for person_id, body in people:
+        a, b, r = body.a_m.tolist(), body.b_m.tolist(), body.radius_m.tolist()
+        capsules = [{"name": n, "a": a[k], "b": b[k], "radius": r[k]} for k, n in enumerate(body.names)]
+        humans.append({"id": person_id, "capsules": capsules})
+    doc = {"schema": "hrc.humans/1", "tracker": tracker, "seq": seq, "stamp_ns": stamp_ns, "humans": humans}
+    try:
+        return json.dumps(doc, allow_nan=False, separators=(",", ":")).encode()
+    except ValueError as exc:
+        raise Ros2TrackerError("non_finite", str(exc)) from None
+
+
+@dataclass
+class SkeletonAdapter:
+    """One ROS 2 tracker's samples → its ``hrc.humans/1`` frames; keeps each person's memory between frames.
+
+    Not thread-safe: one sample at a time (:class:`TrackerSubscription` holds a lock around :meth:`convert`).
+
+    Args:
+        tracker: the tracker's name in the cell.
+        source: its ROS 2 input (format, frame, placement, uncertainty).
+        distro: whose definitions decode the bytes.
+    """
+
+    tracker: str
+    source: Ros2TrackerInput
+    distro: Distro
+    placement: ros2_people.Placement = field(init=False)
+    memories: dict[str, PersonMemory] = field(default_factory=dict, init=False)
+
+    def __post_init__(self) -> None:
+        self.placement = placement_of(self.source.sensor_pose_world)
+        self._store = typestore(self.distro)
+        formats = {"zed_objects": ros2_people.decode_zed_objects, "k4abt_markers": ros2_people.decode_k4abt_markers}
+        self._decode = formats[self.source.format]
+
+    def convert(self, payload: bytes, attachment: Attachment) -> bytes:
+        """One sample's frame: seq from the attachment, stamp from the header (the capture time).
+
+        An array of markers without any marker (K4ABT, nobody in view) has no header: it is stamped with the
+        attachment's source timestamp (when it was published, after its capture).
+
+        Raises:
+            MessageError: see the module docstring (the memories are kept as they were).
+        """
+        frame = self._decode(payload, self._store)
+        empty = not frame.detections and not frame.searching and not frame.frame_id
+        if self.source.frame_id is not None and frame.frame_id != self.source.frame_id and not empty:
+            raise Ros2TrackerError("wrong_frame", f"frame {frame.frame_id[:80]!r}; expected {self.source.frame_id!r}")
+        stamp_ns = attachment.source_timestamp_ns if empty and frame.stamp_ns == 0 else frame.stamp_ns
+        people, memories = ros2_people.people_capsules(
+            frame, self.memories, self.placement, uncertainty_m=self.source.uncertainty_m
+        )
+        out = humans_payload(self.tracker, attachment.sequence_number, stamp_ns, people)
+        self.memories = memories
+        return out
+
+
+# ----------------------------------------------------------------------------------------------- subscriptions
+
+
+class SampleCounts(NamedTuple):
+    """What one subscription did: frames handed to the door, samples refused before it (by reason)."""
+
+    converted: int
+    refused: dict[str, int]
+
+
+@dataclass
+class TrackerSubscription:
+    """One ROS 2 tracker's samples, judged and converted on the receiving thread, then handed to the door.
+
+    Args:
+        adapter: the tracker's conversion.
+        wire: the type on the wire (name, hash) its samples must carry.
+        key: the tracker's cell key (``hrc/<cell>/tracker/<name>/humans``): what the door sees.
+        door: the gateway's input door for that key.
+        reject: counts a refusal and faults ``tracker/<name>``.
+        clock: reads both clocks at arrival (``read_clocks``; a fake in tests).
+    """
+
+    adapter: SkeletonAdapter
+    wire: TopicType
+    key: str
+    door: Door
+    reject: Rejection
+    clock: Callable[[], Clocks] = read_clocks
+    converted: int = 0
+    refused: dict[str, int] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @property
+    def topic(self) -> str:
+        """The counters' topic: ``tracker/<name>``."""
+        return f"tracker/{self.adapter.tracker}"
+
+    def on_sample(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        """Judge, convert and hand on one sample (what the Zenoh callback calls); never raises."""
+        received = self.clock()
+        try:
+            with self._lock:  # one at a time: the people's memories; the door orders the frames itself
+                frame = self.adapter.convert(payload, judge_sample(key, len(payload), attachment, self.wire))
+                self.converted += 1
+        except MessageError as exc:
+            self._refuse(exc.reason, received)
+            return
+        except Exception:  # a hostile sample must never take the subscriber down: count it, fail closed
+            log.exception("error while converting a ROS 2 sample of tracker %s on %s", self.adapter.tracker, key)
+            self._refuse("internal_error", received)
+            return
+        self.door(self.key, frame, received)
+
+    def counts(self) -> SampleCounts:
+        with self._lock:
+            return SampleCounts(self.converted, dict(self.refused))
+
+    def _refuse(self, reason: str, received: Clocks) -> None:
+        with self._lock:
+            self.refused[reason] = self.refused.get(reason, 0) + 1
+        self.reject(self.topic, reason, received)
+
+
+def tracker_subscriptions(config: CellConfig, door: Door, reject: Rejection) -> dict[str, TrackerSubscription]:
+    """One subscription per tracker of the cell with a ROS 2 input (none without).
+
+    Raises:
+        ConfigError: an unknown distro or message type.
+    """
+    distro: Distro = config.ros2.distro
+    subscriptions = {}
+    for name, tracker in sorted(config.trackers.items()):
+        if tracker.ros2 is None:
+            continue
+        wire = topic_type(distro, MSGTYPES[tracker.ros2.format])
+        adapter = SkeletonAdapter(name, tracker.ros2, distro)
+        subscriptions[name] = TrackerSubscription(adapter, wire, keys.tracker_humans(config.cell, name), door, reject)
+    return subscriptions
+
+
+def check_ros2_inputs(config: CellConfig, options: SessionOptions | None, plain_tcp_allowed: bool) -> None:
+    """Refuse to read trackers from a ROS 2 session that anyone on the host could write to, unless allowed.
+
+    The face's session alone reads nothing, and may use plain TCP on loopback without the flag; a tracker read from
+    it is a safety input, so plain TCP needs ``--insecure-plain-tcp`` as the cell's own session does.
+
+    Raises:
+        SecurityError: a ROS 2 tracker on plain TCP without the flag.
+    """
+    readers = [name for name, tracker in config.trackers.items() if tracker.ros2 is not None]
+    if readers and options is not None and options.tls is None and not plain_tcp_allowed:
+        raise SecurityError(
+            f"tracker(s) {', '.join(readers)} read from the ROS 2 session on plain TCP: any local process could "
+            "move people; allowed: tls/ endpoints in [ros2], or --insecure-plain-tcp (development)"
+        )
+
+
+@dataclass
+class Ros2Trackers:
+    """The trackers' node on the ROS 2 session: per tracker a Zenoh subscriber and its ``MS`` liveliness token."""
+
+    node: Ros2Node
+    subscriptions: Mapping[str, TrackerSubscription]
+    _handles: list[Any] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Undeclare every subscriber and token, then the node (idempotent)."""
+        for handle in self._handles:
+            handle.undeclare()
+        self._handles.clear()
+        self.node.close()
+
+
+def declare(node: Ros2Node, subscriptions: Mapping[str, TrackerSubscription], config: CellConfig) -> Ros2Trackers:
+    """Each subscription on ``node``'s session: listening on ``<domain>/<topic>/*/*`` (every type and hash, so that
+    a wrong one is seen and counted), announced by an ``MS`` token as an rmw_zenoh subscription."""
+    trackers = Ros2Trackers(node, subscriptions)
+    for entity_id, (name, subscription) in enumerate(sorted(subscriptions.items()), start=node.node_id + 1):
+        source = config.trackers[name].ros2
+        if source is None:
+            continue
+        fq_name = fully_qualified_name(node.namespace, source.topic)
+        token = endpoint_token(
+            "MS", node.domain_id, node.session_id, node.node_id, entity_id, node.namespace, node.name, fq_name,
+            subscription.wire, SENSOR_DATA_QOS,
+        )  # fmt: skip
+
+        def on_sample(sample: zenoh.Sample, subscription: TrackerSubscription = subscription) -> None:
+            attachment = sample.attachment
+            subscription.on_sample(
+                str(sample.key_expr), sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
+            )
+
+        listen_key = f"{node.domain_id}/{fq_name.strip('/')}/*/*"
+        trackers._handles.append(node.session.declare_subscriber(listen_key, on_sample))
+        trackers._handles.append(node.session.liveliness().declare_token(token))
+        log.info("ROS 2 tracker %s: %s (%s) on %s", name, fq_name, subscription.wire.msgtype, listen_key)
+    return trackers
+
+
+@contextmanager
+def running_ros2_trackers(
+    config: CellConfig, session: zenoh.Session | None, door: Door, reject: Rejection
+) -> Iterator[Ros2Trackers | None]:
+    """The cell's ROS 2 trackers subscribed on ``session`` (the ROS 2 face's) while the block runs; None without.
+
+    Raises:
+        ConfigError: ROS 2 trackers without a ROS 2 session, or an unknown distro.
+    """
+    subscriptions = tracker_subscriptions(config, door, reject)
+    if not subscriptions:
+        yield None
+        return
+    if session is None:
+        raise ConfigError("the cell has ROS 2 trackers but no ROS 2 session; allowed: [ros2] enabled = true")
+    ros2 = config.ros2
+    node = Ros2Node(session, f"{ros2.node_name}_trackers", ros2.namespace, ros2.domain_id, ros2.distro, NODE_ID)
+    trackers = declare(node, subscriptions, config)
+    try:
+        yield trackers
+    finally:
+        trackers.close()

@@ -204,9 +204,16 @@ class _Reader:
     """The reader thread: connect (with backoff), read, compose, publish; reconnect when the link fails."""
 
     def __init__(
-        self, bridge: Bridge, interface: VendorInterface, publish: Callable[[JointState], None], stop: threading.Event
+        self,
+        bridge: Bridge,
+        interface: VendorInterface,
+        publish: Callable[[JointState], None],
+        stop: threading.Event,
+        poll_interval_s: float = 0.0,
     ) -> None:
         self.bridge = bridge
+        self.poll_interval_s = poll_interval_s
+        """Readings at most this often [s] (a polled interface, ABB's ``poll_rate_hz``; 0: as they stream)."""
         self.interface = interface
         self.publish = publish
         self.stop = stop
@@ -243,7 +250,11 @@ class _Reader:
         """Read until stopped or the link fails. Returns whether any joint state was published."""
         published = False
         started_ns = time.monotonic_ns()
+        next_read_s = time.monotonic()
         while not self.stop.is_set():
+            if self.poll_interval_s > 0.0:  # a polled controller: q is differentiated over this interval, not less
+                self.stop.wait(max(0.0, next_read_s - time.monotonic()))
+                next_read_s = max(next_read_s + self.poll_interval_s, time.monotonic())
             try:
                 state = self.bridge.on_reading(self.interface.read(self.read_timeout_s))
             except VendorError as exc:
@@ -315,6 +326,7 @@ def run_bridge(
     stop: StopEvent,
     *,
     zenoh_options: SessionOptions,
+    poll_interval_s: float = 0.0,
 ) -> BridgeStats:
     """Run the bridge until ``stop`` is set. Returns the final statistics.
 
@@ -353,7 +365,7 @@ def run_bridge(
 
         subscriber = session.declare_subscriber(keys.robot_override(cell, robot), on_sample)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        reader = _Reader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop)
+        reader = _Reader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop, poll_interval_s)
         service = LoopNotifier.from_environment()
         timers = {"stats": time.monotonic() + STATS_EVERY_S, "progress": time.monotonic() + PROGRESS_EVERY_S}
         last_readings = [0, time.monotonic()]
@@ -439,7 +451,17 @@ def main(
     interface = make_interface(interface_config, model.n_joints)
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
-    run_bridge(config.cell, Bridge(settings, locate), interface, listen, connect, stop, zenoh_options=zenoh_options)
+    poll_s = 1.0 / interface_config.poll_rate_hz if isinstance(interface_config, AbbRwsInterfaceConfig) else 0.0
+    run_bridge(
+        config.cell,
+        Bridge(settings, locate),
+        interface,
+        listen,
+        connect,
+        stop,
+        zenoh_options=zenoh_options,
+        poll_interval_s=poll_s,
+    )
     return 0
 
 

@@ -25,6 +25,7 @@ from gateway.tracks import NS_PER_S, TrackRecord, TrackState, reach_speed_mps
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules
 from hrc_contract.status_models import (
+    BridgeStatus,
     CapsuleStatus,
     EffectiveConfig,
     EffectiveRobot,
@@ -171,12 +172,14 @@ def robot_status(
     override_seq: int,
     link_names: Sequence[str] = (),
     link_radius_m: Sequence[float] | npt.NDArray[np.float64] = (),
+    bridge: BridgeStatus | None = None,
 ) -> RobotStatus:
     """One robot's entry; ``override_seq`` is the seq of the override this decision was sent with.
 
     Args:
         link_names, link_radius_m: the robot's links (``RobotModel.link_names``, ``link_radius_m`` [m]), in the
             order of the decision's ``links``; without them the entry has no link capsules.
+        bridge: the robot's controller bridge as :class:`gateway.bridge_view.BridgeView` shows it (display only).
     """
     closest = decision.closest
     delay = decision.delay
@@ -189,6 +192,7 @@ def robot_status(
         "closest": None
         if closest is None
         else {"human": closest.human, "capsule": closest.capsule, "link": closest.link},
+        "bounded_by": decision.bounded_by,
         "t_delay_s": _rounded(delay.total_s),
         "delay_budget_s": {
             "t_reaction_s": _rounded(delay.t_reaction_s),
@@ -212,6 +216,7 @@ def robot_status(
         "delta_applied": None if decision.delta_applied is None else _unit(decision.delta_applied),
         "replan_request": decision.replan_request,
         "links": _link_entries(decision, link_names, link_radius_m),
+        "bridge": bridge,
     }
     return RobotStatus.model_validate(entry)
 
@@ -253,6 +258,7 @@ def cycle_status(
     counters: tuple[dict[str, dict[str, int]], dict[str, int]],
     loop: LoopStatus,
     stamp_ns: int,
+    bridges: Mapping[str, BridgeStatus] | None = None,
 ) -> GatewayStatus:
     """The status document of one cycle (what the loop publishes at ``gateway.status_rate_hz``).
 
@@ -262,13 +268,15 @@ def cycle_status(
         counters: ``(rejected, received)`` of the input store (:meth:`gateway.inputs.InputStore.counters`).
         loop: the loop's own timing (:func:`loop_status`).
         stamp_ns: when the document is built [ns since the epoch].
+        bridges: the bridged robots' controller bridges (:meth:`gateway.bridge_view.BridgeView.snapshot`).
     """
     rejected, received = counters
+    bridges = bridges or {}
     return status_document(
         config.cell,
         stamp_ns,
         {
-            name: robot_status(d, cycle.seq, robots[name].link_names, robots[name].link_radius_m)
+            name: robot_status(d, cycle.seq, robots[name].link_names, robots[name].link_radius_m, bridges.get(name))
             for name, d in cycle.decisions.items()
         },
         humans_summary(cycle.inputs),

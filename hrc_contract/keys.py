@@ -16,6 +16,11 @@ def robot_emu_stats(cell: str, robot: str) -> str:
     return f"hrc/{cell}/robot/{robot}/emu_stats"
 
 
+def robot_bridge_stats(cell: str, robot: str) -> str:
+    """Controller bridge statistics (interface, read-back value and latency); for display, never for decisions."""
+    return f"hrc/{cell}/robot/{robot}/bridge_stats"
+
+
 def tracker_humans(cell: str, tracker: str) -> str:
     return f"hrc/{cell}/tracker/{tracker}/humans"
 

@@ -108,6 +108,30 @@ class HumanCapsuleStatus(CapsuleStatus):
     human: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
 
 
+class BridgeStatus(_Strict):
+    """The controller bridge of a robot whose ``interface`` is ``ur_rtde`` or ``abb_rws``, from the statistics it
+    puts on ``hrc/<cell>/robot/<robot>/bridge_stats`` every second. For display only: no decision uses it (the
+    gateway measures the override path itself, ``delay_budget_s.override_path_s``)."""
+
+    interface: Literal["ur_rtde", "abb_rws"] = Field(description="The vendor interface (the cell file's ``kind``).")
+    stats_age_s: NonNegative | None = Field(
+        description="Age of the bridge's newest statistics; null before any (no bridge heard from) [s]."
+    )
+    mode: Annotated[str, Field(max_length=32)] | None = Field(description="``mode`` of the bridge's last joint state.")
+    readback: Unit | None = Field(
+        description="The controller's last read-back of its speed input (UR ``target_speed_fraction``, ABB speed "
+        "ratio / 100); null before one."
+    )
+    readback_latency_s: NonNegative | None = Field(
+        description="Write → first read-back showing the new value, the last one the bridge measured [s]."
+    )
+    readback_latency_max_s: NonNegative | None = Field(
+        description="The largest such latency in the bridge's last statistics period (1 s) [s]."
+    )
+    readings_per_s: NonNegative | None = Field(description="Valid read-backs per second [1/s].")
+    rejected: Count = Field(description="Refused read-backs and interface errors since the bridge started.")
+
+
 class RobotStatus(_Strict):
     """One robot's decision as the status shows it (``robots.<robot>`` of :class:`GatewayStatus`)."""
 
@@ -153,6 +177,11 @@ class RobotStatus(_Strict):
         default_factory=list,
         description="The link capsules at the joint positions this decision used (world frame); empty before "
         "the first joint state.",
+    )
+    bridge: BridgeStatus | None = Field(
+        None,
+        description="The controller bridge (interface ``ur_rtde`` or ``abb_rws``); null for a controller that "
+        "speaks the cell's Zenoh contract itself (interface ``zenoh``).",
     )
 
 

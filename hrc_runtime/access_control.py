@@ -104,7 +104,12 @@ def grants(policy: CellPolicy) -> tuple[Grant, ...]:
     controllers = tuple(
         Grant(
             (f"controller-{r}",),
-            (keys.robot_state(cell, r), keys.truth_robot_state(cell, r), keys.robot_emu_stats(cell, r)),
+            (
+                keys.robot_state(cell, r),
+                keys.truth_robot_state(cell, r),
+                keys.robot_emu_stats(cell, r),
+                keys.robot_bridge_stats(cell, r),  # the bridge runs with the controller's certificate
+            ),
             (keys.alive(cell, f"controller-{r}"),),
         )
         for r in policy.robots

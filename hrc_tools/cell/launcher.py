@@ -1,5 +1,10 @@
 """``hrc-cell``: run a whole cell (gateway, one controller emulator per robot, tracker emulator) on this machine.
 
+A robot whose ``interface`` is ``ur_rtde`` or ``abb_rws`` is reached as a real one would be: its emulator serves the
+vendor's face (``--rtde HOST``, ``--rws HOST:PORT``) and ``hrc-controller-bridge --robot R`` (program
+``bridge-<robot>``) runs beside it, with the same certificate (``controller-<robot>``), between that face and the
+cell's Zenoh contract (docs/controllers.md).
+
 Each program is its own process, as in production; they meet over Zenoh on loopback, with mutual TLS and the
 cell's access control: on first start the cell CA and the programs' certificates are created in the state
 folder (``$HRC_STATE_DIR/pki``, else ``.state/pki``; see docs/security.md). ``--insecure-plain-tcp`` runs them
@@ -10,22 +15,62 @@ them exits on its own, the others are stopped too.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
-from hrc_contract.config import CellConfig, ConfigError
+from hrc_contract.config import AbbRwsInterfaceConfig, CellConfig, ConfigError, RobotConfig, UrRtdeInterfaceConfig
 from hrc_runtime.access_control import CellPolicy
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.pki import CellPki, default_pki_dir
 from hrc_runtime.signals import stop_on_signals
 from hrc_tools.cert.main import provision_cell
 
+EMULATOR_RWS_PASSWORD = "robotics"
+"""The RWS password the controller emulator serves, as an ABB controller is shipped (user ``Default User``)."""
+
 
 def _module_command(module: str, *args: str) -> list[str]:
     return [sys.executable, "-m", module, *args]
+
+
+def vendor_face_args(robot: RobotConfig) -> list[str]:
+    """The emulator's options that serve the robot's vendor interface (none for ``zenoh``).
+
+    Raises:
+        ConfigError: an ``abb_rws`` URL that is not ``http://HOST:PORT`` (the emulator serves RWS 1.0 only).
+    """
+    interface = robot.interface
+    if isinstance(interface, UrRtdeInterfaceConfig):
+        return ["--rtde", interface.host]
+    if isinstance(interface, AbbRwsInterfaceConfig):
+        url = urlsplit(interface.url)
+        if url.scheme != "http" or url.hostname is None:
+            raise ConfigError(
+                f"interface.url = {interface.url!r}: the controller emulator serves RWS 1.0 over plain HTTP only; "
+                "allowed: http://HOST[:PORT]"
+            )
+        return ["--rws", f"{url.hostname}:{url.port or 80}"]
+    return []
+
+
+def bridged_robots(config: CellConfig) -> list[str]:
+    """The robots reached through a controller bridge (interface ``ur_rtde`` or ``abb_rws``), sorted."""
+    return sorted(name for name, robot in config.robots.items() if robot.interface.kind != "zenoh")
+
+
+def bridge_environment(config: CellConfig, environ: dict[str, str] | None = None) -> dict[str, str]:
+    """The bridges' environment: the RWS password variables an ``abb_rws`` robot names, set to the emulator's
+    password where unset (the cell's controllers are emulators; a value already set is kept)."""
+    env = dict(os.environ if environ is None else environ)
+    for robot in config.robots.values():
+        if isinstance(robot.interface, AbbRwsInterfaceConfig):
+            env.setdefault(robot.interface.password_env, EMULATOR_RWS_PASSWORD)
+    return env
 
 
 def program_commands(
@@ -37,7 +82,8 @@ def program_commands(
     security_args: list[str],
     record_dir: Path | None = None,
 ) -> dict[str, list[str]]:
-    """The command line of each program of the cell, by name (gateway, controller-<robot>, tracker[, recorder]).
+    """The command line of each program of the cell, by name (gateway, controller-<robot>, bridge-<robot> for a
+    robot behind a bridge, tracker[, recorder]).
 
     Args:
         config: the cell.
@@ -64,9 +110,15 @@ def program_commands(
         ),
         **{
             f"controller-{robot}": _module_command(
-                "controller_emu", *common, "--robot", robot, "--zenoh-connect", endpoint
+                "controller_emu", *common, "--robot", robot, "--zenoh-connect", endpoint, *vendor_face_args(r)
             )
-            for robot in config.robots
+            for robot, r in config.robots.items()
+        },
+        **{
+            f"bridge-{robot}": _module_command(
+                "controller_bridge", *common, "--robot", robot, "--zenoh-connect", endpoint
+            )
+            for robot in bridged_robots(config)
         },
         "tracker": _module_command(
             "tracker_emu", *common, *(["--scenario", scenario] if scenario else []), "--zenoh-connect", endpoint
@@ -134,9 +186,17 @@ def cli(argv: list[str] | None = None) -> None:
         print(f"hrc-cell: invalid configuration: {' '.join(str(exc).split())}", file=sys.stderr)
         sys.exit(2)
     http_port = args.http_port if args.http_port is not None else config.gateway.http_port
-    commands = program_commands(config, args.config, args.scenario, http_port, endpoint, security_args, args.record)
+    try:
+        commands = program_commands(config, args.config, args.scenario, http_port, endpoint, security_args, args.record)
+    except ConfigError as exc:
+        print(f"hrc-cell: invalid configuration: {' '.join(str(exc).split())}", file=sys.stderr)
+        sys.exit(2)
     with stop_on_signals() as stop:
-        procs = {name: subprocess.Popen(cmd, start_new_session=True) for name, cmd in commands.items()}
+        bridge_env = bridge_environment(config)
+        procs = {
+            name: subprocess.Popen(cmd, start_new_session=True, env=bridge_env if name.startswith("bridge-") else None)
+            for name, cmd in commands.items()
+        }
         url = f"http://{config.gateway.http_host}:{http_port}/api/v1/status"
         print(f"hrc-cell: cell {config.cell!r} running ({', '.join(procs)}) on {endpoint}; status: {url}", flush=True)
         page = f"http://{config.gateway.http_host}:{http_port}/"

@@ -10,7 +10,8 @@ One function for each step, shared by ``bench/`` and ``tests/`` (which import th
 * :func:`stop_program`: SIGINT, then wait; killed if it does not end in time;
 * :func:`wait_for`: poll a condition until a deadline (the readiness wait of every start-up);
 * :func:`running_cell` / :class:`Cell` / :func:`record`: a whole cell (gateway, controller emulator, tracker
-  emulators), watched through its REST API and its status on Zenoh.
+  emulators, and for a robot behind a bridge the controller bridge), watched through its REST API and its status
+  on Zenoh.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from hrc_contract.errors import HrcError
 from hrc_contract.status_models import GatewayStatus, RobotStatusResponse
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import PLAIN_TCP_ENV_VAR, session_config
+from hrc_tools.cell.launcher import bridge_environment, vendor_face_args
 
 T = TypeVar("T")
 
@@ -352,8 +354,8 @@ def logs_tail(logs: Iterable[Path], lines: int = 15) -> str:
 
 @dataclass
 class Cell:
-    """A running cell: the programs (by name: gateway, controller, tracker[, tracker-2 ...][, relay]) and where
-    to reach them."""
+    """A running cell: the programs (by name: gateway, controller, tracker[, tracker-2 ...][, relay][, bridge]) and
+    where to reach them."""
 
     procs: dict[str, Program]
     commands: dict[str, tuple[str, list[str]]]
@@ -363,6 +365,10 @@ class Cell:
     logs: dict[str, Path] = field(default_factory=dict)
     name: str = "demo"
     relay_endpoint: str = ""
+    bridge_endpoint: str = ""
+    """Where the controller bridge listens (a robot behind a bridge only): its joint states come from there."""
+    envs: dict[str, dict[str, str]] = field(default_factory=dict)
+    """A program's own environment (by name; default :func:`program_env`)."""
 
     @property
     def gateway(self) -> Program:
@@ -376,10 +382,14 @@ class Cell:
     def tracker(self) -> Program:
         return self.procs["tracker"]
 
+    @property
+    def bridge(self) -> Program:
+        return self.procs["bridge"]
+
     def start(self, name: str) -> Program:
         """(Re)start a program with its original command line; its log is appended to."""
         module, args = self.commands[name]
-        self.procs[name] = start_program(module, args, self.logs[name])
+        self.procs[name] = start_program(module, args, self.logs[name], self.envs.get(name))
         return self.procs[name]
 
     @property
@@ -444,12 +454,19 @@ def running_cell(
     seed: int = 0,
     trackers: list[list[str]] | None = None,
     controller_relay: list[str] | None = None,
+    face: list[str] | None = None,
 ) -> Iterator[Cell]:
     """Start gateway, controller emulator and tracker emulator(s); stop them with SIGINT afterwards.
 
     ``trackers``: extra arguments of each tracker emulator process (default: one process, all trackers).
     ``controller_relay``: if given, the controller reaches the gateway only through ``hrc-fault-relay``
     (these are its extra arguments); the relay's side A listens on ``cell.relay_endpoint``.
+
+    A cell whose (only) robot has a bridged ``interface`` (``ur_rtde``, ``abb_rws``) is run as ``hrc-cell`` runs it:
+    the emulator serves the vendor's face and program ``bridge`` (``hrc-controller-bridge``, listening on
+    ``cell.bridge_endpoint``) joins it to the gateway; the relay, if any, then sits between bridge and gateway, and
+    the emulator (its ground truth only) connects to the gateway directly. ``face``: the emulator's vendor face
+    options instead of the interface's (a test serves the face elsewhere and relays the bridge's TCP to it).
     """
     gw_ep, ctrl_ep, relay_ep, http_port = free_endpoint(), free_endpoint(), free_endpoint(), free_port()
     cfg = ["--config", str(config)] if config else []
@@ -458,13 +475,30 @@ def running_cell(
     if controller_relay is not None:
         commands["relay"] = ("hrc_tools.faultinject", ["--a-listen", relay_ep, "--b-connect", gw_ep, *controller_relay])
     upstream = relay_ep if controller_relay is not None else gw_ep
-    commands["controller"] = ("controller_emu", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", upstream])
+    loaded = load_cell_config(config)
+    bridged = [name for name, robot in loaded.robots.items() if robot.interface.kind != "zenoh"]
+    envs: dict[str, dict[str, str]] = {}
+    bridge_ep = ""
+    if bridged:
+        if len(loaded.robots) != 1:
+            raise BenchError(f"running_cell bridges a cell of one robot only; {config} has {sorted(loaded.robots)}")
+        robot = bridged[0]
+        bridge_ep = free_endpoint()
+        face = vendor_face_args(loaded.robots[robot]) if face is None else face
+        commands["controller"] = ("controller_emu", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", gw_ep, *face])
+        bridge_args = [*cfg, "--robot", robot, "--zenoh-listen", bridge_ep, "--zenoh-connect", upstream]
+        commands["bridge"] = ("controller_bridge", bridge_args)
+        envs["bridge"] = bridge_environment(loaded, program_env())
+    else:
+        commands["controller"] = ("controller_emu", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", upstream])
     for i, extra in enumerate(trackers or [[]]):
         name = "tracker" if i == 0 else f"tracker-{i + 1}"
         args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed + i), *scenario_args, *extra]
         commands[name] = ("tracker_emu", args)
     logs = {name: tmp_path / f"{name}.log" for name in commands}
-    cell = Cell({}, commands, http_port, gw_ep, ctrl_ep, logs, relay_endpoint=relay_ep)
+    cell = Cell(
+        {}, commands, http_port, gw_ep, ctrl_ep, logs, relay_endpoint=relay_ep, bridge_endpoint=bridge_ep, envs=envs
+    )
     try:
         for name in commands:
             cell.start(name)

@@ -17,7 +17,12 @@ from support.paths import REPO_ROOT
 
 UNITS_DIR = REPO_ROOT / "deploy" / "systemd"
 INSTALLED_BIN = "/opt/hrc-gateway/.venv/bin/"
-SERVICES = ("hrc-gateway.service", "hrc-controller-emu@.service", "hrc-tracker-emu.service")
+SERVICES = (
+    "hrc-gateway.service",
+    "hrc-controller-emu@.service",
+    "hrc-controller-bridge@.service",
+    "hrc-tracker-emu.service",
+)
 
 
 def _service_section(name: str) -> dict[str, list[str]]:
@@ -44,9 +49,9 @@ def test_systemd_analyze_verify_accepts_the_units(tmp_path: Path) -> None:
         assert INSTALLED_BIN in text
         (tmp_path / name).write_text(text.replace(INSTALLED_BIN, venv_bin))
     shutil.copy(tmp_path / "hrc-controller-emu@.service", tmp_path / "hrc-controller-emu@ur5.service")
-    units = [
-        str(tmp_path / n) for n in ("hrc-gateway.service", "hrc-controller-emu@ur5.service", "hrc-tracker-emu.service")
-    ]
+    shutil.copy(tmp_path / "hrc-controller-bridge@.service", tmp_path / "hrc-controller-bridge@ur5.service")
+    instances = ("hrc-controller-emu@ur5.service", "hrc-controller-bridge@ur5.service")
+    units = [str(tmp_path / n) for n in ("hrc-gateway.service", *instances, "hrc-tracker-emu.service")]
     result = subprocess.run(
         ["systemd-analyze", "verify", *units], capture_output=True, text=True, timeout=60, check=False
     )
@@ -79,7 +84,7 @@ def test_only_the_gateway_may_raise_its_loop_to_real_time() -> None:
     gateway = _service_section("hrc-gateway.service")
     assert gateway["AmbientCapabilities"] == ["CAP_SYS_NICE"]
     assert gateway["CapabilityBoundingSet"] == ["CAP_SYS_NICE"]
-    for name in ("hrc-controller-emu@.service", "hrc-tracker-emu.service"):
+    for name in ("hrc-controller-emu@.service", "hrc-controller-bridge@.service", "hrc-tracker-emu.service"):
         emulator = _service_section(name)
         assert emulator["CapabilityBoundingSet"] == [""]
         assert emulator["RestrictRealtime"] == ["yes"]

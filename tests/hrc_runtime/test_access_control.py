@@ -23,16 +23,17 @@ OVERRIDE = "hrc/demo/robot/ur5/override"
 STATE = "hrc/demo/robot/ur5/state"
 TRUTH_STATE = "hrc/demo/truth/robot/ur5/state"
 EMU_STATS = "hrc/demo/robot/ur5/emu_stats"
+BRIDGE_STATS = "hrc/demo/robot/ur5/bridge_stats"
 FRONT = "hrc/demo/tracker/front/humans"
 SIDE = "hrc/demo/tracker/side/humans"
 TRUTH_HUMANS = "hrc/demo/truth/humans"
 STATUS = "hrc/demo/gateway/status"
 UR10_OVERRIDE = "hrc/demo/robot/ur10/override"
-EVERY_KEY = (OVERRIDE, UR10_OVERRIDE, STATE, TRUTH_STATE, EMU_STATS, FRONT, SIDE, TRUTH_HUMANS, STATUS)
+EVERY_KEY = (OVERRIDE, UR10_OVERRIDE, STATE, TRUTH_STATE, EMU_STATS, BRIDGE_STATS, FRONT, SIDE, TRUTH_HUMANS, STATUS)
 
 ALLOWED = {
     "gateway": set(EVERY_KEY),  # its own, and what it routes to its clients (checked on its ingress)
-    "controller-ur5": {STATE, TRUTH_STATE, EMU_STATS},
+    "controller-ur5": {STATE, TRUTH_STATE, EMU_STATS, BRIDGE_STATS},  # the emulator's and the bridge's
     "tracker-front": {FRONT},
     "tracker-emu": {FRONT, SIDE, TRUTH_HUMANS},
     "observer-alice": set(),

@@ -1,0 +1,204 @@
+"""The cell through each controller bridge, end to end: gateway → bridge → vendor face (RTDE, RWS) → controller
+emulator → bridge → gateway, all real processes (``hrc_tools.cell.procs.running_cell``, as ``hrc-cell`` runs them).
+
+For each interface: the default scenario's zone sequence; a silent controller (the emulator frozen) and a slow one
+(its vendor link delayed by a TCP relay) stop the robot with a reason in the status; a dead bridge leaves the
+controller without speed writes, and the emulator's own watchdog (URScript ``rtde_set_watchdog`` on a real UR, a
+RAPID heartbeat task on an ABB) stops the robot, while the gateway shows the joint state stale.
+"""
+
+from __future__ import annotations
+
+import random
+import signal
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from support.paths import REPO_ROOT
+from support.tcp_delay import TcpDelay
+
+from hrc_contract import keys
+from hrc_contract.config import AbbRwsInterfaceConfig, CellConfig, UrRtdeInterfaceConfig
+from hrc_contract.messages import JointState, parse_message
+from hrc_runtime.config import load_cell_config
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.launcher import vendor_face_args
+from hrc_tools.cell.procs import Cell, collapse, free_port, is_subsequence, record, running_cell, write_cell_config
+
+pytestmark = pytest.mark.e2e
+
+KINDS = ("abb_rws", "ur_rtde")
+READY_S = 30.0
+DETECT_S = 3.0
+RECOVER_S = 15.0
+SCENARIO_S = 31.0
+ZONE_SEQUENCE = ["autonomous", "guarded_distance", "reduced_speed", "safety_exception", "autonomous"]
+SLOW_LINK_S = 0.3
+"""One-way delay of the slow vendor link [s]: above safety.max_data_age_s (0.2 s) for the override's round trip."""
+STOPS = {"joint_state_stale", "override_path_stale"}
+
+
+def _loopback() -> str:
+    """A loopback address of its own (RTDE's port 30004 is fixed: one address per emulated robot)."""
+    return f"127.{random.randint(1, 254)}.{random.randint(0, 255)}.{random.randint(2, 254)}"
+
+
+def _bridged_cell(kind: str, tmp_path: Path, via_relay: tuple[str, int] | None = None) -> tuple[Path, list[str]]:
+    """A copy of ``configs/cell_<kind>.toml`` on addresses of its own, and the emulator's face options.
+
+    ``via_relay``: the bridge talks to this address (a relay in front of the face) instead of the face's.
+    """
+    base = load_cell_config(REPO_ROOT / "configs" / f"cell_{kind}.toml")
+    robot = base.robots["ur5"]
+    interface = robot.interface
+    if isinstance(interface, AbbRwsInterfaceConfig):
+        face_at = ("127.0.0.1", free_port())
+        bridge_at = via_relay or face_at
+        update = {"url": f"http://{bridge_at[0]}:{bridge_at[1]}"}
+    else:
+        assert isinstance(interface, UrRtdeInterfaceConfig)
+        face_at = (_loopback(), 30004)
+        update = {"host": (via_relay or face_at)[0]}
+    config = _with_interface(base, interface.model_copy(update=update))
+    face_config = _with_interface(base, interface.model_copy(update=_face_update(interface, face_at)))
+    return write_cell_config(config, tmp_path / "cell.toml"), vendor_face_args(face_config.robots["ur5"])
+
+
+def _face_update(interface: Any, face_at: tuple[str, int]) -> dict[str, str]:
+    if isinstance(interface, AbbRwsInterfaceConfig):
+        return {"url": f"http://{face_at[0]}:{face_at[1]}"}
+    return {"host": face_at[0]}
+
+
+def _with_interface(config: CellConfig, interface: Any) -> CellConfig:
+    robot = config.robots["ur5"].model_copy(update={"interface": interface})
+    return config.model_copy(update={"robots": {"ur5": robot}})
+
+
+def _codes(status: dict[str, Any]) -> set[str]:
+    return {f["code"] for f in status["faults"]}
+
+
+def _healthy(status: dict[str, Any]) -> bool:
+    return not status["faults"] and status["delta"] > 0.0 and status["controller_mode"] == "running"
+
+
+def _stopped_by(codes: set[str]) -> Any:
+    return lambda s: bool(_codes(s) & codes) and s["delta"] == 0.0 and s["zone"] == "safety_exception"
+
+
+def _assert_alive(cell: Cell) -> None:
+    for name, proc in cell.procs.items():
+        assert proc.poll() is None, f"{name} died\n{cell.tail()}"
+
+
+@pytest.fixture(params=KINDS)
+def kind(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
+@pytest.fixture
+def cell(kind: str, tmp_path: Path) -> Iterator[Cell]:
+    config, face = _bridged_cell(kind, tmp_path)
+    with running_cell(tmp_path, config=config, scenario="standing_inside", face=face) as cell:
+        yield cell
+
+
+def test_the_default_scenario_through_the_bridge(kind: str, tmp_path: Path) -> None:
+    config, face = _bridged_cell(kind, tmp_path)
+    with running_cell(tmp_path, config=config, face=face) as cell:
+        cell.wait_until(
+            lambda s: s["zone"] == "autonomous" and not s["faults"], READY_S, "a fault-free autonomous cell"
+        )
+        trace = record(
+            cell, SCENARIO_S, until=lambda t: is_subsequence(ZONE_SEQUENCE, collapse([s["zone"] for s in t]))
+        )
+        _assert_alive(cell)
+    zones = collapse([s["zone"] for s in trace])
+    assert is_subsequence(ZONE_SEQUENCE, zones), zones
+    faults = {code for s in trace for code in _codes(s)}
+    assert not faults, f"faults on the way: {faults}"
+    bridge = trace[-1]["bridge"]
+    assert bridge is not None
+    assert bridge["interface"] == kind, bridge
+    assert bridge["readback"] is not None, bridge
+    assert bridge["readings_per_s"] > 0.0, bridge
+    # The override path the gateway measured is the bridge's: echoes come only from the controller's read-back.
+    assert all(s["delay_budget_s"]["override_path_s"] > 0.0 for s in trace)
+
+
+def test_a_silent_controller_stops_the_robot(cell: Cell) -> None:
+    cell.wait_until(_healthy, READY_S, "a moving robot")
+    cell.controller.send_signal(signal.SIGSTOP)
+    try:
+        status = cell.wait_until(_stopped_by({"joint_state_stale"}), DETECT_S, "joint_state_stale with δ = 0")
+        assert any(f["reason"].startswith("joint state is ") and "(limit " in f["reason"] for f in status["faults"])
+    finally:
+        cell.controller.send_signal(signal.SIGCONT)
+    cell.wait_until(_healthy, RECOVER_S, "recovery after the controller answered again")
+    _assert_alive(cell)
+
+
+def test_a_slow_controller_stops_the_robot(kind: str, tmp_path: Path) -> None:
+    relay_host = "127.0.0.1" if kind == "abb_rws" else _loopback()
+    relay_port = free_port() if kind == "abb_rws" else 30004
+    config, face = _bridged_cell(kind, tmp_path, via_relay=(relay_host, relay_port))
+    face_at = face[1].rsplit(":", 1) if kind == "abb_rws" else [face[1], "30004"]
+    with (
+        TcpDelay((relay_host, relay_port), (face_at[0], int(face_at[1]))) as relay,
+        running_cell(tmp_path, config=config, scenario="standing_inside", face=face) as cell,
+    ):
+        cell.wait_until(_healthy, READY_S, "a moving robot")
+        relay.delay_s = SLOW_LINK_S
+        status = cell.wait_until(_stopped_by(STOPS), DETECT_S + 2 * SLOW_LINK_S, f"one of {sorted(STOPS)} with δ = 0")
+        assert any(f["code"] in STOPS and "(limit " in f["reason"] for f in status["faults"]), status["faults"]
+        relay.delay_s = 0.0
+        cell.wait_until(_healthy, RECOVER_S, "recovery after the link is fast again")
+        _assert_alive(cell)
+
+
+class _Truth:
+    """The emulator's true joint states (its ground-truth key), read from it directly."""
+
+    def __init__(self) -> None:
+        self.states: list[JointState] = []
+        self._lock = threading.Lock()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        state = parse_message(sample.payload.to_bytes(), JointState)
+        with self._lock:
+            self.states.append(state)
+
+    def since(self, stamp_ns: int) -> list[JointState]:
+        with self._lock:
+            return [s for s in self.states if s.stamp_ns > stamp_ns]
+
+
+def test_a_dead_bridge_leaves_the_robot_to_the_controllers_watchdog(cell: Cell) -> None:
+    truth = _Truth()
+    cell.wait_until(_healthy, READY_S, "a moving robot")
+    with zenoh.open(session_config(connect=[cell.controller_endpoint])) as session:
+        session.declare_subscriber(keys.truth_robot_state("demo", "ur5"), truth.on_sample)
+        time.sleep(0.5)
+        killed_ns = time.time_ns()
+        cell.bridge.kill()
+        cell.bridge.wait()
+        status = cell.wait_until(_stopped_by({"joint_state_stale"}), DETECT_S, "joint_state_stale with δ = 0")
+        assert "joint_state_stale" in _codes(status)
+        time.sleep(0.5)
+        after = truth.since(killed_ns)
+    assert after, "no ground truth from the emulator"
+    stopped = [s for s in after if s.mode == "protective_stop"]
+    assert stopped, f"the emulator never stopped on its own: modes {sorted({s.mode for s in after})}"
+    # Within its watchdog (0.1 s) after the last write, plus the braking ramp, the robot stands.
+    assert (stopped[0].stamp_ns - killed_ns) / 1e9 < 0.5
+    assert after[-1].override == 0.0
+    assert all(v == 0.0 for v in after[-1].qd)
+    cell.start("bridge")
+    cell.wait_until(_healthy, RECOVER_S, "recovery with a new bridge")
+    _assert_alive(cell)

@@ -1,6 +1,7 @@
 """``hrc-record``: every topic of a cell to an MCAP file, with 3D capsules for Foxglove and Lichtblick.
 
     hrc-record --output cell.mcap [--config PATH] [--zenoh-connect ENDPOINT] [--events-url URL]
+    hrc-record --format ros2 [--distro humble|jazzy|kilted] --output cell_bag     # a ROS 2 bag instead
 
 It connects as a Zenoh client (``--zenoh-mode client`` by default) to the gateway, a peer that routes every
 topic of the cell to its clients; ``--zenoh-mode peer`` to meet the programs directly instead.
@@ -22,6 +23,10 @@ unchanged, ``log_time`` = its arrival on this host's wall clock), on a channel n
   hostile input is kept as evidence without breaking a reader that trusts the schemas.
 
 Ctrl-C (or SIGTERM) closes the file (footer and summary written): it opens in any MCAP reader.
+
+``--format ros2`` writes a ROS 2 bag instead (a folder with its MCAP file and ``metadata.yaml``, CDR messages of
+the ``--distro``'s definitions, default ``[ros2] distro``): the same messages, validated the same way, as the ROS 2
+types of the gateway's ROS 2 face (:mod:`hrc_tools.record.ros2_cell`, :mod:`hrc_tools.record.ros2_mcap`).
 """
 
 from __future__ import annotations
@@ -35,13 +40,13 @@ import time
 import urllib.request
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Literal, NamedTuple, Protocol, get_args
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, TypeAdapter, ValidationError
 
 from hrc_contract import keys
-from hrc_contract.config import CellConfig, ConfigError
+from hrc_contract.config import CellConfig, ConfigError, Ros2Distro
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, Humans, JointState, MessageError, Override, parse_message
 from hrc_contract.status_models import Event, EventsResponse, GatewayStatus
 from hrc_runtime.access_control import RECORDER
@@ -52,6 +57,9 @@ from hrc_runtime.mcap_sink import ChannelSpec, McapSink, RecordingError, identit
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from hrc_tools.record import scene
+
+if TYPE_CHECKING:
+    from hrc_tools.record.ros2_mcap import Ros2BagSink
 
 log = logging.getLogger("hrc-record")
 
@@ -121,7 +129,7 @@ def subscriptions(cell: str) -> list[str]:
     ]
 
 
-def _parse(payload: bytes, model: type[BaseModel]) -> BaseModel:
+def parse_payload(payload: bytes, model: type[BaseModel]) -> BaseModel:
     """The message, by the contract's parser for wire messages (``schema`` checked), by the model otherwise."""
     if "schema_" in model.model_fields:
         return parse_message(payload, model)
@@ -160,7 +168,7 @@ class CellRecorder:
             self.unknown_keys += 1
             return
         try:
-            message = _parse(payload, topic.model)
+            message = parse_payload(payload, topic.model)
         except MessageError as exc:
             rejected = RejectedPayload(key=key, reason=exc.reason, payload_base64=base64.b64encode(payload).decode())
             self.sink.offer(f"/hrc/{self.cell}/rejected", REJECTED, received_ns, _encode_model, rejected)
@@ -190,7 +198,16 @@ def fetch_events(url: str, since: int, timeout_s: float = 2.0) -> EventsResponse
         return _EVENTS.validate_json(response.read())
 
 
-def _callback(recorder: CellRecorder) -> Callable[[zenoh.Sample], None]:
+class Recorder(Protocol):
+    """What the subscribers and the event poller feed: :class:`CellRecorder` (JSON) or
+    :class:`hrc_tools.record.ros2_cell.Ros2CellRecorder` (ROS 2 bag)."""
+
+    def on_sample(self, key: str, payload: bytes, received_ns: int) -> None: ...
+
+    def on_events(self, events: Sequence[Event], received_ns: int) -> None: ...
+
+
+def _callback(recorder: Recorder) -> Callable[[zenoh.Sample], None]:
     def on_sample(sample: zenoh.Sample) -> None:
         received_ns = time.time_ns()
         try:
@@ -255,16 +272,34 @@ def run_recorder(
     events_url: str | None,
     *,
     zenoh_options: SessionOptions,
+    output_format: Literal["json", "ros2"] = "json",
+    distro: Ros2Distro | None = None,
 ) -> int:
     """Record until ``stop`` is set. Returns the number of messages written.
 
+    Args:
+        output_format: ``json``, an MCAP file of the contract's JSON; ``ros2``, a ROS 2 bag (folder) in ``distro``
+            (default ``[ros2] distro``).
+
     Raises:
-        RecordingError: the output cannot be created.
+        RecordingError: the output cannot be created (or, for a ROS 2 bag, exists).
     """
     metadata = {"hrc.cell_recording": {"cell": config.cell, "config_sha256": config.sha256()}}
     session_cm = _join(session_config(listen, connect, zenoh_options), stop)
-    with McapSink(output, metadata=metadata) as sink, session_cm as session:
-        recorder = CellRecorder(sink, config.cell)
+    sink: McapSink | Ros2BagSink
+    recorder: Recorder
+    if output_format == "ros2":
+        # rosbags and the gateway's ROS 2 builders are loaded only for a ROS 2 bag
+        from hrc_tools.record.ros2_cell import Ros2Cell, Ros2CellRecorder
+        from hrc_tools.record.ros2_mcap import Ros2BagSink
+
+        cell = Ros2Cell.of(config, distro or config.ros2.distro)
+        bag = Ros2BagSink(output, cell.distro, custom_data=metadata["hrc.cell_recording"])
+        sink, recorder = bag, Ros2CellRecorder(bag, cell, time.time_ns())
+    else:
+        mcap = McapSink(output, metadata=metadata)
+        sink, recorder = mcap, CellRecorder(mcap, config.cell)
+    with sink, session_cm as session:
         subscribers = [session.declare_subscriber(k, _callback(recorder)) for k in subscriptions(config.cell)]
         log.info("recording cell %r to %s (%s)", config.cell, output, ", ".join(subscriptions(config.cell)))
         poller = _EventPoller(events_url)
@@ -291,7 +326,18 @@ def cli(argv: list[str] | None = None) -> None:
     add_zenoh_arguments(parser)
     # a client of the peer it connects to (the gateway by default), which routes every topic of the cell to it
     parser.set_defaults(zenoh_mode="client")
-    parser.add_argument("--output", "-o", type=Path, required=True, metavar="PATH", help="the MCAP file to write")
+    parser.add_argument(
+        "--output", "-o", type=Path, required=True, metavar="PATH",
+        help="the MCAP file to write; with --format ros2, the bag folder to create",
+    )  # fmt: skip
+    parser.add_argument(
+        "--format", choices=("json", "ros2"), default="json", dest="output_format",
+        help="json: the contract's JSON messages with Foxglove scenes (default); ros2: a ROS 2 bag (MCAP, CDR)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--distro", choices=get_args(Ros2Distro), default=None,
+        help="with --format ros2: whose message definitions (default: [ros2] distro of the cell file)",
+    )  # fmt: skip
     parser.add_argument(
         "--events-url",
         default=None,
@@ -315,6 +361,8 @@ def cli(argv: list[str] | None = None) -> None:
                 stop,
                 None if events_url == "none" else events_url,
                 zenoh_options=zenoh_options,
+                output_format=args.output_format,
+                distro=args.distro,
             )
         except (ConfigError, RecordingError) as exc:
             sys.stderr.write(f"{PROG}: {' '.join(str(exc).split())}\n")

@@ -28,11 +28,12 @@ def replace_once(old: str, new: str) -> Edit:
 
 
 def write_cell(tmp_path: Path, cell: Edit | None = None, robot: Edit | None = None) -> Path:
-    """Copies of configs/cell.toml, robots/ur5.toml and the program under tmp_path, edited; the cell's
+    """Copies of configs/cell.toml, robots/ur5.toml, the program and the body regions under tmp_path, edited; the cell's
     ``model =`` points at the edited robot copy."""
     (tmp_path / "robots").mkdir(exist_ok=True)
     (tmp_path / "programs").mkdir(exist_ok=True)
     shutil.copy(CONFIGS / "programs" / "ur5_pick_place.toml", tmp_path / "programs" / "ur5_pick_place.toml")
+    shutil.copy(CONFIGS / "body_regions.toml", tmp_path / "body_regions.toml")  # the cell's pfl_body_regions
     robot_text = (CONFIGS / "robots" / "ur5.toml").read_text()
     (tmp_path / "robots" / "ur5_edited.toml").write_text(robot(robot_text) if robot else robot_text)
     cell_text = (CONFIGS / "cell.toml").read_text()

@@ -6,7 +6,9 @@ configuration is a copy of ``configs/`` in a folder standing for ``/etc/hrc-gate
 ``Environment=``, ``ExecStartPre=`` and ``ExecStart=`` lines run with systemd's specifiers (``%E``, ``%S``, ``%C``,
 ``%i``) replaced, from an empty working folder, in a network namespace of their own (the units' fixed ports
 cannot collide with anything else running). Done when the gateway's ``/readyz`` answers 200 with the controller
-and the tracker started by their units, and every program exits 0 on SIGTERM (systemd's stop).
+and the tracker started by their units, and every program exits 0 on SIGTERM (systemd's stop); once for the default
+cell, once for a UR behind ``hrc-controller-bridge@.service`` (the emulator serving RTDE through a drop-in's
+``HRC_CONTROLLER_ARGS``).
 
 Needs root and ``ip`` (iproute2): skipped with the reason otherwise.
 """
@@ -131,9 +133,35 @@ def _tails(logs: list[Path]) -> str:
     return "\n".join(f"--- {p.name}\n{p.read_text(errors='replace')[-2500:]}" for p in logs if p.exists())
 
 
-def test_the_units_run_the_cell_from_a_pip_install(pip_installed: Path, netns: str, tmp_path: Path) -> None:
+DEFAULT_UNITS = (
+    ("hrc-gateway.service", "", {}),
+    ("hrc-controller-emu@.service", "ur5", {}),
+    ("hrc-tracker-emu.service", "", {}),
+)
+# the UR behind a bridge: the emulator serves RTDE (a drop-in's HRC_CONTROLLER_ARGS), the bridge unit drives it
+BRIDGED_UNITS = (
+    ("hrc-gateway.service", "", {}),
+    ("hrc-controller-emu@.service", "ur5", {"HRC_CONTROLLER_ARGS": "--rtde 127.0.0.2"}),
+    ("hrc-controller-bridge@.service", "ur5", {}),
+    ("hrc-tracker-emu.service", "", {}),
+)
+
+
+@pytest.mark.parametrize(
+    ("cell_file", "units"),
+    [("cell.toml", DEFAULT_UNITS), ("cell_ur_rtde.toml", BRIDGED_UNITS)],
+    ids=["zenoh", "ur_rtde"],
+)
+def test_the_units_run_the_cell_from_a_pip_install(
+    pip_installed: Path,
+    netns: str,
+    tmp_path: Path,
+    cell_file: str,
+    units: tuple[tuple[str, str, dict[str, str]], ...],
+) -> None:
     root = tmp_path / "root"
     shutil.copytree(REPO_ROOT / "configs", root / "etc" / "hrc-gateway")  # the operations guide's `cp -r configs/.`
+    shutil.copy(REPO_ROOT / "configs" / cell_file, root / "etc" / "hrc-gateway" / "cell.toml")
     for folder in ("var/lib/hrc-gateway", "var/cache/hrc-gateway"):
         (root / folder).mkdir(parents=True)
     workdir = tmp_path / "empty"
@@ -155,12 +183,11 @@ def test_the_units_run_the_cell_from_a_pip_install(pip_installed: Path, netns: s
     done = subprocess.run(pre, capture_output=True, text=True, env=env, cwd=workdir, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
 
-    units = [("hrc-gateway.service", ""), ("hrc-controller-emu@.service", "ur5"), ("hrc-tracker-emu.service", "")]
     procs: list[subprocess.Popen[bytes]] = []
     logs: list[Path] = []
     try:
-        for unit, instance in units:
-            unit_env = _unit_env(unit, root, bin_dir, pip_installed, instance)
+        for unit, instance, drop_in in units:
+            unit_env = _unit_env(unit, root, bin_dir, pip_installed, instance) | drop_in
             command = _unit_command(unit, "ExecStart", root, bin_dir, instance, unit_env)
             logs.append(tmp_path / f"{unit.replace('@', '_')}.log")
             with logs[-1].open("wb") as log:
@@ -191,4 +218,4 @@ def test_the_units_run_the_cell_from_a_pip_install(pip_installed: Path, netns: s
             except subprocess.TimeoutExpired:
                 p.kill()
                 codes.append(None)
-    assert codes == [0, 0, 0], f"exit codes {codes}:\n" + _tails(logs)
+    assert codes == [0] * len(units), f"exit codes {codes}:\n" + _tails(logs)

@@ -11,21 +11,21 @@ contact is
     v_max = F_max / sqrt(μ k)          (force form)
     v_max = sqrt(2 E_max / μ)          (energy form; the same when E_max = F_max² / (2 k))
 
-The robot's effective mass, two ways:
-
-- simple (ISO/TS 15066 A.3.3): m_R = M / 2 + m_payload, M the mass of the moving links. A constant: no cost per
-  decision. This is what the decision uses by default (``safety.pfl_mass_model = "simple"``).
-- reflected: the mass the contact point presents along the unit direction u, from the joint-space inertia matrix M(q)
-  and the point's position Jacobian J (Khatib 1995): m_u = 1 / (uᵀ J M(q)⁻¹ Jᵀ u). Computed with Pinocchio from the
-  URDF the gateway loads, the payload added as a point mass at the tool; per decision, one M⁻¹ and two Jacobians per
-  link (:class:`ReflectedMass`, ``pfl_mass_model = "reflected"``), u the link end's programmed velocity direction.
+The robot's effective mass m_R per link (:mod:`hrc_runtime.effective_mass`): the largest reflected mass
+1 / (uᵀ J M(q)⁻¹ Jᵀ u) of any point of the link's capsule in any direction u (the largest eigenvalue of the
+translational operational-space inertia Λ), over the program's path and a box of configurations around it, plus a
+margin; computed once at start-up and used as a constant per link (no cost per decision). Where a point of the link
+cannot move in some direction (the UR5's shoulder, upper arm and forearm: a point on a joint axis), or the robot is
+outside the sampled box, m_R = ∞ and μ = m_H: the contact-safe speed of a fixed obstacle. ISO/TS 15066's simple form
+M / 2 + m_payload (:func:`simple_robot_mass_kg`) is kept for comparison only: it understates the reflected mass of
+those links many times over.
 
 The override bound (:func:`contact_bounds`) is §10's speed-aware form with the stop ending at δ_c instead of 0: a link
 whose every point moves at most at the contact-safe speed v_c of a capsule may touch it, so for a link i moving with
 largest programmed point speed s_i, δ_c = v_c / s_i is always allowed for that pair, and above it the slow-down from δ
 to δ_c (lasting (δ − δ_c) t_b) must end before the person can reach the link.
 
-Pure functions and frozen values, except :class:`ReflectedMass`, which holds Pinocchio scratch data.
+Pure functions and frozen values.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ import pinocchio as pin
 
 from hrc_contract.config import BodyRegion, Box
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.effective_mass import moving_mass_kg
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -86,63 +86,10 @@ def region_contact_speed_mps(region: BodyRegion, robot_mass_kg: float) -> float:
     return min(speeds)
 
 
-def moving_mass_kg(model: pin.Model) -> float:
-    """M: the mass of every body a joint moves (the fixed base excluded) [kg]."""
-    return float(sum(model.inertias[j].mass for j in range(1, model.njoints)))
-
-
 def simple_robot_mass_kg(model: pin.Model, payload_kg: float) -> float:
-    """m_R = M / 2 + m_payload (ISO/TS 15066 eq. (A.6)) [kg]."""
+    """m_R = M / 2 + m_payload (ISO/TS 15066 eq. (A.6)) [kg]: for comparison only (it understates the reflected mass
+    of the links near the base many times over; the decision uses :mod:`hrc_runtime.effective_mass`)."""
     return 0.5 * moving_mass_kg(model) + payload_kg
-
-
-def reflected_mass_kg(J_point: FloatArray, M_inv: FloatArray, u: FloatArray) -> float:
-    """m_u = 1 / (uᵀ J M⁻¹ Jᵀ u): the mass a point with position Jacobian J (3, n) presents along the unit vector u
-    (Khatib 1995) [kg]; inf where the point cannot move along u."""
-    Ju = J_point.T @ u
-    inverse = float(Ju @ M_inv @ Ju)
-    return 1.0 / inverse if inverse > 0.0 else math.inf
-
-
-def with_payload(model: pin.Model, payload_kg: float, tool_frame_id: int) -> pin.Model:
-    """A copy of ``model`` carrying ``payload_kg`` as a point mass at the origin of ``tool_frame_id``."""
-    loaded = pin.Model(model)
-    if payload_kg > 0.0:
-        frame = loaded.frames[tool_frame_id]
-        point = pin.Inertia(payload_kg, frame.placement.translation, np.zeros((3, 3)))
-        loaded.inertias[frame.parentJoint] = loaded.inertias[frame.parentJoint] + point
-    return loaded
-
-
-class ReflectedMass:
-    """The reflected mass of each link of one robot along its programmed velocity, from M(q) (Pinocchio).
-
-    One :func:`pinocchio.computeMinverse` and two frame Jacobians per link a decision. Per link the larger of the two
-    ends' masses (each along that end's velocity; an end standing still counts with the other's mass).
-    """
-
-    def __init__(self, robot: RobotModel, payload_kg: float) -> None:
-        self.robot = robot
-        self.model = with_payload(robot.model, payload_kg, robot.frame_b_ids[-1])
-        self.data = self.model.createData()
-        self._R_base_world = np.asarray(robot.R_world_base, dtype=float).T
-
-    def link_masses_kg(self, q_rad: FloatArray, v_a_world: FloatArray, v_b_world: FloatArray) -> FloatArray:
-        """m_R of every link, shape (L,) [kg]: the larger of its two ends' reflected masses along their velocity."""
-        model, data = self.model, self.data
-        pin.computeJointJacobians(model, data, q_rad)
-        pin.computeMinverse(model, data, q_rad)
-        M_inv = np.triu(data.Minv) + np.triu(data.Minv, 1).T  # Pinocchio fills the upper triangle
-        masses = np.zeros(len(self.robot.frame_a_ids))
-        frame = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-        for i, (fa, fb) in enumerate(zip(self.robot.frame_a_ids, self.robot.frame_b_ids, strict=True)):
-            for frame_id, v in ((fa, v_a_world[i]), (fb, v_b_world[i])):
-                speed = float(np.linalg.norm(v))
-                if speed <= 1e-9:
-                    continue
-                J = pin.getFrameJacobian(model, data, frame_id, frame)[:3]
-                masses[i] = max(masses[i], reflected_mass_kg(J, M_inv, self._R_base_world @ (v / speed)))
-        return masses
 
 
 # -- body regions of the human capsules ------------------------------------------------------------------------
@@ -169,12 +116,13 @@ class RegionTable:
         """v_max of every (link, capsule) pair, shape (L, H), for the links' masses ``robot_mass_kg`` (L,) [m/s]."""
         regions = self.region_names(capsule_names)
         speeds = np.zeros((len(robot_mass_kg), len(regions)))
-        by_mass = {float(m): i for i, m in enumerate(robot_mass_kg)}  # the simple form: one mass for every link
+        by_mass = {float(m): i for i, m in enumerate(robot_mass_kg)}  # links of equal mass share the computation
         for j, region in enumerate(regions):
             spec = self.regions.get(region)
             if spec is None or not spec.transient:
                 continue
-            column = {m: region_contact_speed_mps(spec, m) if math.isfinite(m) else 0.0 for m in by_mass}
+            # m_R = ∞ (a rigid direction) is μ = m_H: the contact-safe speed of a fixed obstacle; nan stays nan
+            column = {m: region_contact_speed_mps(spec, m) for m in by_mass}
             speeds[:, j] = [column[float(m)] for m in robot_mass_kg]
         return speeds
 
@@ -303,13 +251,36 @@ def contact_bounds(
     return ContactBounds(dc, human, row, lowest)
 
 
+def link_joint_mask(model: pin.Model, frame_a_ids: Sequence[int], frame_b_ids: Sequence[int]) -> BoolArray:
+    """Which joints move each link's body (the joints supporting its ``frame_a``), shape (L, n)."""
+    mask = np.zeros((len(frame_a_ids), model.nv), dtype=bool)
+    for i, frame_id in enumerate(frame_a_ids):
+        for joint in model.supports[model.frames[frame_id].parentJoint]:
+            if joint > 0:
+                mask[i, model.joints[joint].idx_v] = True
+    return mask
+
+
+def link_surface_speed_mps(
+    v_a_world: FloatArray, v_b_world: FloatArray, qd_radps: FloatArray, joint_mask: BoolArray, radius_m: FloatArray
+) -> FloatArray:
+    """A bound of the speed of every point of each link's capsule, shape (L,) [m/s]:
+    max(|v_a|, |v_b|) + r |ω| with |ω| ≤ Σ |q̇_j| over the revolute joints that move the link (unit axes).
+
+    The axis points move at most as fast as an end (velocity is linear along a rigid segment); a surface point r away
+    from the axis adds at most |ω| r.
+    """
+    squared = np.maximum(np.einsum("lj,lj->l", v_a_world, v_a_world), np.einsum("lj,lj->l", v_b_world, v_b_world))
+    return np.asarray(np.sqrt(squared) + radius_m * (joint_mask @ np.abs(qd_radps)), dtype=float)
+
+
 def contact_delta(contact_speed_mps: FloatArray, link_speed_mps: FloatArray) -> FloatArray:
     """δ_c = v_c / s_i clipped to [0, 1], shape (L, H): 0 where v_c = 0; 1 for a link that does not move [1].
 
     Args:
         contact_speed_mps: v_c of every pair (already scaled by the planning fraction), shape (L, H) [m/s].
-        link_speed_mps: s_i, the largest programmed speed of a point of each link (an end point: velocity is
-            linear along a rigid segment), shape (L,) [m/s].
+        link_speed_mps: s_i, a bound of the programmed speed of every point of each link's capsule
+            (:func:`link_surface_speed_mps`), shape (L,) [m/s].
     """
     s = link_speed_mps[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -190,7 +190,9 @@ class SafetyCore:
             for name, robot in robots.items()
         }
         self._delay_aware = not safety.unsafe_ignore_delay_for_tests
-        self._method: OverrideMethod = build_method(safety, robots)
+        self._method: OverrideMethod = build_method(
+            safety, robots, {name: config.robots[name].program for name in robots if name in config.robots}
+        )
         # The trackers' newest frames and their merge: a frame changes at the tracker's rate (~30 Hz), not the
         # gateway's, so the merge is redone only when one of them is a new object (held here, so no id reuse).
         self._merged: tuple[tuple[HumanCapsules, ...], HumanCapsules, npt.NDArray[np.float64]] = (

@@ -42,6 +42,8 @@ while the commanded δ has stayed below ``replan_delta_below`` for ``replan_afte
 from __future__ import annotations
 
 import math
+import tomllib
+from collections.abc import Mapping
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -52,12 +54,13 @@ from gateway import iso15066
 from gateway.contact import (
     NO_REGION,
     ContactBounds,
-    ReflectedMass,
     RegionTable,
     box_arrays,
     clamped_pairs,
     contact_bounds,
     contact_delta,
+    link_joint_mask,
+    link_surface_speed_mps,
     simple_robot_mass_kg,
 )
 from gateway.delay import NS_PER_S
@@ -73,6 +76,7 @@ from gateway.separation import (
 from gateway.zones import Protection
 from hrc_contract.config import ConfigError, SafetyConfig
 from hrc_contract.humans import HumanCapsules
+from hrc_runtime.effective_mass import LinkMassBounds, cached_link_mass_bounds, program_waypoints_rad
 from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -334,10 +338,13 @@ class ContactAware(SpeedAware):
     head, a capsule of no region, and a pair that may pin the capsule against a clamping surface
     (:func:`gateway.contact.clamped_pairs`).
 
-    The effective mass: ``pfl_mass_model = "simple"`` uses M/2 + m_payload per robot, a constant (no cost per
-    decision); ``"reflected"`` the reflected mass of each link along its programmed velocity (Pinocchio, ~one M⁻¹ and
-    14 Jacobians per decision). Its safety exception: :class:`SpeedAware`'s δ thresholds, at no distance (contact is
-    allowed): a bound at or below ``speed_aware_stop_below_delta`` stops the robot, as does any contact (d ≤ 0).
+    The effective mass (``pfl_mass_model = "link_bound"``): per link a constant, the largest reflected mass of any
+    point of its capsule in any direction over the program's path and a box around it, plus a margin
+    (:func:`hrc_runtime.effective_mass.link_mass_bounds`, once at start-up); ∞ (μ = m_H) for a link with a rigid
+    direction, for every link while the robot is outside the sampled box, and for a robot without a program.
+    ``"simple"`` (M/2 + m_payload; test-only, it understates the mass) is the documented comparison. Its safety
+    exception: :class:`SpeedAware`'s δ thresholds, at no distance (contact is allowed): a bound at or below
+    ``speed_aware_stop_below_delta`` stops the robot, as does any contact (d ≤ 0).
 
     After each :meth:`bound`, :meth:`bounded_by` names what bounded δ for that robot: ``separation:<region>``,
     ``clamping:<region>``, ``contact:<region>``, or ``none`` (δ = 1).
@@ -345,16 +352,25 @@ class ContactAware(SpeedAware):
 
     name = "lucci2020_pfl"
 
-    def __init__(self, safety: SafetyConfig, robots: dict[str, RobotModel]) -> None:
+    def __init__(
+        self, safety: SafetyConfig, robots: dict[str, RobotModel], programs: Mapping[str, str] | None = None
+    ) -> None:
+        """Raises: ConfigError: a robot's program cannot be read (its waypoints bound the effective mass)."""
         super().__init__(safety)
         self.regions = RegionTable(safety.pfl_body_regions)
         self._box_min_m, self._box_max_m = box_arrays(safety.pfl_clamping_surfaces)
         self._simple_kg = {name: simple_robot_mass_kg(r.model, safety.pfl_payload_kg) for name, r in robots.items()}
-        self._reflected = (
-            {name: ReflectedMass(r, safety.pfl_payload_kg) for name, r in robots.items()}
-            if safety.pfl_mass_model == "reflected"
-            else {}
-        )
+        self._joint_mask = {name: link_joint_mask(r.model, r.frame_a_ids, r.frame_b_ids) for name, r in robots.items()}
+        self.mass_bounds: dict[str, LinkMassBounds] = {}
+        for name, robot in robots.items():
+            program = (programs or {}).get(name)
+            if program is None:
+                continue
+            try:
+                waypoints = program_waypoints_rad(program)
+            except (OSError, ValueError, KeyError, TypeError, tomllib.TOMLDecodeError) as exc:
+                raise ConfigError(f"robot {name!r}: program {program!r} unreadable (effective mass): {exc}") from exc
+            self.mass_bounds[name] = cached_link_mass_bounds(robot, safety.pfl_payload_kg, waypoints)
         self._bounded_by: dict[str, str] = {}
 
     def bounded_by(self, robot: str) -> str | None:
@@ -362,11 +378,14 @@ class ContactAware(SpeedAware):
         return self._bounded_by.get(robot)
 
     def link_masses_kg(self, x: MethodInput) -> FloatArray:
-        """m_R of every link of this decision [kg]."""
-        reflected = self._reflected.get(x.robot.name)
-        if reflected is not None:
-            return reflected.link_masses_kg(x.q_rad, x.links.v_a_world, x.links.v_b_world)
-        return np.full(len(x.robot.link_names), self._simple_kg[x.robot.name])
+        """m_R of every link of this decision [kg]: the start-up bound (∞ outside its box, or with no program)."""
+        n_links = len(x.robot.link_names)
+        if self.safety.pfl_mass_model == "simple":
+            return np.full(n_links, self._simple_kg[x.robot.name])
+        bounds = self.mass_bounds.get(x.robot.name)
+        if bounds is None or not bounds.covers(x.q_rad):
+            return np.full(n_links, math.inf)
+        return bounds.mass_kg
 
     def bound(self, x: MethodInput) -> float:
         d = x.rows.surface_distance_m
@@ -376,8 +395,9 @@ class ContactAware(SpeedAware):
             links.v_a_world, links.v_b_world, x.humans, self._box_min_m, self._box_max_m, self.safety.pfl_clamp_margin_m
         )
         contact_mps = np.where(clamped, 0.0, self.safety.pfl_speed_fraction * speeds)
-        v_a, v_b = links.v_a_world, links.v_b_world
-        link_speed_mps = np.sqrt(np.maximum(np.einsum("lj,lj->l", v_a, v_a), np.einsum("lj,lj->l", v_b, v_b)))
+        link_speed_mps = link_surface_speed_mps(
+            links.v_a_world, links.v_b_world, x.qd_nominal_radps, self._joint_mask[x.robot.name], x.robot.link_radius_m
+        )
         bounds = contact_bounds(
             d,
             x.rows.e_m2ps,
@@ -417,11 +437,14 @@ class ContactAware(SpeedAware):
         return Protection(0.0, safety.speed_aware_stop_below_delta, safety.speed_aware_resume_above_delta)
 
 
-def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> OverrideMethod:
-    """The method named by ``safety.method``, checked against the robots.
+def build_method(
+    safety: SafetyConfig, robots: dict[str, RobotModel], programs: Mapping[str, str] | None = None
+) -> OverrideMethod:
+    """The method named by ``safety.method``, checked against the robots (``programs``: each robot's program file,
+    whose path bounds ``lucci2020_pfl``'s effective mass; without one, that robot's links count as rigid, m_R = ∞).
 
     Raises:
-        ConfigError: ``three_zones_tool_frame`` is not a frame of every robot.
+        ConfigError: ``three_zones_tool_frame`` is not a frame of every robot; a program cannot be read.
     """
     if safety.method == "iso15066":
         return Iso15066(safety)
@@ -432,7 +455,7 @@ def build_method(safety: SafetyConfig, robots: dict[str, RobotModel]) -> Overrid
     if safety.method == "zanchettin2016_speed_aware":
         return SpeedAware(safety)
     if safety.method == "lucci2020_pfl":
-        return ContactAware(safety, robots)
+        return ContactAware(safety, robots, programs)
     return Zanchettin2016(safety)
 
 

@@ -196,10 +196,11 @@ class SafetyConfig(_Frozen):
         "whose [regions] the loader reads in. A capsule of no region has contact-safe speed 0.",
     )
     pfl_payload_kg: NonNegativeFloat = Field(0.0, description="m_payload of the simple mass form M/2 + m_payload [kg].")
-    pfl_mass_model: Literal["simple", "reflected"] = Field(
-        "simple",
-        description="m_R of the decision: ISO/TS 15066's M/2 + m_payload (constant), or the reflected mass of each "
-        "link along its programmed velocity from the inertia matrix (Pinocchio, every decision).",
+    pfl_mass_model: Literal["link_bound", "simple"] = Field(
+        "link_bound",
+        description="m_R of the decision: per link the largest reflected mass over the program's path, every point "
+        "and direction, plus a margin (hrc_runtime/effective_mass.py, once at start-up). 'simple' (M/2 + m_payload) "
+        f"understates it and is refused unless {UNSAFE_ENV_VAR}=pfl_simple_mass_for_tests (comparison only).",
     )
     pfl_speed_fraction: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
         0.8,
@@ -234,6 +235,12 @@ class SafetyConfig(_Frozen):
     @classmethod
     def _unsafe_only_when_named(cls, value: bool) -> bool:
         return refuse_unless_named(value, "unsafe_ignore_delay_for_tests", "t_delay = 0")
+
+    @field_validator("pfl_mass_model")
+    @classmethod
+    def _simple_mass_only_when_named(cls, value: str) -> str:
+        refuse_unless_named(value == "simple", "pfl_simple_mass_for_tests", "m_R = M/2 + m_payload, understated")
+        return value
 
     @model_validator(mode="after")
     def _three_zones_are_ordered(self) -> SafetyConfig:

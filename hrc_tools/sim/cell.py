@@ -8,6 +8,8 @@
 - the three paths (tracker → gateway, controller → gateway, gateway → controller) are
   :class:`hrc_tools.sim.links.SimLink`
   carrying the contract's payload bytes, so that every message is serialised and validated;
+- a robot whose ``interface`` is ``ur_rtde`` or ``abb_rws`` is reached through the controller bridge's core and
+  the emulator's vendor face (:mod:`hrc_tools.sim.bridged`): the two links then end at the bridge;
 - the auditor checks every controller cycle the TRUE controller state (no link) against the TRUE humans
   (the scenario, no noise) with :func:`hrc_tools.audit.checks.audit_cycle`.
 
@@ -28,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from controller_bridge.main import bridge_settings
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode
 from controller_emu.program import Trajectory, load_trajectory
@@ -38,9 +41,13 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import to_payload
 from hrc_runtime.clocks import Clocks
+from hrc_runtime.link_motion import link_motion
 from hrc_runtime.robot_model import RobotModel
 from hrc_tools.audit.checks import MOVING_EPS_MPS, AuditAccumulator, AuditSummary, audit_cycle, merge_summaries
+from hrc_tools.audit.contact import ContactMass, ContactRules, audit_contacts
+from hrc_tools.sim.bridged import SimBridge
 from hrc_tools.sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
+from hrc_tools.sim.ros2_adapter import ZedRoundTrip
 from hrc_tools.sim.truth import true_humans
 from tracker_emu.emulator import TrackerEmulator
 from tracker_emu.robot_links import RobotAt, robots_capsules
@@ -75,6 +82,7 @@ class RunResult:
         tracks: the gateway's track changes: ``track_lost``, and ``released_<cause>`` per release cause
             (gateway/tracks.py).
         lost_at_end: tracks still lost when the run ended.
+        bridges: per bridged robot, the bridge's figures (:meth:`hrc_tools.sim.bridged.SimBridge.summary`).
     """
 
     audit: AuditSummary
@@ -92,6 +100,7 @@ class RunResult:
     wall_s: float = field(compare=False)
     tracks: Mapping[str, int] = field(default_factory=dict)
     lost_at_end: int = 0
+    bridges: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     @property
     def speedup(self) -> float:
@@ -115,6 +124,7 @@ class RunResult:
             "duration_s": self.duration_s,
             "tracks": dict(sorted(self.tracks.items())),
             "lost_at_end": self.lost_at_end,
+            "bridges": {name: dict(b) for name, b in sorted(self.bridges.items())},
         }
 
 
@@ -136,6 +146,7 @@ class _Controller:
     accumulator: AuditAccumulator
     next_ns: int = 0
     zone: str | None = None
+    bridge: SimBridge | None = None
 
     @property
     def state(self) -> ControllerState:
@@ -166,7 +177,7 @@ def _build_controller(
         tau0_s = program_start_s[name] % trajectory.duration_s
     else:
         tau0_s = float(_rng(seed, "program-phase", name).uniform(0.0, trajectory.duration_s))
-    return _Controller(
+    ctrl = _Controller(
         name=name,
         robot=robot,
         node=ControllerNode(name, trajectory, robot_config.controller, tau0_s),
@@ -177,6 +188,20 @@ def _build_controller(
         override_link=SimLink(links.gateway_to_controller, _rng(seed, "link-override", name)),
         accumulator=AuditAccumulator(),
     )
+    interface = robot_config.interface
+    if interface.kind != "zenoh":
+        phases = _rng(seed, "bridge-phase", name).integers(0, NS_PER_S, size=2)
+        ctrl.bridge = SimBridge(
+            interface,
+            bridge_settings(config, name, robot),
+            ctrl.node,
+            ctrl.override_link,
+            ctrl.state_link,
+            keys.robot_state(config.cell, name),
+            _clocks,
+            (int(phases[0]), int(phases[1])),
+        )
+    return ctrl
 
 
 @dataclass
@@ -217,6 +242,7 @@ class _SimCell:
         self.config = config
         self.scenario = scenario
         self.moving_eps_mps = moving_eps_mps
+        self._contact_masses: dict[str, ContactMass] = {}
         self.gateway = GatewayNode(config, robots)
         self.gateway_period_ns = round(NS_PER_S / config.gateway.rate_hz)
         self.gateway_next_ns = int(_rng(seed, "gateway-phase").integers(0, self.gateway_period_ns))
@@ -232,16 +258,22 @@ class _SimCell:
         self.tracker_next_ns = _ceil_ns(self.emulator.next_event_s())
         self.truth = (-1, true_humans(scenario, 0.0))
         self.tally = _GatewayTally()
+        # Trackers with a ROS 2 input are played as the ZED they are, through the gateway's adapter.
+        self.ros2 = ZedRoundTrip(config, self.gateway.inputs.count_rejection)
 
     def run(self, end_ns: int) -> None:
         """Advance to ``end_ns``: at each event time, trackers, then controllers (audited), then the gateway."""
         while True:
             controller_next_ns = min(c.next_ns for c in self.controllers.values())
-            now_ns = min(controller_next_ns, self.gateway_next_ns, self.tracker_next_ns)
+            bridges = [c.bridge for c in self.controllers.values() if c.bridge is not None]
+            bridge_next_ns = min((b.next_event_ns() for b in bridges), default=end_ns)
+            now_ns = min(controller_next_ns, self.gateway_next_ns, self.tracker_next_ns, bridge_next_ns)
             if now_ns >= end_ns:
                 return
             if self.tracker_next_ns == now_ns:
                 self._tracker_frames(now_ns)
+            for bridge in bridges:
+                bridge.advance(now_ns)
             for ctrl in self.controllers.values():
                 if ctrl.next_ns == now_ns:
                     _controller_cycle(ctrl, self.config, now_ns)
@@ -262,7 +294,9 @@ class _SimCell:
         )
         for tracker, message in self.emulator.step(now_s, EPOCH_NS + now_ns, robot_links):
             key = keys.tracker_humans(self.config.cell, tracker)
-            self.tracker_links[tracker].send((key, to_payload(message)), now_ns)
+            payload = self.ros2.frame(tracker, message, self.emulator.present_ids, _clocks(now_ns))
+            if payload is not None:  # None: refused by the adapter, counted and faulted
+                self.tracker_links[tracker].send((key, payload), now_ns)
         self.tracker_next_ns = max(now_ns + 1, _ceil_ns(self.emulator.next_event_s()))
 
     def _audit(self, ctrl: _Controller, now_ns: int) -> None:
@@ -283,6 +317,21 @@ class _SimCell:
             self.config.safety.human_speed_mps,
             self.moving_eps_mps,
         )
+        if audit.min_distance_m is not None and audit.min_distance_m <= 0.0:  # a contact: the criterion of §12
+            contacts = audit_contacts(
+                link_motion(ctrl.robot, ctrl.data, q_rad, delta_applied * qd_nominal_radps),
+                ctrl.robot.link_radius_m,
+                ctrl.robot.link_names,
+                truth,
+                self._contact_rules(ctrl),
+                self.moving_eps_mps,
+                q_rad,
+                delta_applied * qd_nominal_radps,
+            )
+            labels = [f"{truth.human_ids[c.capsule]}/{truth.capsule_names[c.capsule]}" for c in contacts]
+            ctrl.accumulator.add_contacts(contacts, labels)
+        else:
+            ctrl.accumulator.add_contacts((), ())
         worst = audit.worst_capsule
         ctrl.accumulator.add(
             audit,
@@ -292,6 +341,18 @@ class _SimCell:
             zone=ctrl.zone,
             program_cycles_completed=ctrl.state.cycles_completed,
             capsule_label=None if worst is None else f"{truth.human_ids[worst]}/{truth.capsule_names[worst]}",
+        )
+
+    def _contact_rules(self, ctrl: _Controller) -> ContactRules:
+        """The contact criterion's view of the cell for one robot (its reflected mass at each contact, Pinocchio)."""
+        safety = self.config.safety
+        if ctrl.name not in self._contact_masses:
+            self._contact_masses[ctrl.name] = ContactMass(ctrl.robot, safety.pfl_payload_kg)
+        return ContactRules(
+            safety.pfl_body_regions,
+            safety.pfl_clamping_surfaces,
+            safety.pfl_clamp_margin_m,
+            self._contact_masses[ctrl.name],
         )
 
     def _gateway_cycle(self, now_ns: int) -> None:
@@ -331,6 +392,7 @@ class _SimCell:
             wall_s=wall_s,
             tracks=MappingProxyType(dict(self.tally.tracks)),
             lost_at_end=len(self.gateway.core.tracks.lost()),
+            bridges=MappingProxyType({n: c.bridge.summary() for n, c in self.controllers.items() if c.bridge}),
         )
 
 
@@ -375,7 +437,11 @@ def _ceil_ns(t_s: float) -> int:
 
 
 def _controller_cycle(ctrl: _Controller, config: CellConfig, now_ns: int) -> None:
-    """One controller cycle: the overrides that arrived, each at its arrival time, then the node's cycle."""
+    """One controller cycle: the overrides that arrived, each at its arrival time, then the node's cycle (through a
+    bridge: the bridge took the overrides and gave the node its writes; its face keeps the cycle's state)."""
+    if ctrl.bridge is not None:
+        ctrl.bridge.on_cycle(ctrl.node.cycle(_clocks(now_ns)))
+        return
     for arrived_ns, (_, payload) in ctrl.override_link.deliver(now_ns):
         ctrl.node.on_override(payload, _clocks(arrived_ns))
     output = ctrl.node.cycle(_clocks(now_ns))

@@ -44,8 +44,10 @@ from pydantic import ValidationError
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_runtime.config import load_cell_config, read_toml, resolve_urdf
 from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_tools.sim.bridged import INTERFACES, default_interface
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
+from hrc_tools.sim.ros2_adapter import with_zed_trackers
 from hrc_tools.sim.scenarios import case_of_cell
 
 DEFAULT_DURATION_S = 10.0
@@ -74,6 +76,8 @@ class CaseResult:
         beyond_k: someone approaches faster than the K the case ran with (outside the guarantee).
         tracks: the gateway's track changes (``track_lost``, ``released_<cause>``); lost_at_end: tracks still lost
             when the case ended.
+        rejected: the gateway's input rejections per topic and reason (``qd_inconsistent``, …).
+        bridges: per bridged robot, the controller bridge's figures (:meth:`hrc_tools.sim.bridged.SimBridge.summary`).
     """
 
     index: int
@@ -101,6 +105,11 @@ class CaseResult:
     beyond_k: bool = False
     tracks: dict[str, int] = dataclasses.field(default_factory=dict)
     lost_at_end: int = 0
+    contact_cycles: int = 0
+    unacceptable_contacts: int = 0
+    contact_speeds_mps: list[float] = dataclasses.field(default_factory=list)
+    rejected: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
+    bridges: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -121,6 +130,8 @@ class SpeedGroup:
     smallest_margin_moving_case: int | None
     margin_lost_m: float
     fastest_approach_mps: float | None
+    unacceptable_contacts: int = 0
+    cases_with_unacceptable_contacts: int = 0
 
 
 @dataclass(frozen=True)
@@ -166,6 +177,7 @@ class SweepSummary:
     interrupted: bool = False
     tracks: dict[str, int] = dataclasses.field(default_factory=dict)
     cases_lost_at_end: int = 0
+    contact_speeds_mps: list[float] = dataclasses.field(default_factory=list)
 
 
 # -- one case (in a worker) ---------------------------------------------------------------------------
@@ -189,6 +201,10 @@ class CellVariant:
             (:func:`hrc_tools.sim.scenarios.with_occlusion`); a change of the cases, not of the cell.
         unsafe_forget_lost: TEST ONLY: the gateway forgets a person as soon as no tracker reports them (the classic
             fail-open); ``apply`` refuses it unless ``HRC_ALLOW_UNSAFE`` names ``unsafe_forget_lost_for_tests``.
+        interface: every robot's controller interface (``zenoh``, ``ur_rtde``, ``abb_rws``: through the controller
+            bridge, :mod:`hrc_tools.sim.bridged`), if not the cell's.
+        zed_trackers: the cases' trackers are ZED cameras read through the gateway's ROS 2 adapter
+            (:mod:`hrc_tools.sim.ros2_adapter`); a change of the cases, not of the cell.
     """
 
     unsafe_ignore_delay: bool = False
@@ -198,6 +214,8 @@ class CellVariant:
     method: str | None = None
     occlusion: bool = False
     unsafe_forget_lost: bool = False
+    interface: str | None = None
+    zed_trackers: bool = False
 
     def apply(self, config: CellConfig) -> CellConfig:
         """``config`` with these changes (validated)."""
@@ -221,6 +239,9 @@ class CellVariant:
                 robot["model"]["braking_time_s"] = [robot["controller"]["braking_time_s"]] * len(
                     robot["model"]["joints"]
                 )
+        if self.interface is not None:
+            for robot in raw["robots"].values():
+                robot["interface"] = default_interface(self.interface)
         return CellConfig.model_validate(raw)
 
 
@@ -240,6 +261,7 @@ def _init_worker(config_path: str | None, variant: CellVariant) -> None:
     _WORKER["config"] = config
     _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     _WORKER["occlusion"] = variant.occlusion
+    _WORKER["zed_trackers"] = variant.zed_trackers
 
 
 def run_case(
@@ -250,11 +272,13 @@ def run_case(
     duration_s: float,
     *,
     occlusion: bool = False,
+    zed_trackers: bool = False,
 ) -> CaseResult:
-    """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``) and
-    simulate it."""
+    """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``, read as
+    ZED cameras through the ROS 2 adapter if ``zed_trackers``) and simulate it."""
     case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion)
-    result = simulate(case.config(config), robots, case.scenario, case.links, duration_s, case.seed)
+    case_config = with_zed_trackers(case.config(config)) if zed_trackers else case.config(config)
+    result = simulate(case_config, robots, case.scenario, case.links, duration_s, case.seed)
     audit = result.audit
     approach_mps = fastest_approach_mps(case.scenario, robot_bases_xy_m(config))
     return CaseResult(
@@ -283,12 +307,25 @@ def run_case(
         beyond_k=beyond_k(approach_mps, config.safety.human_speed_mps),
         tracks=dict(result.tracks),
         lost_at_end=result.lost_at_end,
+        contact_cycles=audit.contact_cycles,
+        unacceptable_contacts=audit.unacceptable_contacts,
+        contact_speeds_mps=[round(v, 4) for v in audit.contact_speeds_mps],
+        rejected={topic: dict(reasons) for topic, reasons in result.rejected.items()},
+        bridges={name: dict(b) for name, b in result.bridges.items()},
     )
 
 
 def _run_in_worker(task: tuple[int, int, float]) -> CaseResult:
     sweep_seed, index, duration_s = task
-    return run_case(_WORKER["config"], _WORKER["robots"], sweep_seed, index, duration_s, occlusion=_WORKER["occlusion"])
+    return run_case(
+        _WORKER["config"],
+        _WORKER["robots"],
+        sweep_seed,
+        index,
+        duration_s,
+        occlusion=_WORKER["occlusion"],
+        zed_trackers=_WORKER["zed_trackers"],
+    )
 
 
 def _finite(value: float) -> float | None:
@@ -335,6 +372,8 @@ def speed_group(results: list[CaseResult]) -> SpeedGroup:
         smallest_margin_moving_case=None if smallest is None else smallest[1],
         margin_lost_m=max(0.0, -smallest[0]) if smallest is not None else 0.0,
         fastest_approach_mps=max((r.fastest_approach_mps for r in results), default=None),
+        unacceptable_contacts=sum(r.unacceptable_contacts for r in results),
+        cases_with_unacceptable_contacts=sum(1 for r in results if r.unacceptable_contacts),
     )
 
 
@@ -369,16 +408,23 @@ def summarize(results: list[CaseResult], wall_s: float, human_speed_mps: float =
         beyond_k=speed_group([r for r in results if r.beyond_k]),
         tracks=dict(sorted(sum((Counter(r.tracks) for r in results), Counter()).items())),
         cases_lost_at_end=sum(1 for r in results if r.lost_at_end),
+        contact_speeds_mps=sorted(v for r in results for v in r.contact_speeds_mps),
     )
 
 
-def sweep_exit_code(summary: SweepSummary) -> int:
+CONTACT_METHODS = ("lucci2020_pfl",)
+"""Methods that allow transient contact: judged by the contact criterion (safety-math.md §12)."""
+
+
+def sweep_exit_code(summary: SweepSummary, contact_criterion: bool = False) -> int:
     """1 if a case within K violated (the gateway's guarantee broken), else 130 if interrupted (Ctrl-C), else 0.
 
+    With ``contact_criterion`` (a method of :data:`CONTACT_METHODS`), "violated" means an unacceptable contact
+    (§12): such a method touches by design, so the separation violations are reported beside it, not failures.
     Violations of people faster than K are reported, not failures: the guarantee is stated for the configured K,
     and the generator draws faster people on purpose, to show the margin they cost.
     """
-    if summary.within_k.violations:
+    if summary.within_k.unacceptable_contacts if contact_criterion else summary.within_k.violations:
         return 1
     return 130 if summary.interrupted else 0
 
@@ -395,7 +441,23 @@ def _group_rows(name: str, group: SpeedGroup) -> list[tuple[str, str]]:
         (f"{name}: smallest margin while moving [m]", margin),
         (f"{name}: margin lost [m]", _fmt(group.margin_lost_m)),
         (f"{name}: fastest approach [m/s]", _fmt(group.fastest_approach_mps, 2)),
+        (
+            f"{name}: contact criterion (§12): unacceptable contacts (cycles)",
+            f"{group.unacceptable_contacts} in {group.cases_with_unacceptable_contacts} scenarios",
+        ),
     ]
+
+
+def contact_speeds_text(speeds_mps: list[float]) -> str:
+    """The contacts' onset speeds as a distribution: count, median, 90th percentile, largest [m/s]."""
+    if not speeds_mps:
+        return "0"
+    ordered = sorted(speeds_mps)
+
+    def pct(p: float) -> float:
+        return ordered[min(len(ordered) - 1, int(p * len(ordered)))]
+
+    return f"{len(ordered)}: median {pct(0.5):.3f}, p90 {pct(0.9):.3f}, max {ordered[-1]:.3f}"
 
 
 def _tracks_text(tracks: dict[str, int]) -> str:
@@ -423,6 +485,7 @@ def format_table(summary: SweepSummary, workers: int) -> str:
             f"{summary.beyond_budget} ({summary.beyond_budget_stopped} stopped on stale data)",
         ),
         ("human speed K [m/s]", f"{summary.human_speed_mps:g}"),
+        ("contacts (onsets) / their speed [m/s]", contact_speeds_text(summary.contact_speeds_mps)),
         ("tracks lost / released", _tracks_text(summary.tracks)),
         ("scenarios ending with a lost track", str(summary.cases_lost_at_end)),
         *_group_rows("within K", summary.within_k),
@@ -518,6 +581,20 @@ def _parser() -> argparse.ArgumentParser:
         "configs/robots/ur5_measured.toml for the stopping times measured by commissioning",
     )
     parser.add_argument("--method", default=None, help="safety.method of the gateway, if not the cell's")
+    parser.add_argument(
+        "--interface",
+        choices=INTERFACES,
+        default=None,
+        help="every robot's controller interface: zenoh (the emulator's own face, no bridge), or ur_rtde / abb_rws "
+        "through the controller bridge and the emulator's vendor face (default: the cell file's; zenoh in "
+        "configs/cell.toml)",
+    )
+    parser.add_argument(
+        "--zed-trackers",
+        action="store_true",
+        help="the cases' trackers are ZED cameras: every frame goes capsules -> BODY_34 keypoints -> CDR -> the "
+        "gateway's ROS 2 adapter -> capsules (docs/ros2.md)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument(
         "--first-case",
@@ -563,6 +640,10 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
         print(f"human speed K = {args.human_speed_mps} m/s")
     if args.robot_model is not None:
         print(f"robot model (braking times): {args.robot_model}")
+    if args.interface is not None:
+        print(f"interface: {args.interface}")
+    if args.zed_trackers:
+        print("ZED trackers: every frame went through the ROS 2 adapter (keypoints -> CDR -> skeleton capsules)")
     if args.method is not None:
         print(f"method: {args.method}")
     if summary.interrupted:
@@ -622,7 +703,8 @@ def _merge_cli(paths: list[str]) -> None:
     indices = [r.index for r in results]
     print(f"merged {len(paths)} sweep file(s): cases {min(indices)}..{max(indices)}, {len(indices)} in all")
     print(format_table(summary, 0))
-    sys.exit(sweep_exit_code(summary))
+    method = json.loads(Path(paths[0]).read_text())["variant"].get("method") or load_cell_config(None).safety.method
+    sys.exit(sweep_exit_code(summary, method in CONTACT_METHODS))
 
 
 def cli(argv: list[str] | None = None) -> None:
@@ -641,10 +723,12 @@ def cli(argv: list[str] | None = None) -> None:
         args.robot_model,
         args.method,
         occlusion=args.occlusion,
+        interface=args.interface,
         unsafe_forget_lost=args.unsafe_forget_lost,
+        zed_trackers=args.zed_trackers,
     )
     try:
-        variant.apply(load_cell_config(args.config))
+        method = variant.apply(load_cell_config(args.config)).safety.method
     except (ConfigError, ValidationError) as exc:
         reason = " ".join(str(exc).split())
         print(f"hrc-sweep: invalid configuration: {reason}", file=sys.stderr)
@@ -658,7 +742,9 @@ def cli(argv: list[str] | None = None) -> None:
     finally:
         signal.signal(signal.SIGTERM, previous)
     _report(args, variant, summary, results)
-    sys.exit(sweep_exit_code(summary))
+    if method in CONTACT_METHODS:
+        print(f"exit code: the contact criterion (§12) of {method}; separation violations are reported beside it")
+    sys.exit(sweep_exit_code(summary, method in CONTACT_METHODS))
 
 
 if __name__ == "__main__":

@@ -16,23 +16,19 @@ import pytest
 
 from gateway.contact import (
     NO_REGION,
-    ReflectedMass,
     RegionTable,
     box_arrays,
     clamped_pairs,
     contact_delta,
     energy_contact_speed_mps,
     force_contact_speed_mps,
-    moving_mass_kg,
     reduced_mass_kg,
-    reflected_mass_kg,
     region_contact_speed_mps,
     simple_robot_mass_kg,
-    with_payload,
 )
-from gateway.reference.kinematics import link_kinematics
 from hrc_contract.config import BodyRegion, Box, CellConfig
 from hrc_contract.humans import HumanCapsules
+from hrc_runtime.effective_mass import moving_mass_kg, reflected_mass_kg, with_payload
 from hrc_runtime.robot_model import RobotModel
 
 HAND = BodyRegion(capsules=["hand_r"], max_force_n=280.0, spring_constant_n_per_m=75_000.0, mass_kg=0.6)
@@ -126,23 +122,10 @@ def test_reflected_mass_equals_forward_dynamics_and_crba(ur5: RobotModel) -> Non
             assert reflected_mass_kg(J, M_inv_crba, u) == pytest.approx(expected, rel=1e-7)
 
 
-def test_reflected_link_masses_along_the_programmed_velocity(ur5: RobotModel) -> None:
-    """Per link, the larger of its ends' reflected masses along their velocities (world frame, base on a pedestal),
-    each equal to the forward-dynamics measurement; the payload raises the tool's."""
-    q = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
-    qd = np.array([0.6, -0.4, 0.5, 0.3, 0.2, 0.1])
-    links = link_kinematics(ur5, ur5.model.createData(), q, qd)
-    loaded = ReflectedMass(ur5, 1.0)
-    masses = loaded.link_masses_kg(q, links.v_a_world, links.v_b_world)
-    tool = len(masses) - 1
-    u_world = links.v_b_world[tool] / np.linalg.norm(links.v_b_world[tool])
-    expected_b = _reflected_by_forward_dynamics(loaded.model, q, ur5.frame_b_ids[tool], ur5.R_world_base.T @ u_world)
-    assert masses[tool] >= expected_b * (1 - 1e-9)
-    assert masses[0] == 0.0  # the base link does not move: no mass along no velocity
-    unloaded = ReflectedMass(ur5, 0.0).link_masses_kg(q, links.v_a_world, links.v_b_world)
-    assert masses[tool] > unloaded[tool]
-    # checked against the simple form (M/2 + m_payload = 9.5 kg): the reflected mass of the wrist is far below it here
-    assert 0.0 < masses[tool] < simple_robot_mass_kg(ur5.model, 1.0)
+def test_an_infinite_mass_is_the_regions_own_mass() -> None:
+    """m_R = ∞ (a rigid direction): μ = m_H, v = F / sqrt(m_H k): hand 280 / sqrt(0.6 · 75000) = 1.3199 m/s."""
+    assert region_contact_speed_mps(HAND, math.inf) == pytest.approx(280.0 / math.sqrt(0.6 * 75_000.0), rel=1e-12)
+    assert region_contact_speed_mps(HAND, math.inf) < region_contact_speed_mps(HAND, 9.5)
 
 
 # -- the region table ---------------------------------------------------------------------------------------------

@@ -9,16 +9,37 @@
 No I/O and no clock is read here: ``controller_bridge/main.py`` passes the process's clocks, tests pass theirs.
 
 **Writing δ.** The newest valid override is quantised as the vendor does (:func:`quantise`: never above δ; below
-the vendor's floor the value is the vendor's stop, see :data:`SPEED_INPUTS`) and written at once, then again at
-the heartbeat rate. A real controller keeps its speed input forever, so the bridge runs the watchdog the contract
-gives the controller: with no valid override for ``watchdog_s`` it writes 0 itself.
+the vendor's floor the value is the vendor's stop, see :data:`SPEED_INPUTS`), then made *provable*
+(:func:`distinct_value`) and written; the heartbeat writes again. A real controller keeps its speed input forever,
+so the bridge runs the watchdog the contract gives the controller: with no valid override for ``watchdog_s`` it
+writes 0 itself.
 
-**The override echo.** ``override_seq`` is the seq of the newest override whose quantised value the controller's
-read-back shows (``speed_fraction``: UR ``target_speed_fraction``, ABB ratio / 100), in a reading received after
-the override was accepted and after that value was written; never on write. The gateway's measured override path
-therefore includes the real actuation latency. A read-back can only prove a *change*: an override that asks for
-the value already in force is confirmed by the next reading, so the gateway learns the path's latency from the
-overrides that change the value (the read-back latency in the statistics is measured on those only).
+**Every write provable (the dither).** A read-back can only prove a *change*: a reading that shows the value
+already in force says nothing about a write of that same value. So the value written for an override is c =
+quantise(δ), or if c equals the value in force (the last read-back) or a value written and not yet read back, the
+first of c − d, c − 2d, … that equals none of them (d: the vendor's ``dither_step``, UR 1e-4 of its continuous
+slider, ABB one percent), as long as it stays ≥ the vendor's floor. The dither only ever goes *down*: the bridge
+never writes above δ. No two writes awaiting their read-back share a value, and none equals the value in force, so
+a reading that shows v proves that the controller applied the write of v.
+
+At the floor (and at 0, a stop) there is no lower value to dither to, and the bridge falls back to the old rule: the
+write of a value already in force is confirmed by the next reading showing it, which proves nothing about the link.
+That is safe: the value in force is then the floor or 0, so the robot crawls or stands whatever the link's delay,
+and the next raise is a change, measured over the whole path (the gateway's window keeps the largest latency).
+
+**Stop-and-wait.** To keep the dither small, at most one write that is not a decrease awaits its read-back
+(:meth:`Bridge.next_write`): a value *lower* than the last written is written at once (a safety decrease never
+waits); any other new value only once every earlier write has been read back. While one is awaited, the heartbeat
+writes the last written value again (it feeds the controller's watchdog; it is not a new write, and its read-back
+confirms the first write of that value, the conservative time). A steady δ therefore alternates c and c − d, one
+write per read-back: the mean reduction is about d / 2 (ABB: half a percent step, UR: 5e-5) beyond the quantisation.
+
+**The override echo.** ``override_seq`` is the seq of the newest override a confirmed write carried (the newest
+override accepted when the write was handed out), confirmed by a reading received after that write that shows its
+value; writes awaiting their read-back written before the confirmed one are then superseded (the controller applies
+writes in order, so their value can never show again). Never on write. The gateway's measured override path
+(gateway send → bridge → vendor link → controller → vendor link → bridge → gateway) therefore includes the vendor
+link's delay with a steady δ too, and the read-back latency in the statistics covers every provable write.
 
 **What is reported, and why (ramps).** Let s be the controller's read-back of the scaling it applies
 (``speed_fraction × speed_scaling``; 0 while the program does not run). After the slider drops, the controller
@@ -59,7 +80,7 @@ from __future__ import annotations
 import math
 import threading
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
 from typing import NamedTuple
@@ -82,11 +103,13 @@ NS_PER_S = 1e9
 MAX_FUTURE_STAMP_S = 0.005
 """An override stamped further ahead of this host's wall clock is refused [s] (the contract's controller rule)."""
 
-READBACK_TOLERANCE = 1e-4
-"""A read-back within this of a written value shows it (far below the coarsest step, ABB's 1 %)."""
+READBACK_TOLERANCE = 1e-6
+"""A read-back within this of a written value shows it (far below the smallest dither step, UR's 1e-4)."""
 
-MAX_PENDING_OVERRIDES = 1024
-"""Accepted overrides kept awaiting their read-back (4 s at the gateway's 250 Hz)."""
+MAX_AWAITING_WRITES = 1024
+"""Writes kept awaiting their read-back (each one lower than the one before: decreases written at once); the oldest
+beyond this is forgotten, which is safe: a value is written again only as a raise, and a raise waits for the newest
+write's read-back, after which no older write's value can show again."""
 
 MODEL_STANDSTILL_RADPS = 0.01
 """Where the program model's velocity is below this on every joint, the ratio is not measured along it (U is
@@ -101,11 +124,14 @@ class SpeedInput:
         floor: the smallest value the input is written with; below it the bridge writes ``stop`` [1].
         step: the resolution, rounded down to (None: continuous) [1].
         stop: what is written below the floor, and why (for the documentation and the log).
+        dither_step: d, how far below δ a write moves to differ from the values it must not repeat (the module
+            docstring, "Every write provable"); a multiple of ``step`` [1].
     """
 
     floor: float
     step: float | None
     stop: str
+    dither_step: float
 
 
 SPEED_INPUTS: Mapping[str, SpeedInput] = MappingProxyType(
@@ -115,11 +141,13 @@ SPEED_INPUTS: Mapping[str, SpeedInput] = MappingProxyType(
             step=None,
             stop="speed slider 0.0: the robot stands still (some versions then end in a protective stop, the safe "
             "side); the ROS 2 driver refuses values below 0.01, and anything between is a crawl, not a stop",
+            dither_step=1e-4,
         ),
         "abb_rws": SpeedInput(
             floor=0.01,
             step=0.01,
             stop="speed ratio 0 %: RWS accepts 0..100 (integer percent, rounded down, so any δ < 1 % is 0 %)",
+            dither_step=0.01,
         ),
     }
 )
@@ -143,6 +171,34 @@ def quantise(delta: float, speed_input: SpeedInput) -> float:
         if value > delta:
             value = (n - 1) * speed_input.step
     return 0.0 if value < speed_input.floor - 1e-12 else value
+
+
+def _same(a: float, b: float) -> bool:
+    return abs(a - b) <= READBACK_TOLERANCE
+
+
+def distinct_value(target: float, taken: Sequence[float], speed_input: SpeedInput) -> float | None:
+    """The write that proves itself: the first of target, target − d, target − 2d, … (d: ``dither_step``) that
+    equals no value in ``taken``, as long as it stays ≥ the floor; None when there is none (at the floor, at 0).
+
+    Never above ``target``. On a stepped input the values stay on its grid (whole steps of ``step``).
+
+    Args:
+        target: the quantised δ (:func:`quantise`) [1].
+        taken: the value in force and the values awaiting their read-back [1].
+        speed_input: the vendor's input.
+    """
+    base, step = quantise(target, speed_input), speed_input.step
+    for k in range(len(taken) + 1):  # each value taken rules out at most one candidate
+        if step is None:
+            value = base - k * speed_input.dither_step
+        else:  # whole steps: exactly the values the vendor writes and reads back (ABB: p / 100)
+            value = (round(base / step) - k * round(speed_input.dither_step / step)) * step
+        if value < speed_input.floor - 1e-12 or value > target:
+            return None
+        if not any(_same(value, other) for other in taken):
+            return value
+    return None
 
 
 @dataclass(frozen=True)
@@ -190,12 +246,15 @@ class BridgeStats:
         writes: speed writes made.
         last_readback: the last valid read-back of the speed input (``speed_fraction``), None before any [1].
         last_applied: the last reported ``override`` [1].
-        readback_latency_s: write → first reading showing a changed value, the last one measured [s].
+        readback_latency_s: write → first reading showing its value, the last provable write measured [s].
         readback_latency_max_s: the largest since the last :meth:`Bridge.take_latency_max` [s].
         override_seq: the seq confirmed by the read-back, -1 before any.
         watchdog_expired: the bridge writes 0 because no valid override came for ``watchdog_s``.
         qd_nominal_sources: joint states per ``qd_nominal`` source.
         mode: the mode of the last joint state (None before any).
+        awaiting: writes awaiting their read-back now.
+        dithered: writes made below their quantised δ to differ from the value in force or an awaited one.
+        unprovable: writes of a value already in force (at the floor or 0: no lower value to dither to).
     """
 
     readings: int
@@ -211,6 +270,9 @@ class BridgeStats:
     watchdog_expired: bool
     qd_nominal_sources: Mapping[str, int]
     mode: ControllerMode | None
+    awaiting: int = 0
+    dithered: int = 0
+    unprovable: int = 0
 
 
 class _Accepted(NamedTuple):
@@ -220,14 +282,26 @@ class _Accepted(NamedTuple):
     accepted_mono_ns: int
 
 
-@dataclass
-class _Pending:
-    """An accepted override awaiting its read-back."""
+class _Handed(NamedTuple):
+    """What :meth:`Bridge.next_write` handed out."""
 
-    seq: int
     value: float
-    accepted_mono_ns: int
-    written_mono_ns: int | None
+    seq: int | None
+    """The newest accepted override's seq (None: the watchdog's or the initial 0)."""
+    accepted_mono_ns: int | None
+    fresh: bool
+    """A new write (True) or the heartbeat repeating the last written value (False)."""
+    dithered: bool
+
+
+class _Write(NamedTuple):
+    """A write awaiting its read-back."""
+
+    value: float
+    seq: int | None
+    written_mono_ns: int
+    provable: bool
+    """Its value differed from the value in force and every other awaited value when written."""
 
 
 class NominalVelocity(NamedTuple):
@@ -314,13 +388,16 @@ class Bridge:
         self._lock = threading.Lock()
         self._newest: _Accepted | None = None
         self._newest_stamp_ns = -1
-        self._pending: deque[_Pending] = deque(maxlen=MAX_PENDING_OVERRIDES)
         self._overrides_rejected: Counter[str] = Counter()
         # writes
-        self._handed: tuple[float, int | None] | None = None
+        self._handed: _Handed | None = None
         self._last_write: tuple[float, int] | None = None  # (value, mono_ns)
-        self._change: tuple[float, int] | None = None  # a write that changed the value, awaiting its read-back
+        self._carried_mono_ns: int | None = None  # accepted_mono_ns of the override the last new write carried
+        self._awaiting: deque[_Write] = deque(maxlen=MAX_AWAITING_WRITES)
+        self._in_force: float | None = None  # the last read-back
         self._writes = 0
+        self._dithered = 0
+        self._unprovable = 0
         self._watchdog_expired = False
         # readings
         self._previous: ControllerReading | None = None
@@ -371,8 +448,6 @@ class Bridge:
             value = quantise(message.delta, self.settings.speed_input)
             self._newest = _Accepted(message.seq, value, now.mono_ns)
             self._newest_stamp_ns = message.stamp_ns
-            in_force = self._last_write is not None and abs(self._last_write[0] - value) <= READBACK_TOLERANCE
-            self._pending.append(_Pending(message.seq, value, now.mono_ns, now.mono_ns if in_force else None))
         return None
 
     def count_override_rejected(self, reason: str) -> None:
@@ -383,32 +458,52 @@ class Bridge:
     # -- writes (the writer's loop) --------------------------------------------------------------
 
     def next_write(self, now: Clocks) -> float | None:
-        """What to write to the speed input now, or None (the value is written and the heartbeat is not due).
+        """What to write to the speed input now, or None (nothing new to write and the heartbeat is not due).
 
-        The newest accepted override's quantised δ, or 0 once no valid override came for ``watchdog_s``.
+        The target is the newest accepted override's quantised δ, or 0 once no valid override came for
+        ``watchdog_s``. Stop-and-wait (the module docstring): a target lower than the last written value is written
+        at once; a new override otherwise once no write awaits its read-back; while one does, the heartbeat repeats
+        the last written value (never above the target: the target is not lower than it). Every new value is made
+        provable with :func:`distinct_value`.
         """
         with self._lock:
             newest = self._newest
             silent = newest is None or now.mono_ns - newest.accepted_mono_ns > self.settings.watchdog_s * NS_PER_S
             self._watchdog_expired = silent
-            value, seq = (0.0, None) if silent or newest is None else (newest.value, newest.seq)
+            target, seq, accepted = (
+                (0.0, None, None) if silent or newest is None else (newest.value, newest.seq, newest.accepted_mono_ns)
+            )
             last = self._last_write
-            due = last is None or value != last[0] or now.mono_ns - last[1] >= self.settings.heartbeat_s * NS_PER_S
-            if not due:
-                return None
-            self._handed = (value, seq)
-            return value
+            heartbeat_due = last is None or now.mono_ns - last[1] >= self.settings.heartbeat_s * NS_PER_S
+            if last is None or target < last[0]:
+                handed = self._new_write(target, seq, accepted)  # a safety decrease never waits
+            elif self._awaiting or accepted == self._carried_mono_ns:
+                if not heartbeat_due:
+                    return None
+                handed = _Handed(last[0], seq, accepted, fresh=False, dithered=False)
+            else:
+                handed = self._new_write(target, seq, accepted)
+            self._handed = handed
+            return handed.value
 
     def on_written(self, written: float, now: Clocks) -> None:
         """The value :meth:`next_write` handed out was written at ``now`` (``written``: as the vendor quantised it)."""
         with self._lock:
-            if self._last_write is None or abs(self._last_write[0] - written) > READBACK_TOLERANCE:
-                self._change = (written, now.mono_ns)
             self._last_write = (written, now.mono_ns)
             self._writes += 1
-            for pending in self._pending:
-                if pending.written_mono_ns is None and abs(pending.value - written) <= READBACK_TOLERANCE:
-                    pending.written_mono_ns = now.mono_ns
+            handed, self._handed = self._handed, None
+            if handed is None or not handed.fresh:
+                return
+            self._carried_mono_ns = handed.accepted_mono_ns
+            self._dithered += handed.dithered
+            if any(_same(w.value, written) for w in self._awaiting):
+                return  # not new to the controller: the earlier write of this value stands (the conservative time)
+            if self._in_force is None:  # before the first reading nothing is proven: it confirms no override
+                self._awaiting.append(_Write(written, None, now.mono_ns, provable=False))
+                return
+            provable = not _same(self._in_force, written)
+            self._unprovable += not provable
+            self._awaiting.append(_Write(written, handed.seq, now.mono_ns, provable))
 
     # -- readings (the reader's loop) ------------------------------------------------------------
 
@@ -430,6 +525,7 @@ class Bridge:
             self._readings += 1
             self._last_readback = reading.speed_fraction
             self._confirm(reading)
+            self._in_force = reading.speed_fraction
             dt_s = None if previous is None else (reading.received_mono_ns - previous.received_mono_ns) / NS_PER_S
             scaling = reading.speed_fraction * (1.0 if reading.speed_scaling is None else reading.speed_scaling)
             applied = scaling if reading.running else 0.0
@@ -499,27 +595,40 @@ class Bridge:
                 watchdog_expired=self._watchdog_expired,
                 qd_nominal_sources=MappingProxyType(dict(sorted(self._sources.items()))),
                 mode=self._mode,
+                awaiting=len(self._awaiting),
+                dithered=self._dithered,
+                unprovable=self._unprovable,
             )
 
     # -- internals (lock held) -------------------------------------------------------------------
 
+    def _new_write(self, target: float, seq: int | None, accepted_mono_ns: int | None) -> _Handed:
+        """A new write for ``target``: the provable value (:func:`distinct_value`), else ``target`` itself."""
+        taken = [w.value for w in self._awaiting]
+        if self._in_force is not None:
+            taken.append(self._in_force)
+        value = distinct_value(target, taken, self.settings.speed_input)
+        if value is None:
+            return _Handed(target, seq, accepted_mono_ns, fresh=True, dithered=False)
+        return _Handed(value, seq, accepted_mono_ns, fresh=True, dithered=value < target)
+
     def _confirm(self, reading: ControllerReading) -> None:
-        """Advance ``override_seq`` to the newest pending override the read-back shows (written before it)."""
+        """Confirm the awaited write whose value the reading shows (written before it received), and the override it
+        carried; the writes awaited before it are superseded."""
         shown, t_ns = reading.speed_fraction, reading.received_mono_ns
-        confirmed: int | None = None
-        for index, pending in enumerate(self._pending):
-            written = pending.written_mono_ns
-            if written is not None and written <= t_ns and abs(pending.value - shown) <= READBACK_TOLERANCE:
-                confirmed = index
-        if confirmed is not None:
-            self._override_seq = self._pending[confirmed].seq
-            for _ in range(confirmed + 1):
-                self._pending.popleft()
-        change = self._change
-        if change is not None and change[1] <= t_ns and abs(change[0] - shown) <= READBACK_TOLERANCE:
-            self._latency_s = (t_ns - change[1]) / NS_PER_S
+        for index in range(len(self._awaiting) - 1, -1, -1):
+            write = self._awaiting[index]
+            if write.written_mono_ns <= t_ns and _same(write.value, shown):
+                break
+        else:
+            return
+        if write.seq is not None:
+            self._override_seq = write.seq
+        if write.provable:
+            self._latency_s = (t_ns - write.written_mono_ns) / NS_PER_S
             self._latency_max_s = max(self._latency_s, self._latency_max_s or 0.0)
-            self._change = None
+        for _ in range(index + 1):
+            self._awaiting.popleft()
 
     def _locate_model(self, q_rad: FloatArray, qd_radps: FloatArray) -> FloatArray | None:
         """The program model's velocity at ``q_rad`` (counted ``model_miss`` when it cannot locate the robot)."""

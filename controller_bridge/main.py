@@ -4,6 +4,11 @@
     writer loop (write_rate_hz, and at once on an override): bridge.next_write(now) → interface.write_speed_fraction
     reader thread: interface.read(timeout) → bridge.on_reading(reading) → publish the joint state
 
+The writer writes what the core hands out, and the core decides when (stop-and-wait, ``controller_bridge/bridge.py``):
+a value lower than the last written at once, on the wake of the override that asks for it; any other new value once
+the previous write has been read back (on the next wake: an override, at the gateway's rate, or the heartbeat); while
+a write awaits its read-back, the heartbeat repeats the last written value.
+
 The vendor interface is the cell file's ``interface`` of ``--robot NAME`` (``ur_rtde`` or ``abb_rws``; a robot whose
 interface is ``zenoh`` needs no bridge). The reader connects, and reconnects with a doubling backoff
 (:data:`BACKOFF_MIN_S` … :data:`BACKOFF_MAX_S`) when the connection fails or no valid reading came for
@@ -182,6 +187,9 @@ def _stats_doc(robot: str, kind: str, stats: BridgeStats, readings_per_s: float,
         "readings_per_s": round(readings_per_s, 1),
         "published": stats.published,
         "writes": stats.writes,
+        "writes_awaiting_readback": stats.awaiting,
+        "writes_dithered": stats.dithered,
+        "writes_unprovable": stats.unprovable,
         "watchdog_expired": stats.watchdog_expired,
         "qd_nominal_sources": dict(stats.qd_nominal_sources),
         "rejected": dict(stats.rejected),
@@ -381,8 +389,8 @@ def run_bridge(
             if now_s >= timers["progress"]:
                 timers["progress"] = now_s + PROGRESS_EVERY_S
                 log.info(
-                    "%s via %s: %s override=%s readback=%s override_seq=%d latency=%s published=%d rejected=%s "
-                    "overrides_rejected=%s",
+                    "%s via %s: %s override=%s readback=%s override_seq=%d latency=%s published=%d writes=%d "
+                    "(dithered %d, unprovable %d) rejected=%s overrides_rejected=%s",
                     robot,
                     kind,
                     stats.mode,
@@ -391,6 +399,9 @@ def run_bridge(
                     stats.override_seq,
                     stats.readback_latency_s,
                     stats.published,
+                    stats.writes,
+                    stats.dithered,
+                    stats.unprovable,
                     dict(stats.rejected),
                     dict(stats.overrides_rejected),
                 )

@@ -152,10 +152,16 @@ def test_an_older_override_never_replaces_a_newer_one() -> None:
 # -- the echo ---------------------------------------------------------------------------------------------
 
 
+def _in_force(bridge: Bridge, fraction: float, t_s: float = 0.0) -> None:
+    """The controller shows ``fraction`` (the bridge's first reading)."""
+    assert bridge.on_reading(reading(t_s, fraction)) is not None
+
+
 def test_override_seq_is_confirmed_only_by_a_read_back_showing_the_value() -> None:
     bridge = Bridge(settings())
+    _in_force(bridge, 1.0)
     bridge.on_override(override(7, 0.4, 0.0), at(0.0))
-    write(bridge, 0.001)
+    assert write(bridge, 0.001) == 0.4
     state = bridge.on_reading(reading(0.002, 1.0))  # written, not yet shown
     assert state is not None
     assert state.override_seq == -1
@@ -167,30 +173,208 @@ def test_override_seq_is_confirmed_only_by_a_read_back_showing_the_value() -> No
 
 def test_a_read_back_before_the_write_confirms_nothing() -> None:
     bridge = Bridge(settings())
+    _in_force(bridge, 1.0)
     bridge.on_override(override(3, 0.4, 0.0), at(0.0))
     state = bridge.on_reading(reading(0.001, 0.4))  # the controller shows 0.4, but the bridge wrote nothing yet
     assert state is not None
     assert state.override_seq == -1
-    write(bridge, 0.002)
+    assert write(bridge, 0.002) == pytest.approx(0.4 - 1e-4)  # 0.4 is in force: a value that proves the write
     state = bridge.on_reading(reading(0.003, 0.4))
     assert state is not None
+    assert state.override_seq == -1
+    state = bridge.on_reading(reading(0.004, 0.4 - 1e-4))
+    assert state is not None
     assert state.override_seq == 3
 
 
-def test_the_newest_override_the_read_back_shows_is_confirmed_and_older_ones_never_come_back() -> None:
+def test_a_decrease_is_written_at_once_and_supersedes_the_write_awaited_before_it() -> None:
     bridge = Bridge(settings())
-    for seq, delta, t in [(1, 0.5, 0.000), (2, 0.3, 0.002), (3, 0.3, 0.004)]:
-        bridge.on_override(override(seq, delta, t), at(t))
-        write(bridge, t)
-    state = bridge.on_reading(reading(0.005, 0.5))
+    _in_force(bridge, 1.0)
+    bridge.on_override(override(1, 0.5, 0.001), at(0.001))
+    assert write(bridge, 0.001) == 0.5
+    bridge.on_override(override(2, 0.3, 0.002), at(0.002))
+    assert write(bridge, 0.002) == 0.3  # lower than 0.5, whose read-back is awaited: at once
+    assert bridge.stats().awaiting == 2
+    state = bridge.on_reading(reading(0.003, 0.5))
     assert state is not None
     assert state.override_seq == 1
-    state = bridge.on_reading(reading(0.006, 0.3))
+    state = bridge.on_reading(reading(0.004, 0.3))
     assert state is not None
-    assert state.override_seq == 3
-    state = bridge.on_reading(reading(0.007, 0.5))  # a stale value showing again confirms nothing older
+    assert state.override_seq == 2
+    assert bridge.stats().awaiting == 0
+    state = bridge.on_reading(reading(0.005, 0.5))  # a stale value showing again confirms nothing
     assert state is not None
-    assert state.override_seq == 3
+    assert state.override_seq == 2
+
+
+def test_a_raise_waits_for_the_read_back_while_the_heartbeat_repeats_the_last_value() -> None:
+    bridge = Bridge(settings())  # heartbeat 8 ms
+    _in_force(bridge, 1.0)
+    bridge.on_override(override(1, 0.3, 0.001), at(0.001))
+    assert write(bridge, 0.001) == 0.3
+    bridge.on_override(override(2, 0.6, 0.002), at(0.002))
+    assert write(bridge, 0.002) is None  # 0.3 not yet read back, heartbeat not due
+    assert write(bridge, 0.009) == 0.3  # the heartbeat: the last value again, not a new write
+    assert bridge.stats().awaiting == 1
+    state = bridge.on_reading(reading(0.010, 0.3))
+    assert state is not None
+    assert state.override_seq == 1
+    assert bridge.stats().readback_latency_s == pytest.approx(0.009)  # from the first write of 0.3
+    assert write(bridge, 0.011) == 0.6
+    state = bridge.on_reading(reading(0.012, 0.6))
+    assert state is not None
+    assert state.override_seq == 2
+
+
+def test_a_steady_delta_alternates_between_its_value_and_one_dither_step_below() -> None:
+    bridge = Bridge(settings("abb_rws"))
+    _in_force(bridge, 1.0)
+    written = []
+    for k in range(6):
+        t = 0.001 + 0.004 * k
+        bridge.on_override(override(k, 0.567, t), at(t))
+        value = write(bridge, t + 0.001)
+        assert value is not None
+        written.append(round(value, 6))
+        state = bridge.on_reading(reading(t + 0.002, value))
+        assert state is not None
+        assert state.override_seq == k
+    assert written == [0.56, 0.55, 0.56, 0.55, 0.56, 0.55]
+    assert bridge.stats().dithered == 3
+
+
+# -- every write provable: a fake controller behind a slow link ---------------------------------------------------
+
+
+TICK_S = 0.001
+DITHER = {"ur_rtde": 1e-4, "abb_rws": 0.01}
+"""Each vendor's dither step d (``SpeedInput.dither_step``) [1]."""
+
+
+class _Link:
+    """A fake controller behind a vendor link with a one-way delay (deterministic, on integer ticks of 1 ms).
+
+    Writes reach the controller ``link_ticks`` after they were made and take effect in order; every ``period_ticks``
+    the controller samples its speed input and the reading reaches the bridge ``link_ticks`` later. The controller
+    remembers, for the value in force, when the write that *changed* it to that value was made (the truth an echo
+    claims).
+    """
+
+    def __init__(self, bridge: Bridge, link_ticks: int, period_ticks: int, heartbeat_ticks: int) -> None:
+        self.bridge = bridge
+        self.link_ticks, self.period_ticks, self.heartbeat_ticks = link_ticks, period_ticks, heartbeat_ticks
+        self.value, self.set_by_write_at = 1.0, -1.0
+        self.to_controller: list[tuple[int, float, float]] = []  # (arrival tick, value, written at [s])
+        self.to_bridge: list[tuple[int, float, float]] = []  # (arrival tick, value shown, set by the write at [s])
+        self.accepted_s: dict[int, float] = {}
+        self.newest: tuple[float, float] | None = None  # (δ, accepted at [s]) of the newest override
+        self.writes: list[tuple[float, float, float]] = []  # (t [s], value written, allowed: δ or 0 [s])
+        self.echoes: list[tuple[int, float, float, float, float]] = []
+        """(seq, confirmed at, accepted at, set by the write at [s], the value the confirming reading showed)."""
+        self.seq = 0
+        self.in_force: list[float] = []  # the controller's value at each tick
+
+    def send(self, k: int, delta: float) -> None:
+        t = k * TICK_S
+        assert self.bridge.on_override(override(self.seq, delta, t), at(t)) is None
+        self.accepted_s[self.seq] = t
+        self.newest = (delta, t)
+        self.seq += 1
+
+    def step(self, k: int, wake: bool) -> None:
+        """One tick: the writer (on a wake or its heartbeat), the controller, the readings."""
+        t = k * TICK_S
+        if wake or k % self.heartbeat_ticks == 0:
+            value = self.bridge.next_write(at(t))
+            if value is not None:
+                self.bridge.on_written(value, at(t))
+                self.to_controller.append((k + self.link_ticks, value, t))
+                self.writes.append((t, value, self._allowed(t)))
+        while self.to_controller and self.to_controller[0][0] <= k:
+            _, value, written_s = self.to_controller.pop(0)
+            if value != self.value:
+                self.value, self.set_by_write_at = value, written_s
+        self.in_force.append(self.value)
+        if k % self.period_ticks == 0:
+            self.to_bridge.append((k + self.link_ticks, self.value, self.set_by_write_at))
+        while self.to_bridge and self.to_bridge[0][0] <= k:
+            _, shown, set_at = self.to_bridge.pop(0)
+            before = self.bridge.stats().override_seq
+            state = self.bridge.on_reading(reading(t, shown))
+            if state is not None and state.override_seq != before:
+                seq = state.override_seq
+                self.echoes.append((seq, t, self.accepted_s[seq], set_at, shown))
+
+    def _allowed(self, t: float) -> float:
+        if self.newest is None or at(t).mono_ns - at(self.newest[1]).mono_ns > self.bridge.settings.watchdog_s * 1e9:
+            return 0.0
+        return self.newest[0]
+
+    def run(self, deltas: list[float | None], every_ticks: int = 4) -> None:
+        """One override every ``every_ticks`` with ``deltas[i]`` (None: the gateway is silent then)."""
+        for k in range(len(deltas) * every_ticks):
+            delta = deltas[k // every_ticks] if k % every_ticks == 0 else None
+            if delta is not None:
+                self.send(k, delta)
+            self.step(k, wake=delta is not None)
+
+
+def _slow_link(kind: str, link_s: float) -> _Link:
+    period = 2 if kind == "ur_rtde" else 20  # RTDE's 500 Hz, ABB polled at 50 Hz
+    heartbeat = 8 if kind == "ur_rtde" else 40
+    bridge_settings = BridgeSettings(
+        robot="ur5",
+        speed_input=SPEED_INPUTS[kind],
+        velocity_limit_radps=LIMITS,
+        braking_time_s=T_B,
+        watchdog_s=0.1,
+        heartbeat_s=heartbeat * TICK_S,
+    )
+    return _Link(Bridge(bridge_settings), round(link_s / TICK_S), period, heartbeat)
+
+
+@pytest.mark.parametrize("kind", ["ur_rtde", "abb_rws"])
+def test_with_a_steady_delta_every_echo_proves_the_slow_link(kind: str) -> None:
+    """0.3 s each way: every override is confirmed by a reading of a value written after it was accepted, so the
+    echo's latency (what the gateway measures) carries both ways of the link. The old rule confirmed a steady δ by
+    the next reading: 2 ms (RTDE) or 20 ms (RWS) after it arrived."""
+    link_s = 0.3
+    sim = _slow_link(kind, link_s)
+    sim.run([0.55] * 1000)  # 4 s at the gateway's 250 Hz
+    steady = [e for e in sim.echoes if e[2] > 1.0]
+    assert len(steady) >= 3, sim.echoes
+    for seq, confirmed_s, accepted_s, set_by_write_at_s, _ in steady:
+        assert set_by_write_at_s >= accepted_s, f"seq {seq} confirmed by a value in force before it arrived"
+        assert confirmed_s - accepted_s >= 2 * link_s - 1e-9, (seq, confirmed_s - accepted_s)
+    latency = sim.bridge.stats().readback_latency_s
+    assert latency is not None
+    assert latency >= 2 * link_s - 1e-9
+
+
+@pytest.mark.parametrize("kind", ["ur_rtde", "abb_rws"])
+def test_a_write_is_never_above_delta_and_every_echo_is_proven_above_the_floor(kind: str) -> None:
+    """Seeded random δ sequences (steps, ramps, zeros, the floor, silences) over random links."""
+    rng = random.Random(1919 + len(kind))
+    floor = SPEED_INPUTS[kind].floor
+    for _ in range(12):
+        sim = _slow_link(kind, rng.choice([0.0, 0.003, 0.02, 0.1]))
+        deltas: list[float | None] = []
+        while len(deltas) < 400:
+            choice = rng.random()
+            held = rng.choice([0.0, floor, floor + 0.004, 1.0, rng.random(), rng.random()])
+            if choice < 0.1:
+                deltas += [None] * rng.randint(1, 40)  # the gateway silent (the watchdog at 25 overrides)
+            elif choice < 0.3:  # a ramp
+                deltas += [min(1.0, max(0.0, held + 0.002 * i * rng.choice([-1, 1]))) for i in range(40)]
+            else:
+                deltas += [held] * rng.randint(1, 60)
+        sim.run(deltas)
+        assert sim.writes
+        for t, value, allowed in sim.writes:
+            assert value <= allowed + 1e-12, (t, value, allowed)
+        for seq, confirmed_s, accepted_s, set_by_write_at_s, shown in sim.echoes:
+            if shown >= floor + DITHER[kind] - 1e-9:  # at the floor: the old rule (proves nothing)
+                assert set_by_write_at_s >= accepted_s, (seq, confirmed_s, accepted_s, set_by_write_at_s)
 
 
 # -- ramps ------------------------------------------------------------------------------------------------
@@ -339,3 +523,33 @@ def test_interface_errors_are_counted_by_reason() -> None:
     bridge.count_rejected("timeout")
     bridge.count_rejected("malformed")
     assert bridge.stats().rejected == {"malformed": 1, "timeout": 2}
+
+
+@pytest.mark.parametrize(
+    ("kind", "delta"), [("abb_rws", 0.015), ("ur_rtde", 0.01005), ("ur_rtde", 0.0), ("abb_rws", 0.0)]
+)
+def test_at_the_floor_and_at_zero_the_bridge_writes_delta_and_still_confirms(kind: str, delta: float) -> None:
+    """No lower value to dither to (below the floor is the vendor's stop): the write repeats the value in force and
+    the next reading confirms it (the old rule; the robot crawls or stands, the next raise is measured)."""
+    sim = _slow_link(kind, 0.02)
+    sim.run([delta] * 250)
+    expected = quantise(delta, SPEED_INPUTS[kind])
+    assert {round(value, 9) for _, value, _ in sim.writes} == {round(expected, 9)}
+    assert sim.echoes, "overrides at the floor are still confirmed"
+    assert sim.echoes[-1][0] >= 240
+    assert sim.bridge.stats().unprovable > 0
+
+
+@pytest.mark.parametrize("kind", ["ur_rtde", "abb_rws"])
+def test_the_dither_costs_about_half_a_step_of_speed(kind: str) -> None:
+    """Stop-and-wait over a fast link (1 ms each way): with a steady δ the controller alternates between quantise(δ)
+    and one dither step below; the mean reduction (time-weighted, against quantise(δ)) stays within 0.7 d."""
+    rng = random.Random(7)
+    reductions = []
+    for _ in range(5):
+        delta = rng.uniform(0.1, 1.0)
+        sim = _slow_link(kind, 0.001)
+        sim.run([delta] * 500)
+        settled = sim.in_force[200:]
+        reductions.append(quantise(delta, SPEED_INPUTS[kind]) - sum(settled) / len(settled))
+    assert all(-1e-12 <= r <= 0.7 * DITHER[kind] for r in reductions), reductions

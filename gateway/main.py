@@ -576,7 +576,7 @@ def cli(argv: list[str] | None = None) -> None:
         try:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
-            ros2_options = ros2_session_options(args, config.ros2) if config.ros2.enabled else None
+            ros2_options = ros2_session_options(args, config) if config.ros2.enabled else None
             check_ros2_inputs(config, ros2_options, plain_tcp_allowed(args))
             wake = stop.wake_event() if config.gateway.event_driven else None
             recorder = None if args.record is None else GatewayRecorder(args.record, config)

@@ -17,7 +17,9 @@ and ``hrc_markers`` (``visualization_msgs/MarkerArray``: each robot link and hum
 SPHERE at each end, coloured by zone, after a DELETEALL so that people who left vanish in RViz).
 
 The face never runs on the safety loop's thread: :meth:`Ros2Face.offer` costs the loop an append and an eventfd
-write, and drops what comes sooner than ``publish_rate_hz`` allows. It reads nothing from ROS 2.
+write, and drops what comes sooner than ``publish_rate_hz`` allows. The face reads nothing from ROS 2; the cell's
+ROS 2 trackers are subscribed on its session (:mod:`gateway.ros2_trackers`), under the session's access control
+(:func:`ros2_policy`).
 """
 
 from __future__ import annotations
@@ -38,12 +40,27 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import zenoh
 
+from gateway.ros2_trackers import tracker_wires, trackers_node_name
 from gateway.status import cycle_status
-from hrc_contract.config import CellConfig, Ros2Config
+from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
+from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
 from hrc_runtime.pki import default_pki_dir
 from hrc_runtime.realtime import collections_paused
-from hrc_runtime.rmw_zenoh import Distro, Ros2Node, Ros2Publisher, new_message, serialize
+from hrc_runtime.rmw_zenoh import (
+    ADMIN_SPACE,
+    Distro,
+    Ros2Node,
+    Ros2Publisher,
+    TopicType,
+    endpoint_token,
+    fully_qualified_name,
+    new_message,
+    node_token,
+    serialize,
+    topic_key,
+    topic_type,
+)
 from hrc_runtime.robot_model import RobotModel
 from hrc_runtime.zenoh_session import (
     PLAIN_TCP_LOOPBACK,
@@ -60,7 +77,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("hrc-gateway.ros2")
 
-ROS2_COMMON_NAME = "ros2"
+ROS2_COMMON_NAME = ROS2_FACE
 """The certificate CN of the face's own session when its endpoints are TLS (issued in ``--pki-dir`` on first start)."""
 
 FLOAT64 = "std_msgs/msg/Float64"
@@ -379,28 +396,101 @@ class Ros2Face:
 # ------------------------------------------------------------------------------------------- session and start
 
 
-def ros2_session_options(args: argparse.Namespace, ros2: Ros2Config) -> SessionOptions:
-    """How the face's own session joins the ROS 2 side (``args``: the gateway's command line, for ``--pki-dir``).
+def published_topics(config: CellConfig) -> list[tuple[str, str]]:
+    """(topic, message type) of every publisher of the face, relative to ``[ros2] namespace``: per robot its speed
+    override and joint states, then the diagnostics and the markers."""
+    ros2 = config.ros2
+    topics = []
+    for robot in sorted(config.robots):
+        token = ros_token(robot)
+        topics += [
+            (f"{token}/{ros2.speed_override_topic}", FLOAT64),
+            (f"{token}/{ros2.joint_states_topic}", JOINT_STATE),
+        ]
+    return [*topics, (ros2.diagnostics_topic, DIAGNOSTIC_ARRAY), (ros2.markers_topic, MARKER_ARRAY)]
 
-    TLS endpoints: mutual TLS as CN :data:`ROS2_COMMON_NAME` from ``--pki-dir``, without the cell's access control
-    (the session carries only the face's own puts; it subscribes to nothing). Plain ``tcp/`` endpoints: loopback
-    only (the host's rmw_zenohd router), allowed without ``--insecure-plain-tcp`` because nothing is read from them.
+
+RUN_TIME_CHUNKS = (2, 3, 4)
+"""Chunks of an rmw_zenoh liveliness key chosen at run time: the session's Zenoh id, the node's and entity's ids."""
+NODE_CHUNKS = (6, 7, 8)
+"""The enclave, namespace and node name of a liveliness key: a tracker's own (a ZED wrapper's ``zed_node``)."""
+TYPE_CHUNKS = (10, 11)
+QOS_CHUNK = 12
+ANY_TYPE = TopicType("*", "*", "*")
+
+
+def token_expr(token: str, wildcards: Sequence[int]) -> str:
+    """An rmw_zenoh liveliness key with the chunks at ``wildcards`` (``/``-separated, from 0) replaced by ``*``."""
+    chunks = token.split("/")
+    for i in wildcards:
+        chunks[i] = "*"
+    return "/".join(chunks)
+
+
+def ros2_policy(config: CellConfig) -> Ros2Policy:
+    """The ROS 2 session's access control (:class:`hrc_runtime.access_control.Ros2Policy`) from the cell's keys.
+
+    The face may put exactly its publishers' data keys and declare its two nodes' tokens (``<node_name>`` and its
+    trackers' node) and its publishers' and subscriptions' tokens; a ROS 2 tracker may put on its own topic (any
+    type and hash: a wrong one is then counted at the gateway) and declare a node's token and its topic's publisher
+    token; members read the domain (``<domain>/**``, ``@ros2_lv/<domain>/**``).
+
+    Raises:
+        ConfigError: an unknown distro, a bad topic or node name.
+    """
+    ros2 = config.ros2
+    domain, ns, node = ros2.domain_id, ros2.namespace, ros2.node_name
+    puts: list[str] = []
+    tokens = [token_expr(node_token(domain, "0", 0, ns, name), RUN_TIME_CHUNKS)
+              for name in (node, trackers_node_name(ros2))]  # fmt: skip
+    for topic, msgtype in published_topics(config):
+        fq_name, wire = fully_qualified_name(ns, topic), topic_type(ros2.distro, msgtype)
+        puts.append(topic_key(domain, fq_name, wire))
+        token = endpoint_token("MP", domain, "0", 0, 0, ns, node, fq_name, wire)
+        tokens.append(token_expr(token, (*RUN_TIME_CHUNKS, QOS_CHUNK)))
+    trackers = []
+    for name, (fq_name, wire) in tracker_wires(config).items():
+        token = endpoint_token("MS", domain, "0", 0, 0, ns, trackers_node_name(ros2), fq_name, wire)
+        tokens.append(token_expr(token, (*RUN_TIME_CHUNKS, QOS_CHUNK)))
+        publisher = endpoint_token("MP", domain, "0", 0, 0, "/", "n", fq_name, wire)
+        own_tokens = (
+            token_expr(node_token(domain, "0", 0, "/", "n"), (*RUN_TIME_CHUNKS, *NODE_CHUNKS)),
+            token_expr(publisher, (*RUN_TIME_CHUNKS, *NODE_CHUNKS, *TYPE_CHUNKS, QOS_CHUNK)),
+        )
+        trackers.append((name, Ros2Rights((topic_key(domain, fq_name, ANY_TYPE),), own_tokens)))
+    read = (f"{domain}/**", f"{ADMIN_SPACE}/{domain}/**")
+    return Ros2Policy(read, Ros2Rights(tuple(puts), tuple(tokens)), tuple(trackers))
+
+
+def ros2_session_options(args: argparse.Namespace, config: CellConfig) -> SessionOptions:
+    """How the gateway's ROS 2 session joins the ROS 2 side (``args``: the gateway's command line, for
+    ``--pki-dir``); the face publishes on it and the cell's ROS 2 trackers are read from it.
+
+    TLS endpoints: mutual TLS as CN :data:`ROS2_COMMON_NAME` from ``--pki-dir``, with the ROS 2 session's access
+    control (:func:`ros2_policy`: only a tracker's own certificate, or the tracker emulator's, may put on its topic).
+    Plain ``tcp/`` endpoints: loopback only (the host's rmw_zenohd router), no authentication and no access control;
+    a cell that reads trackers from them also needs ``--insecure-plain-tcp``
+    (:func:`gateway.ros2_trackers.check_ros2_inputs`), one that only publishes does not.
 
     Raises:
         SecurityError: plain TCP off loopback, or TLS and plain endpoints mixed.
         PkiError: the ``ros2`` identity cannot be had.
+        ConfigError: see :func:`ros2_policy`.
     """
+    ros2 = config.ros2
     endpoints = [*ros2.listen, *ros2.connect]
     if all(endpoint_protocol(e) == "tls" for e in endpoints):
         hosts = [endpoint_host(e) for e in ros2.listen]
         pki_dir = Path(args.pki_dir) if getattr(args, "pki_dir", None) else default_pki_dir()
-        return SessionOptions(ros2.mode, mutual_tls(pki_dir, ROS2_COMMON_NAME, None, hosts))
+        return SessionOptions(ros2.mode, mutual_tls(pki_dir, ROS2_COMMON_NAME, ros2_policy(config), hosts))
     options = SessionOptions(ros2.mode, PLAIN_TCP_LOOPBACK.tls)
     check_endpoints(endpoints, options)
+    reads = any(t.ros2 is not None for t in config.trackers.values())
     log.warning(
-        "ROS 2 face on plain TCP (%s): loopback only, unauthenticated; it publishes robot state and people's "
-        "positions to anyone on this host and reads nothing",
+        "ROS 2 session on plain TCP (%s): loopback only, unauthenticated, no access control; it publishes robot "
+        "state and people's positions to anyone on this host%s",
         ", ".join(endpoints),
+        " and reads the ROS 2 trackers from anyone on this host (--insecure-plain-tcp)" if reads else "",
     )
     return options
 

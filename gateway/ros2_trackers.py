@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 import zenoh
 
 from hrc_contract import keys
-from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2TrackerInput
+from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2Config, Ros2TrackerInput
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
 from hrc_runtime import ros2_people
 from hrc_runtime.clocks import Clocks, read_clocks
@@ -68,6 +68,26 @@ SENSOR_DATA_QOS = Qos(reliability=2, durability=2, history=1, depth=5)
 NODE_ID = 1000
 """The trackers' node id in the ROS 2 session. rmw_zenoh numbers nodes and endpoints of a session from one counter;
 the face's node counts from 0, so this node's ids start far above its few endpoints."""
+
+
+def trackers_node_name(ros2: Ros2Config) -> str:
+    """The trackers' node: ``<node_name>_trackers``, beside the face's node on the same session."""
+    return f"{ros2.node_name}_trackers"
+
+
+def tracker_wires(config: CellConfig) -> dict[str, tuple[str, TopicType]]:
+    """Each ROS 2 tracker's (fully qualified topic, type on the wire).
+
+    Raises:
+        ConfigError: an unknown distro, a topic that is not a ROS name.
+    """
+    ros2 = config.ros2
+    return {
+        name: (fully_qualified_name(ros2.namespace, t.ros2.topic), topic_type(ros2.distro, MSGTYPES[t.ros2.format]))
+        for name, t in sorted(config.trackers.items())
+        if t.ros2 is not None
+    }
+
 
 Door = Callable[[str, bytes, Clocks], None]
 """Where a converted frame goes: (the tracker's cell key, ``hrc.humans/1`` payload, arrival clocks)."""
@@ -334,7 +354,7 @@ def running_ros2_trackers(
     if session is None:
         raise ConfigError("the cell has ROS 2 trackers but no ROS 2 session; allowed: [ros2] enabled = true")
     ros2 = config.ros2
-    node = Ros2Node(session, f"{ros2.node_name}_trackers", ros2.namespace, ros2.domain_id, ros2.distro, NODE_ID)
+    node = Ros2Node(session, trackers_node_name(ros2), ros2.namespace, ros2.domain_id, ros2.distro, NODE_ID)
     trackers = declare(node, subscriptions, config)
     try:
         yield trackers

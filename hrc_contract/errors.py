@@ -13,7 +13,8 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     ├── MessageError       (hrc_contract.messages)         a payload that is not a valid message: count it, fail
     │   │                                                  closed
     │   ├── SkeletonError  (hrc_runtime.skeletons)         keypoints that cannot describe a person
-    │   └── Ros2MessageError (hrc_runtime.ros2_people)     a ROS 2 tracker message that does not decode or is absurd
+    │   ├── Ros2MessageError (hrc_runtime.ros2_people)     a ROS 2 tracker message that does not decode or is absurd
+    │   └── Ros2TrackerError (gateway.ros2_trackers)       a ROS 2 tracker sample refused before it is decoded
     ├── DigestError        (hrc_runtime.http_digest)       an HTTP Digest header that does not parse: refuse it (401)
     ├── AttachmentError    (hrc_runtime.rmw_zenoh)         an rmw_zenoh sample attachment that rmw_zenoh would drop
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read

@@ -15,7 +15,11 @@ recorder       ``recorder``           nothing: subscribes to every cell topic (`
 operator       ``operator``           only ``hrc/<cell>/operator/track_reset``: an operator's reset of a lost person
 router         ``router``             forwards what its own access control let in
 relay          ``relay``              forwards (fault injection); controls itself
+ros2           ``ros2``               on the ROS 2 session only: the topics of the gateway's ROS 2 face
 =============  =====================  ===========================================================
+
+On the gateway's ROS 2 session (``[ros2]``), a ``tracker-<name>`` certificate may put only that tracker's ROS 2
+topic, ``tracker-emu`` every ROS 2 tracker's, and no other role anything (:class:`access_control.Ros2Policy`).
 
 Layout of the folder (default ``$HRC_STATE_DIR/pki``, else ``<repo>/.state/pki``; mode 0700)::
 
@@ -57,7 +61,9 @@ CERT_VALIDITY_DAYS = 730
 EXPIRY_WARNING_DAYS = 30
 LOOPBACK_HOSTS = ("localhost", "127.0.0.1", "::1")
 
-Role = Literal["gateway", "controller", "tracker", "tracker-emu", "observer", "recorder", "operator", "router", "relay"]
+Role = Literal[
+    "gateway", "controller", "tracker", "tracker-emu", "observer", "recorder", "operator", "router", "relay", "ros2"
+]
 ROLES: tuple[Role, ...] = get_args(Role)
 NAMED_ROLES: tuple[Role, ...] = ("controller", "tracker", "observer")
 """Roles whose common name carries a name: ``<role>-<name>``; the others are the role alone."""

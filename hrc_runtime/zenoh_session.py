@@ -27,7 +27,7 @@ from typing import Any, Literal
 import zenoh
 
 from hrc_contract.config import CellConfig, ConfigError
-from hrc_runtime.access_control import CellPolicy, zenoh_access_control
+from hrc_runtime.access_control import CellPolicy, Ros2Policy, zenoh_access_control
 from hrc_runtime.pki import LOOPBACK_HOSTS, CellPki, Identity, certificate_info, default_pki_dir
 
 log = logging.getLogger("hrc.zenoh")
@@ -52,12 +52,13 @@ class MutualTls:
     Attributes:
         ca_certificate: the cell CA's certificate: only peers with a certificate it signed can connect.
         identity: this session's own certificate and key.
-        policy: the cell's access control (default deny); None for none (test tools only: an intruder).
+        policy: the cell's access control (default deny), or the ROS 2 session's; None for none (test tools only:
+            an intruder).
     """
 
     ca_certificate: Path
     identity: Identity
-    policy: CellPolicy | None
+    policy: CellPolicy | Ros2Policy | None
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,12 @@ def session_config(
 
 
 def mutual_tls(
-    pki_dir: Path, common_name: str, policy: CellPolicy | None, hosts: Sequence[str] = (), *, create: bool = True
+    pki_dir: Path,
+    common_name: str,
+    policy: CellPolicy | Ros2Policy | None,
+    hosts: Sequence[str] = (),
+    *,
+    create: bool = True,
 ) -> MutualTls:
     """Mutual TLS as ``common_name`` from the PKI folder; the identity is issued there if missing and ``create``.
 

@@ -21,6 +21,7 @@ import threading
 import zenoh
 
 from hrc_contract.config import ConfigError
+from hrc_runtime.access_control import CellPolicy
 from hrc_runtime.cli import add_config_argument, add_security_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
@@ -51,7 +52,7 @@ def run_router(listen: list[str], connect: list[str], options: SessionOptions, s
             "INSECURE plain TCP"
             if options.tls is None
             else f"mutual TLS as {options.tls.identity.common_name!r}, access control of cell "
-            f"{options.tls.policy.cell if options.tls.policy else '-'}",
+            f"{options.tls.policy.cell if isinstance(options.tls.policy, CellPolicy) else '-'}",
         )
         stop.wait()
     log.info("stopped")

@@ -34,30 +34,28 @@ from typing import Any, NamedTuple
 import numpy as np
 import zenoh
 
-from bench._report import Report, default_json_path, print_header, summary, table
+from bench._report import Report, default_json_path, print_header, summary
 from bench.reaction import (
     FORGET_LOST,
     PING_KEY,
-    TRACKER,
     Reaction,
     Recorder,
     RunSettings,
     Sample,
     Sender,
-    _ready,
     bench_config,
+    latency_table,
     match_reactions,
+    open_bench_session,
+    recorder_subscribers,
+    warm_up,
 )
 from hrc_contract import keys
 from hrc_contract.config import AbbRwsInterfaceConfig, CellConfig, UrRtdeInterfaceConfig
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.launcher import EMULATOR_RWS_PASSWORD, vendor_face_args
 from hrc_tools.cell.procs import (
-    StartupError,
-    exited_programs,
     free_port,
-    log_tail,
     programs,
     unsafe_test_settings,
     wait_for,
@@ -179,47 +177,23 @@ def run_interface(
         )
         recorder = Recorder(robot, [], [], [])
         extra = Extra(robot)
-        with programs(specs) as procs:
-            try:
-                session_cm = zenoh.open(session_config(listen=[bench_ep], connect=[gw_ep]))
-            except zenoh.ZError as exc:
-                raise StartupError(f"cannot open this process's Zenoh session on {bench_ep}: {exc}") from None
-            with session_cm as session:
-                cell = config.cell
-                subscribers = [
-                    session.declare_subscriber(keys.robot_override(cell, robot), recorder.on_override),
-                    session.declare_subscriber(keys.robot_state(cell, robot), recorder.on_state),
-                    session.declare_subscriber(keys.gateway_status(cell), recorder.on_status),
-                    session.declare_subscriber(keys.gateway_status(cell), extra.on_status),
-                    session.declare_subscriber(keys.truth_robot_state(cell, robot), extra.on_truth),
-                    session.declare_subscriber(keys.robot_bridge_stats(cell, robot), extra.on_bridge_stats),
-                ]
-                tracker_pub = session.declare_publisher(
-                    keys.tracker_humans(cell, TRACKER), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
-                )
-                ping_pub = session.declare_publisher(PING_KEY, express=True)
-                sender = Sender(tracker_pub, ping_pub, settings, random.Random(settings.seed))
-                spec_logs = [log for _, _, log in specs]
-                sender.send_until(
-                    None,
-                    time.monotonic() + settings.warmup_timeout_s,
-                    done=lambda: _ready(recorder) or exited_programs(procs, spec_logs) is not None,
-                )
-                exited = exited_programs(procs, spec_logs)
-                if exited is not None:
-                    raise StartupError(exited)
-                if not _ready(recorder):
-                    raise StartupError(
-                        f"no fault-free status within {settings.warmup_timeout_s} s:\n" + log_tail(logs["gateway"])
-                    )
-                sender.send_until(None, time.monotonic() + settings.settle_s)
-                first = len(sender.samples)
-                marks = (len(extra.override_path_s), len(recorder.statuses))
-                on_sent = None if on_progress is None else (lambda sent: on_progress(sent - first))
-                sender.send_until(first + settings.samples, None, on_sent=on_sent)
-                end = len(sender.samples)
-                sender.send_until(None, time.monotonic() + 0.5)
-                del subscribers, tracker_pub, ping_pub
+        with programs(specs) as procs, open_bench_session(bench_ep, gw_ep) as session:
+            cell = config.cell
+            subscribers = [
+                *recorder_subscribers(session, cell, robot, recorder),
+                session.declare_subscriber(keys.gateway_status(cell), extra.on_status),
+                session.declare_subscriber(keys.truth_robot_state(cell, robot), extra.on_truth),
+                session.declare_subscriber(keys.robot_bridge_stats(cell, robot), extra.on_bridge_stats),
+            ]
+            sender = Sender.declared(session, cell, settings)
+            warm_up(sender, recorder, procs, specs, logs["gateway"], settings)
+            first = len(sender.samples)
+            marks = (len(extra.override_path_s), len(recorder.statuses))
+            on_sent = None if on_progress is None else (lambda sent: on_progress(sent - first))
+            sender.send_until(first + settings.samples, None, on_sent=on_sent)
+            end = len(sender.samples)
+            sender.send_until(None, time.monotonic() + 0.5)
+            del subscribers
         wait_for(peer_out.exists, 10.0, "the one-way peer's results", [])
     return analyse(kind, sender.samples, (first, end), recorder, extra, marks, echo=not face)
 
@@ -289,18 +263,14 @@ def main(argv: list[str] | None = None) -> int:
         "Figures on a shared 2-core machine are indicative: see load_average.",
     ]
     doc = report.finish(args.json)
-    rows = []
-    for r in runs:
-        for label, key in (
-            ("→ decision", "decision_ms"),
-            ("→ applied by the emulator", "applied_by_emulator_ms"),
-            ("→ applied (echo)", "applied_by_echo_ms"),
-            ("bridge read-back latency", "bridge_readback_latency_ms"),
-            ("gateway override path", "gateway_override_path_ms"),
-        ):
-            s = r[key]
-            rows.append([f"{r['interface']} {label}", s.get("n"), s.get("p50"), s.get("p99"), s.get("max")])
-    print("\n" + table(["latency [ms]", "n", "p50", "p99", "max"], rows))
+    figures = (
+        ("→ decision", "decision_ms"),
+        ("→ applied by the emulator", "applied_by_emulator_ms"),
+        ("→ applied (echo)", "applied_by_echo_ms"),
+        ("bridge read-back latency", "bridge_readback_latency_ms"),
+        ("gateway override path", "gateway_override_path_ms"),
+    )
+    print("\n" + latency_table(runs, lambda r: str(r["interface"]), figures))
     for r in runs:
         print(
             f"{r['interface']}: matched {r['samples_matched']}/{r['samples_sent']}, not told (at bound) "

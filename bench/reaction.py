@@ -34,7 +34,7 @@ import json
 import random
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -50,6 +50,7 @@ from hrc_contract.config import CellConfig, TrackerConfig
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import (
+    Program,
     StartupError,
     exited_programs,
     free_port,
@@ -362,6 +363,66 @@ class Sender:
             if done is not None and done():
                 return
 
+    @classmethod
+    def declared(cls, session: zenoh.Session, cell: str, settings: RunSettings) -> Sender:
+        """A sender putting on the bench tracker's key and :data:`PING_KEY`, both declared on ``session``."""
+        tracker_pub = session.declare_publisher(
+            keys.tracker_humans(cell, TRACKER), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
+        )
+        ping_pub = session.declare_publisher(PING_KEY, express=True)
+        return cls(tracker_pub, ping_pub, settings, random.Random(settings.seed))
+
+
+def open_bench_session(bench_ep: str, gw_ep: str) -> zenoh.Session:
+    """This process's Zenoh session: listening on ``bench_ep`` (the one-way peer connects), connected to ``gw_ep``.
+
+    Raises:
+        StartupError: it cannot be opened (e.g. the port was taken since ``free_port()`` chose it).
+    """
+    try:
+        return zenoh.open(session_config(listen=[bench_ep], connect=[gw_ep]))
+    except zenoh.ZError as exc:
+        raise StartupError(f"cannot open this process's Zenoh session on {bench_ep}: {exc}") from None
+
+
+def recorder_subscribers(session: zenoh.Session, cell: str, robot: str, recorder: Recorder) -> list[Any]:
+    """``robot``'s overrides and states and the gateway's status, each to ``recorder`` (keep them until the end)."""
+    return [
+        session.declare_subscriber(keys.robot_override(cell, robot), recorder.on_override),
+        session.declare_subscriber(keys.robot_state(cell, robot), recorder.on_state),
+        session.declare_subscriber(keys.gateway_status(cell), recorder.on_status),
+    ]
+
+
+def warm_up(
+    sender: Sender,
+    recorder: Recorder,
+    procs: list[Program],
+    specs: list[tuple[str, list[str], Path]],
+    gateway_log: Path,
+    settings: RunSettings,
+) -> None:
+    """Send until the gateway reports no fault (fresh data, override path confirmed), then ``settle_s`` more.
+
+    Raises:
+        StartupError: a program exited, or no fault-free status within ``warmup_timeout_s`` (with the gateway's log).
+    """
+    spec_logs = [log for _, _, log in specs]
+    sender.send_until(
+        None,
+        time.monotonic() + settings.warmup_timeout_s,
+        done=lambda: _ready(recorder) or exited_programs(procs, spec_logs) is not None,
+    )
+    exited = exited_programs(procs, spec_logs)
+    if exited is not None:
+        raise StartupError(exited)
+    if not _ready(recorder):
+        raise StartupError(
+            f"the gateway did not report a fault-free status within {settings.warmup_timeout_s} s:\n"
+            + log_tail(gateway_log)
+        )
+    sender.send_until(None, time.monotonic() + settings.settle_s)
+
 
 def run_once(
     base: CellConfig, settings: RunSettings, work_dir: Path, on_progress: Callable[[int], None] | None = None
@@ -406,48 +467,20 @@ def _run_programs(
     samples: list[Sample] = []
     measured_from = measured_to = 0
     cell = base.cell
-    with programs(specs) as procs:
-        try:
-            session_cm = zenoh.open(session_config(listen=[bench_ep], connect=[gw_ep]))
-        except zenoh.ZError as exc:  # e.g. the port was taken since free_port() chose it
-            raise StartupError(f"cannot open this process's Zenoh session on {bench_ep}: {exc}") from None
-        with session_cm as session:
-            subscribers = [
-                session.declare_subscriber(keys.robot_override(cell, robot), recorder.on_override),
-                session.declare_subscriber(keys.robot_state(cell, robot), recorder.on_state),
-                session.declare_subscriber(keys.gateway_status(cell), recorder.on_status),
-            ]
-            tracker_pub = session.declare_publisher(
-                keys.tracker_humans(cell, TRACKER), encoding=zenoh.Encoding.APPLICATION_JSON, express=True
-            )
-            ping_pub = session.declare_publisher(PING_KEY, express=True)
-            sender = Sender(tracker_pub, ping_pub, settings, random.Random(settings.seed))
-            samples = sender.samples
-            # Warm-up: samples flow until the gateway reports no fault (fresh data, override path confirmed).
-            spec_logs = [log for _, _, log in specs]
-            sender.send_until(
-                None,
-                time.monotonic() + settings.warmup_timeout_s,
-                done=lambda: _ready(recorder) or exited_programs(procs, spec_logs) is not None,
-            )
-            exited = exited_programs(procs, spec_logs)
-            if exited is not None:
-                raise StartupError(exited)
-            if not _ready(recorder):
-                raise StartupError(
-                    f"the gateway did not report a fault-free status within {settings.warmup_timeout_s} s:\n"
-                    + log_tail(logs["gateway"])
-                )
-            sender.send_until(None, time.monotonic() + settings.settle_s)
-            measured_from = len(samples)
-            status_before = len(recorder.statuses)
-            on_sent = None if on_progress is None else (lambda sent: on_progress(sent - measured_from))
-            sender.send_until(measured_from + settings.samples, None, on_sent=on_sent)
-            measured_to = len(samples)
-            # More samples, not measured: keep the data fresh while the last overrides and states arrive.
-            sender.send_until(None, time.monotonic() + max(0.3, 3.0 / settings.rate_hz))
-            del subscribers, tracker_pub, ping_pub
-        # Sessions closed; now the programs (and the peer writes its file on SIGINT).
+    with programs(specs) as procs, open_bench_session(bench_ep, gw_ep) as session:
+        subscribers = recorder_subscribers(session, cell, robot, recorder)
+        sender = Sender.declared(session, cell, settings)
+        samples = sender.samples
+        warm_up(sender, recorder, procs, specs, logs["gateway"], settings)
+        measured_from = len(samples)
+        status_before = len(recorder.statuses)
+        on_sent = None if on_progress is None else (lambda sent: on_progress(sent - measured_from))
+        sender.send_until(measured_from + settings.samples, None, on_sent=on_sent)
+        measured_to = len(samples)
+        # More samples, not measured: keep the data fresh while the last overrides and states arrive.
+        sender.send_until(None, time.monotonic() + max(0.3, 3.0 / settings.rate_hz))
+        del subscribers
+    # The session closed, then the programs (and the peer wrote its file on SIGINT).
     wait_for(peer_out.exists, 10.0, "the one-way peer's results", [])
     oneway = json.loads(peer_out.read_text())
     return analyse(settings, samples, (measured_from, measured_to), recorder, status_before, oneway)
@@ -614,19 +647,27 @@ def run(
     return report
 
 
-def print_report(doc: dict[str, Any]) -> None:
+def latency_table(
+    runs: list[dict[str, Any]], run_name: Callable[[dict[str, Any]], str], figures: Sequence[tuple[str, str]]
+) -> str:
+    """A table of each run's latency summaries [ms]: a row (n, p50, p99, max) per run and ``(label, key)`` figure."""
     rows = []
-    for r in doc["results"]["runs"]:
-        for label, key in (
-            ("Zenoh one-way (floor)", "zenoh_oneway_floor_ms"),
-            ("→ decision (cycle start)", "decision_ms"),
-            ("→ decision, unmatched at lower bound", "decision_ms_with_unreflected_at_lower_bound"),
-            ("→ published (received)", "published_received_ms"),
-            ("→ applied by controller", "applied_ms"),
-        ):
+    for r in runs:
+        for label, key in figures:
             s = r[key]
-            rows.append([f"{r['rate_hz']:g} Hz {label}", s.get("n"), s.get("p50"), s.get("p99"), s.get("max")])
-    print("\n" + table(["latency [ms]", "n", "p50", "p99", "max"], rows))
+            rows.append([f"{run_name(r)} {label}", s.get("n"), s.get("p50"), s.get("p99"), s.get("max")])
+    return table(["latency [ms]", "n", "p50", "p99", "max"], rows)
+
+
+def print_report(doc: dict[str, Any]) -> None:
+    figures = (
+        ("Zenoh one-way (floor)", "zenoh_oneway_floor_ms"),
+        ("→ decision (cycle start)", "decision_ms"),
+        ("→ decision, unmatched at lower bound", "decision_ms_with_unreflected_at_lower_bound"),
+        ("→ published (received)", "published_received_ms"),
+        ("→ applied by controller", "applied_ms"),
+    )
+    print("\n" + latency_table(doc["results"]["runs"], lambda r: f"{r['rate_hz']:g} Hz", figures))
     for r in doc["results"]["runs"]:
         print(
             f"{r['rate_hz']:g} Hz: wait for the next tick alone (fixed rate): "

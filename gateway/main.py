@@ -16,15 +16,12 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
-import os
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import TracebackType
 from typing import Any, NamedTuple
 
 import zenoh
@@ -34,6 +31,7 @@ from gateway.bridge_view import BridgeView
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
+from gateway.handoff import LatestJobThread
 from gateway.http.server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
 from gateway.recording import GatewayRecorder
@@ -244,7 +242,7 @@ class StatusJob(NamedTuple):
     stamp_ns: int
 
 
-class StatusThread:
+class StatusThread(LatestJobThread[StatusJob]):
     """Builds, serialises and publishes the status documents on a thread of their own, off the safety loop.
 
     :meth:`offer` never blocks its caller: the job goes into a one-place slot (the newest wins: one not yet taken
@@ -258,56 +256,8 @@ class StatusThread:
         publish: builds and publishes one job's document (called on the status thread).
     """
 
-    JOIN_TIMEOUT_S = 5.0
-
     def __init__(self, publish: Callable[[StatusJob], None]) -> None:
-        self._publish = publish
-        self._slot: deque[StatusJob] = deque(maxlen=1)
-        self._doorbell = os.eventfd(0)
-        self._closed = False
-        self.published = 0
-        self.errors = 0
-        self._thread = threading.Thread(target=self._run, name="hrc-status", daemon=True)
-        self._thread.start()
-
-    def offer(self, job: StatusJob) -> None:
-        """Hand over the newest cycle to show (never blocks: an eventfd write cannot, below 2⁶⁴ − 1 unread)."""
-        self._slot.append(job)
-        os.eventfd_write(self._doorbell, 1)
-
-    def close(self) -> None:
-        """Stop the thread (a document being built is finished first); idempotent."""
-        if self._closed:
-            return
-        self._closed = True
-        os.eventfd_write(self._doorbell, 1)
-        self._thread.join(self.JOIN_TIMEOUT_S)
-        if not self._thread.is_alive():  # else it still reads the descriptor: leave it to the process's end
-            os.close(self._doorbell)
-
-    def __enter__(self) -> StatusThread:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
-
-    def _run(self) -> None:
-        while True:
-            os.eventfd_read(self._doorbell)  # blocks, without the interpreter lock, until an offer or close
-            if self._closed:
-                return
-            try:
-                job = self._slot.pop()
-            except IndexError:  # taken at a previous wake-up
-                continue
-            try:
-                self._publish(job)
-                self.published += 1
-            except Exception:  # the status must never take the gateway down: count it, the loop goes on
-                self.errors += 1
-                log.exception("error while publishing a status document (the loop goes on)")
+        super().__init__(publish, "hrc-status", "publishing a status document", log)
 
 
 @dataclass(frozen=True)
@@ -320,6 +270,8 @@ class _StatusSink:
     http: HttpServerProcess
     bridges: BridgeView | None = None
     """The controller bridges' statistics, shown in the status (never used for a decision)."""
+    ros2: Ros2Face | None = None
+    """The ROS 2 face (``[ros2]``): handed each document with its job, so that it builds none of its own."""
 
     def publish(self, job: StatusJob) -> None:
         line = self.line(job)
@@ -327,11 +279,15 @@ class _StatusSink:
         self.http.offer(line + b"\n")
 
     def line(self, job: StatusJob) -> bytes:
-        """The job's document as JSON; built and dropped with collections paused (see :class:`StatusThread`)."""
+        """The job's document as JSON (the document itself goes to the ROS 2 face); built and dropped with
+        collections paused (see :class:`StatusThread`)."""
         with collections_paused():
             bridges = None if self.bridges is None else self.bridges.snapshot()
             doc = cycle_status(self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges)
-            return status_json(doc)
+            line = status_json(doc)
+            if self.ros2 is not None:
+                self.ros2.offer(job, doc)
+            return line
 
 
 @dataclass
@@ -344,8 +300,6 @@ class _Outputs:
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
     events: EventLog = field(default_factory=EventLog)
-    ros2: Ros2Face | None = None
-    """The ROS 2 face (``[ros2]``), offered the same snapshots as the status thread."""
 
     def publish_overrides(self, messages: dict[str, Override]) -> None:
         for name, message in messages.items():
@@ -368,8 +322,6 @@ class _Outputs:
         loop = loop.model_copy(update=update)
         job = StatusJob(cycle, node.counters(), loop, time.time_ns())
         self.status_thread.offer(job)
-        if self.ros2 is not None:
-            self.ros2.offer(job)
         self.compute_max_s = 0.0
         self.event_seqs = []
 
@@ -516,8 +468,8 @@ def run_gateway(
         if bridges.interfaces:  # display only: the bridges' read-back figures (gateway/bridge_view.py)
             subscribers.append(session.declare_subscriber(bridges.key, bridges.on_sample))
         status_pub = session.declare_publisher(keys.gateway_status(config.cell))
-        sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None)
-        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish), ros2=ros2)
+        sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
+        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish))
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",

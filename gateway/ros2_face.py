@@ -1,7 +1,7 @@
 """The gateway's ROS 2 face: what the status shows, published as ROS 2 messages over rmw_zenoh (docs/ros2.md).
 
-    loop thread ──offer(StatusJob)──▶ [one-place slot] ──▶ face thread: status document ──▶ ROS 2 messages ──▶
-                                                                         Zenoh session of its own (CN ``ros2``)
+    status thread ──offer(StatusJob, status document)──▶ [one-place slot] ──▶ face thread: ROS 2 messages ──▶
+                                                                              Zenoh session of its own (CN ``ros2``)
 
 Per robot ``<robot>``, under the configured namespace (``[ros2]`` of the cell file):
 
@@ -16,10 +16,11 @@ and for the cell ``diagnostics`` (``diagnostic_msgs/DiagnosticArray``: one statu
 and ``hrc_markers`` (``visualization_msgs/MarkerArray``: each robot link and human capsule as a CYLINDER with a
 SPHERE at each end, coloured by zone, after a DELETEALL so that people who left vanish in RViz).
 
-The face never runs on the safety loop's thread: :meth:`Ros2Face.offer` costs the loop an append and an eventfd
-write, and drops what comes sooner than ``publish_rate_hz`` allows. The face reads nothing from ROS 2; the cell's
-ROS 2 trackers are subscribed on its session (:mod:`gateway.ros2_trackers`), under the session's access control
-(:func:`ros2_policy`).
+The face never runs on the safety loop's thread, and builds no status document of its own: the status thread
+(:class:`gateway.main.StatusThread`) hands it each one it built, with its job; :meth:`Ros2Face.offer` costs that
+thread an append and an eventfd write (:class:`gateway.handoff.LatestJobThread`), and drops what comes sooner than
+``publish_rate_hz`` allows. The face reads nothing from ROS 2; the cell's ROS 2 trackers are subscribed on its
+session (:mod:`gateway.ros2_trackers`), under the session's access control (:func:`ros2_policy`).
 """
 
 from __future__ import annotations
@@ -27,10 +28,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import os
-import threading
 import time
-from collections import deque
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -40,13 +38,12 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import zenoh
 
+from gateway.handoff import LatestJobThread
 from gateway.ros2_trackers import tracker_wires, trackers_node_name
-from gateway.status import cycle_status
 from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
 from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
 from hrc_runtime.pki import default_pki_dir
-from hrc_runtime.realtime import collections_paused
 from hrc_runtime.rmw_zenoh import (
     ADMIN_SPACE,
     Distro,
@@ -273,6 +270,13 @@ def joint_views(job: StatusJob, robots: Mapping[str, RobotModel]) -> dict[str, J
 # ---------------------------------------------------------------------------------------------------- the thread
 
 
+class Snapshot(NamedTuple):
+    """What the face publishes of one cycle: the status thread's job and the status document it built of it."""
+
+    job: StatusJob
+    doc: GatewayStatus
+
+
 class Ros2Face:
     """Publishes each offered status snapshot as ROS 2 messages, on a thread of its own (see the module).
 
@@ -281,8 +285,6 @@ class Ros2Face:
         robots: the robots' models (joint and link names).
         session: an open Zenoh session for the ROS 2 side (the caller closes it, after :meth:`close`).
     """
-
-    JOIN_TIMEOUT_S = 5.0
 
     def __init__(self, config: CellConfig, robots: Mapping[str, RobotModel], session: zenoh.Session) -> None:
         ros2 = config.ros2
@@ -302,32 +304,36 @@ class Ros2Face:
         self._markers = self.node.create_publisher(ros2.markers_topic, MARKER_ARRAY)
         for msgtype in (FLOAT64, JOINT_STATE, DIAGNOSTIC_ARRAY, MARKER_ARRAY):  # rosbags compiles a serialiser
             serialize(self._distro, new_message(self._distro, msgtype))  # per type on first use: ~0.1–0.2 s, now
-        self._slot: deque[StatusJob] = deque(maxlen=1)
-        self._doorbell = os.eventfd(0)
         self._closed = False
-        self.published = 0
         self.skipped = 0
-        self.errors = 0
         self.publish_s_total = 0.0
         """Time spent building and putting snapshots, on the face's thread [s] (with :attr:`publish_s_max`)."""
         self.publish_s_max = 0.0
-        self._thread = threading.Thread(target=self._run, name="hrc-ros2", daemon=True)
-        self._thread.start()
+        self._thread = LatestJobThread(self._publish_timed, "hrc-ros2", "publishing ROS 2 messages", log)
 
-    def offer(self, job: StatusJob) -> None:
-        """Hand over a snapshot (never blocks): dropped if it comes sooner than the publish rate allows."""
+    @property
+    def published(self) -> int:
+        """Snapshots published."""
+        return self._thread.published
+
+    @property
+    def errors(self) -> int:
+        """Snapshots not published for an error (logged)."""
+        return self._thread.errors
+
+    def offer(self, job: StatusJob, doc: GatewayStatus) -> None:
+        """Hand over a snapshot, the job and the status document built of it (never blocks): dropped if it comes
+        sooner than the publish rate allows."""
         now_s = time.monotonic()
         if now_s < self._next_due_s:
             self.skipped += 1
             return
         self._next_due_s = now_s + self._period_s
-        self._slot.append(job)
-        os.eventfd_write(self._doorbell, 1)
+        self._thread.offer(Snapshot(job, doc))
 
-    def messages(self, job: StatusJob) -> list[tuple[Ros2Publisher, bytes, int]]:
+    def messages(self, snapshot: Snapshot) -> list[tuple[Ros2Publisher, bytes, int]]:
         """Every (publisher, CDR payload, source stamp [ns]) of one snapshot (what :meth:`publish` puts)."""
-        with collections_paused():
-            doc = cycle_status(self._config, job.cycle, self._robots, job.counters, job.loop, job.stamp_ns)
+        job, doc = snapshot
         distro = self._distro
         out = [(self._speed[r], serialize(distro, speed_override_message(distro, s.delta)), doc.stamp_ns)
                for r, s in sorted(doc.robots.items()) if r in self._speed]  # fmt: skip
@@ -339,9 +345,9 @@ class Ros2Face:
         out.append((self._markers, serialize(distro, markers), doc.stamp_ns))
         return out
 
-    def publish(self, job: StatusJob) -> None:
+    def publish(self, snapshot: Snapshot) -> None:
         """Build and put one snapshot's messages (on the face's thread)."""
-        for publisher, payload, stamp_ns in self.messages(job):
+        for publisher, payload, stamp_ns in self.messages(snapshot):
             publisher.put(payload, stamp_ns)
 
     def close(self) -> None:
@@ -349,10 +355,7 @@ class Ros2Face:
         if self._closed:
             return
         self._closed = True
-        os.eventfd_write(self._doorbell, 1)
-        self._thread.join(self.JOIN_TIMEOUT_S)
-        if not self._thread.is_alive():
-            os.close(self._doorbell)
+        self._thread.close()
         self.node.close()
         log.info(
             "ROS 2 face: %d snapshots published (%d skipped by the rate, %d errors), %.2f ms each on average, "
@@ -372,25 +375,12 @@ class Ros2Face:
     ) -> None:
         self.close()
 
-    def _run(self) -> None:
-        while True:
-            os.eventfd_read(self._doorbell)
-            if self._closed:
-                return
-            try:
-                job = self._slot.pop()
-            except IndexError:
-                continue
-            try:
-                start_s = time.perf_counter()
-                self.publish(job)
-                took_s = time.perf_counter() - start_s
-                self.published += 1
-                self.publish_s_total += took_s
-                self.publish_s_max = max(self.publish_s_max, took_s)
-            except Exception:  # the ROS 2 side must never take the gateway down
-                self.errors += 1
-                log.exception("error while publishing ROS 2 messages (the loop goes on)")
+    def _publish_timed(self, snapshot: Snapshot) -> None:
+        start_s = time.perf_counter()
+        self.publish(snapshot)
+        took_s = time.perf_counter() - start_s
+        self.publish_s_total += took_s
+        self.publish_s_max = max(self.publish_s_max, took_s)
 
 
 # ------------------------------------------------------------------------------------------- session and start

@@ -2,6 +2,9 @@
 
     any thread ──offer(topic, channel, log_time_ns, encode, value)──▶ bounded queue ──writer thread──▶ file.mcap
 
+The thread, the queue and the counting of what is dropped are :class:`QueuedWriter`'s, shared with the ROS 2 bag
+(:class:`hrc_tools.record.ros2_mcap.Ros2BagSink`).
+
 Every message is JSON (``message_encoding="json"``) on a channel whose schema is a JSON Schema
 (``jsonschema``) generated from a pydantic model by :func:`hrc_contract.contract.schema_of`, so a reader (the
 ``mcap`` library, Foxglove, Lichtblick) knows what each field means. The caller hands over the value and how
@@ -13,6 +16,7 @@ numbers says where.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 import itertools
 import logging
@@ -21,7 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import IO, Any, NamedTuple
+from typing import IO, Any, Generic, NamedTuple, Self, TypeVar
 
 from mcap.writer import CompressionType, Writer
 from pydantic import BaseModel
@@ -76,6 +80,15 @@ class RecordingSummary(NamedTuple):
     def complete(self) -> bool:
         return self.dropped == 0 and self.error is None
 
+    def as_metadata(self) -> dict[str, str]:
+        """``records``, ``dropped``, ``complete`` (``true``/``false``) and ``error`` (empty if none), as strings."""
+        return {
+            "records": str(self.records),
+            "dropped": str(self.dropped),
+            "complete": "true" if self.complete else "false",
+            "error": self.error or "",
+        }
+
 
 def identity(payload: bytes) -> bytes:
     """The encoder of a payload that already is the JSON message (e.g. bytes received on Zenoh)."""
@@ -84,10 +97,109 @@ def identity(payload: bytes) -> bytes:
 
 Encoder = Callable[[Any], bytes]
 _Item = tuple[int, str, ChannelSpec, int, Encoder, Any]
-_STOP = None
+ItemT = TypeVar("ItemT")
 
 
-class McapSink:
+class QueuedWriter(abc.ABC, Generic[ItemT]):
+    """A recording written by its own thread from a bounded queue (a context manager: started on entry, closed on exit).
+
+    Queuing (:meth:`_put`) never blocks: on a full queue the item is dropped and counted. The writer thread hands
+    each item to :meth:`_write`; once that has set ``_error`` (a write error), later items are dropped and counted
+    instead. :meth:`close` drains the queue, then :meth:`_finish` ends the file on the caller's thread.
+
+    Args:
+        path: the recording (its summary names it).
+        max_queued: items waiting beyond this are dropped and counted.
+        thread_name: the writer thread's name.
+    """
+
+    def __init__(self, path: Path, max_queued: int, thread_name: str) -> None:
+        self.path = path
+        self._queue: queue.Queue[ItemT | None] = queue.Queue(max_queued)
+        self._drop_lock = threading.Lock()
+        self._dropped = 0
+        self._records = 0
+        self._error: str | None = None
+        self._thread = threading.Thread(target=self._run, name=thread_name, daemon=True)
+        self._started = False
+        self._closed = False
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- any thread ---------------------------------------------------------------------------------
+
+    def _put(self, item: ItemT) -> bool:
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            self._count_drop()
+            return False
+        return True
+
+    def _count_drop(self) -> None:
+        with self._drop_lock:
+            self._dropped += 1
+
+    @property
+    def dropped(self) -> int:
+        with self._drop_lock:
+            return self._dropped
+
+    def summary(self) -> RecordingSummary:
+        """What was written and dropped so far."""
+        return RecordingSummary(self.path, self._records, self.dropped, self._error)
+
+    # -- lifetime ------------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Start the writer thread (what was queued before is kept, up to ``max_queued``)."""
+        if not self._started:
+            self._started = True
+            self._thread.start()
+
+    def close(self, timeout_s: float = 30.0) -> RecordingSummary:
+        """Write what is queued, then finish the file (:meth:`_finish`: summary and footer); idempotent."""
+        if not self._closed:
+            self._closed = True
+            self.start()
+            with contextlib.suppress(queue.Full):  # the writer drains the queue, so this wait is short
+                self._queue.put(None, timeout=timeout_s)
+            self._thread.join(timeout_s)
+            self._finish()
+        return self.summary()
+
+    @abc.abstractmethod
+    def _finish(self) -> None:
+        """Write the summary and the footer, close the file (after the writer thread ended)."""
+
+    # -- the writer thread ----------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if self._error is None:
+                self._write(item)
+            elif self._counts(item):
+                self._count_drop()
+            time.sleep(0)  # hand the GIL over after each item: a backlog here never holds up the caller's threads
+
+    @abc.abstractmethod
+    def _write(self, item: ItemT) -> None:
+        """Write one item; on a write error set ``_error`` (later items are dropped) and count the drop."""
+
+    def _counts(self, item: ItemT) -> bool:
+        """Whether ``item``, dropped after a write error, counts as a dropped message (all do, unless overridden)."""
+        return True
+
+
+class McapSink(QueuedWriter[_Item]):
     """One MCAP file, written by its own thread (a context manager: ``with McapSink(path) as sink: ...``).
 
     Args:
@@ -105,7 +217,7 @@ class McapSink:
         max_queued: int = DEFAULT_MAX_QUEUED,
         metadata: Mapping[str, Mapping[str, str]] | None = None,
     ) -> None:
-        self.path = path
+        super().__init__(path, max_queued, "mcap-writer")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._file: IO[bytes] = path.open("wb")
@@ -115,24 +227,9 @@ class McapSink:
         self._writer.start(profile=PROFILE, library="hrc-gateway recorder")
         for name, data in (metadata or {}).items():
             self._writer.add_metadata(name, dict(data))
-        self._queue: queue.Queue[_Item | None] = queue.Queue(max_queued)
         self._sequence = itertools.count()
-        self._drop_lock = threading.Lock()
-        self._dropped = 0
-        self._records = 0
-        self._error: str | None = None
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
-        self._started = False
-        self._closed = False
-
-    def __enter__(self) -> McapSink:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- any thread ---------------------------------------------------------------------------------
 
@@ -148,51 +245,11 @@ class McapSink:
         """
         return self._put((next(self._sequence), topic, channel, log_time_ns, encode, value))
 
-    def _put(self, item: _Item) -> bool:
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            with self._drop_lock:
-                self._dropped += 1
-            return False
-        return True
-
-    @property
-    def dropped(self) -> int:
-        with self._drop_lock:
-            return self._dropped
-
     # -- lifetime ------------------------------------------------------------------------------------
 
-    def start(self) -> None:
-        """Start the writer thread (messages offered before are kept, up to ``max_queued``)."""
-        if not self._started:
-            self._started = True
-            self._thread.start()
-
-    def close(self, timeout_s: float = 30.0) -> RecordingSummary:
-        """Write what is queued, the summary metadata and the MCAP footer; close the file. Idempotent."""
-        if not self._closed:
-            self._closed = True
-            self.start()
-            with contextlib.suppress(queue.Full):  # the writer drains the queue, so this wait is short
-                self._queue.put(_STOP, timeout=timeout_s)
-            self._thread.join(timeout_s)
-            self._finish()
-        return RecordingSummary(self.path, self._records, self.dropped, self._error)
-
     def _finish(self) -> None:
-        summary = RecordingSummary(self.path, self._records, self.dropped, self._error)
         try:
-            self._writer.add_metadata(
-                SUMMARY_METADATA,
-                {
-                    "records": str(summary.records),
-                    "dropped": str(summary.dropped),
-                    "complete": "true" if summary.complete else "false",
-                    "error": summary.error or "",
-                },
-            )
+            self._writer.add_metadata(SUMMARY_METADATA, self.summary().as_metadata())
             self._writer.finish()  # type: ignore[no-untyped-call]  # mcap stub
         except OSError as exc:
             self._error = self._error or f"cannot finish {self.path}: {exc.strerror or exc}"
@@ -202,17 +259,8 @@ class McapSink:
 
     # -- the writer thread ----------------------------------------------------------------------------
 
-    def _run(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is _STOP:
-                return
-            if self._error is None:
-                self._write(item)
-            elif item[0] >= 0:
-                with self._drop_lock:
-                    self._dropped += 1
-            time.sleep(0)  # hand the GIL over after each message: a backlog here never holds up the safety loop
+    def _counts(self, item: _Item) -> bool:
+        return item[0] >= 0  # a declaration is no message
 
     def _write(self, item: _Item) -> None:
         sequence, topic, channel, log_time_ns, encode, value = item
@@ -220,8 +268,7 @@ class McapSink:
             data = b"" if sequence < 0 else encode(value)
         except Exception:  # a value that cannot be encoded is dropped, not the whole recording
             log.exception("recording %s: cannot encode a message on %s; dropped", self.path, topic)
-            with self._drop_lock:
-                self._dropped += 1
+            self._count_drop()
             return
         try:
             channel_id = self._channel_id(topic, channel)
@@ -232,8 +279,7 @@ class McapSink:
         except OSError as exc:
             self._error = f"cannot write {self.path}: {exc.strerror or exc}"
             log.error("recording %s: %s; later messages are dropped", self.path, self._error)
-            with self._drop_lock:
-                self._dropped += 1
+            self._count_drop()
 
     def _channel_id(self, topic: str, channel: ChannelSpec) -> int:
         channel_id = self._channels.get(topic)

@@ -141,6 +141,25 @@ def parse_payload(payload: bytes, model: type[BaseModel]) -> BaseModel:
         raise MessageError("invalid", str(exc.errors()[0]["msg"])) from None
 
 
+class Received(NamedTuple):
+    """A valid message received on a known key: how the key is recorded, and the message."""
+
+    topic: Topic
+    message: BaseModel
+
+
+def receive(cell: str, key: str, payload: bytes) -> Received | RejectedPayload | None:
+    """What a payload received on ``key`` is: a valid message of its key, a rejected payload (kept with why), or
+    None for a key this recorder does not know (the JSON and the ROS 2 recordings validate alike)."""
+    topic = topic_of(cell, key)
+    if topic is None:
+        return None
+    try:
+        return Received(topic, parse_payload(payload, topic.model))
+    except MessageError as exc:
+        return RejectedPayload(key=key, reason=exc.reason, payload_base64=base64.b64encode(payload).decode())
+
+
 def _scene_update(message: BaseModel, received_ns: int) -> scene.SceneUpdate | None:
     if isinstance(message, Humans):
         return scene.humans_scene(message, received_ns)
@@ -163,16 +182,14 @@ class CellRecorder:
 
     def on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
         """Record one payload received on ``key``: on its channel, or as rejected; plus its scene update."""
-        topic = topic_of(self.cell, key)
-        if topic is None:
+        received = receive(self.cell, key, payload)
+        if received is None:
             self.unknown_keys += 1
             return
-        try:
-            message = parse_payload(payload, topic.model)
-        except MessageError as exc:
-            rejected = RejectedPayload(key=key, reason=exc.reason, payload_base64=base64.b64encode(payload).decode())
-            self.sink.offer(f"/hrc/{self.cell}/rejected", REJECTED, received_ns, _encode_model, rejected)
+        if isinstance(received, RejectedPayload):
+            self.sink.offer(f"/hrc/{self.cell}/rejected", REJECTED, received_ns, _encode_model, received)
             return
+        topic, message = received
         self.sink.offer(f"/{key}", topic.channel, received_ns, identity, payload)
         update = _scene_update(message, received_ns)
         if update is not None and topic.scene_topic is not None:

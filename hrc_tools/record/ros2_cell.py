@@ -33,7 +33,6 @@ thread and hands the translation to the sink's writer thread.
 
 from __future__ import annotations
 
-import base64
 import logging
 import math
 import re
@@ -59,10 +58,10 @@ from gateway.ros2_face import (
     speed_override_message,
 )
 from hrc_contract.config import CellConfig, Pose
-from hrc_contract.messages import Humans, JointState, MessageError, Override
+from hrc_contract.messages import Humans, JointState, Override
 from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus
 from hrc_runtime.rmw_zenoh import Distro, fully_qualified_name, new_message
-from hrc_tools.record.cell import RejectedPayload, parse_payload, topic_of
+from hrc_tools.record.cell import RejectedPayload, receive
 from hrc_tools.record.ros2_mcap import Ros2BagSink, Ros2Topic, qos
 
 log = logging.getLogger("hrc-record.ros2")
@@ -293,17 +292,13 @@ class Ros2CellRecorder:
 
     def on_sample(self, key: str, payload: bytes, received_ns: int) -> None:
         """Record one payload received on ``key``: its messages, or a ``rejected`` line."""
-        topic = topic_of(self.cell.cell, key)
-        if topic is None:
+        received = receive(self.cell.cell, key, payload)
+        if received is None:
             self.unknown_keys += 1
-            return
-        try:
-            message = parse_payload(payload, topic.model)
-        except MessageError as exc:
-            bad = RejectedPayload(key=key, reason=exc.reason, payload_base64=base64.b64encode(payload).decode())
-            self.sink.offer(received_ns, lambda value: rejected(self.cell, value), bad)
-            return
-        self.sink.offer(received_ns, lambda value: ros2_messages(self.cell, key, value), message)
+        elif isinstance(received, RejectedPayload):
+            self.sink.offer(received_ns, lambda value: rejected(self.cell, value), received)
+        else:
+            self.sink.offer(received_ns, lambda value: ros2_messages(self.cell, key, value), received.message)
 
     def on_events(self, events: Sequence[Event], received_ns: int) -> None:
         """Record the events of one poll of the gateway's log on ``/rosout``, at ``received_ns`` (their arrival)."""

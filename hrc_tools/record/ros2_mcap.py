@@ -24,9 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import queue
-import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
@@ -43,7 +40,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 from ruamel.yaml import YAML
 
-from hrc_runtime.mcap_sink import DEFAULT_MAX_QUEUED, RecordingError, RecordingSummary
+from hrc_runtime.mcap_sink import DEFAULT_MAX_QUEUED, QueuedWriter, RecordingError
 from hrc_runtime.rmw_zenoh import Distro, serialize, typestore
 
 log = logging.getLogger("hrc-recorder.ros2")
@@ -98,7 +95,6 @@ class Ros2Topic(NamedTuple):
 Build = Callable[[Any], Sequence[tuple[Ros2Topic, Any]]]
 """Turns an offered value into ROS 2 messages (of the sink's distro), each with its topic."""
 _Item = tuple[int, Build, Any]
-_STOP = None
 
 
 def bag_file(path: Path) -> Path:
@@ -120,8 +116,11 @@ def bag_custom_data(path: Path) -> dict[str, str]:
     return {str(k): str(v) for k, v in custom.items()}
 
 
-class Ros2BagSink:
+class Ros2BagSink(QueuedWriter[_Item]):
     """One ROS 2 bag, written by its own thread (a context manager: ``with Ros2BagSink(path, "jazzy") as sink``).
+
+    Its summary (:meth:`close`) counts as ``records`` the ROS 2 messages written, as ``dropped`` the offers not
+    written; :meth:`close` writes it into ``custom_data``, then the MCAP summary and ``metadata.yaml``.
 
     Args:
         path: the bag folder to create; it must not exist (its parent is created).
@@ -141,7 +140,7 @@ class Ros2BagSink:
         max_queued: int = DEFAULT_MAX_QUEUED,
         custom_data: Mapping[str, str] | None = None,
     ) -> None:
-        self.path = path
+        super().__init__(path, max_queued, "ros2-bag-writer")
         self.distro: Distro = distro
         store = typestore(distro)
         if path.exists():
@@ -156,22 +155,7 @@ class Ros2BagSink:
         except (OSError, WriterError) as exc:
             raise RecordingError(f"cannot create the ROS 2 bag {path}: {exc}") from None
         self._store = store
-        self._queue: queue.Queue[_Item | None] = queue.Queue(max_queued)
-        self._drop_lock = threading.Lock()
-        self._dropped = 0
-        self._records = 0
-        self._error: str | None = None
         self._connections: dict[str, Connection] = {}
-        self._thread = threading.Thread(target=self._run, name="ros2-bag-writer", daemon=True)
-        self._started = False
-        self._closed = False
-
-    def __enter__(self) -> Ros2BagSink:
-        self.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- any thread ---------------------------------------------------------------------------------
 
@@ -181,50 +165,12 @@ class Ros2BagSink:
         Returns:
             False if it was dropped (queue full).
         """
-        try:
-            self._queue.put_nowait((log_time_ns, build, value))
-        except queue.Full:
-            self._count_drop()
-            return False
-        return True
-
-    def _count_drop(self) -> None:
-        with self._drop_lock:
-            self._dropped += 1
-
-    @property
-    def dropped(self) -> int:
-        with self._drop_lock:
-            return self._dropped
+        return self._put((log_time_ns, build, value))
 
     # -- lifetime ------------------------------------------------------------------------------------
 
-    def start(self) -> None:
-        """Start the writer thread (offers made before are kept, up to ``max_queued``)."""
-        if not self._started:
-            self._started = True
-            self._thread.start()
-
-    def close(self, timeout_s: float = 30.0) -> RecordingSummary:
-        """Write what is queued, the summary into ``custom_data``, the MCAP summary and ``metadata.yaml``.
-        Idempotent. ``records`` counts ROS 2 messages written, ``dropped`` offers not written."""
-        if not self._closed:
-            self._closed = True
-            self.start()
-            with contextlib.suppress(queue.Full):  # the writer drains the queue, so this wait is short
-                self._queue.put(_STOP, timeout=timeout_s)
-            self._thread.join(timeout_s)
-            self._finish()
-        return RecordingSummary(self.path, self._records, self.dropped, self._error)
-
     def _finish(self) -> None:
-        summary = RecordingSummary(self.path, self._records, self.dropped, self._error)
-        for key, value in {
-            "records": str(summary.records),
-            "dropped": str(summary.dropped),
-            "complete": "true" if summary.complete else "false",
-            "error": summary.error or "",
-        }.items():
+        for key, value in self.summary().as_metadata().items():
             self._bag.set_custom_data(SUMMARY_PREFIX + key, value)
         try:
             self._bag.close()
@@ -235,17 +181,6 @@ class Ros2BagSink:
                 self._bag.abort()
 
     # -- the writer thread ----------------------------------------------------------------------------
-
-    def _run(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is _STOP:
-                return
-            if self._error is None:
-                self._write(item)
-            else:
-                self._count_drop()
-            time.sleep(0)  # hand the GIL over after each offer: a backlog here never holds up the callbacks
 
     def _write(self, item: _Item) -> None:
         log_time_ns, build, value = item

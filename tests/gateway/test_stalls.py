@@ -208,7 +208,7 @@ def test_the_metrics_count_stalls_and_missed_ticks_by_cause() -> None:
 
 # -- the real loop --------------------------------------------------------------------------------
 
-HOLD_S = 0.05
+HOLD_S = 0.2  # long beside what a loaded machine's run queue adds (a cause must cover half the lateness)
 """The first status hand-off is held up this long (12 periods at 250 Hz)."""
 
 
@@ -244,7 +244,7 @@ class _Http:
 def test_the_loop_records_a_hold_up_in_its_status_hand_off_as_a_stall_with_that_phase(
     cell_config: CellConfig,
 ) -> None:
-    """The real loop and node, fake outputs: the first status hand-off holds the loop 50 ms; the next tick is a
+    """The real loop and node, fake outputs: the first status hand-off holds the loop 200 ms; the next tick is a
     stall in phase ``status``, logged as an event and counted in the next status documents, and every missed tick
     has a cause."""
     node = gateway_main.build_node(cell_config, None)
@@ -263,10 +263,10 @@ def test_the_loop_records_a_hold_up_in_its_status_hand_off_as_a_stall_with_that_
     with status_thread:
         assert gateway_main._loop(cell_config, node, out, stop, None) == 0
 
-    stalls = [e for e in http.events if e.kind == "loop_stall"]
-    assert stalls, http.events
-    assert stalls[0].cause == "phase:status"
-    assert "phase status at the due time" in stalls[0].message
+    # a loaded machine may add stalls of its own (run queue) before or after the planned one
+    held = [e for e in http.events if e.kind == "loop_stall" and e.cause == "phase:status"]
+    assert held, http.events
+    assert "phase status at the due time" in held[0].message
     last = json.loads(status_key.payloads[-1])["loop"]
     assert last["stalls"].get("phase:status", 0) >= 1
     assert sum(last["missed_by_cause"].values()) == last["missed_cycles"] >= round(HOLD_S * 250) - 2

@@ -42,31 +42,78 @@ writes in order, so their value can never show again). Never on write. The gatew
 link's delay with a steady δ too, and the read-back latency in the statistics covers every provable write.
 
 **What is reported, and why (ramps).** Let s be the controller's read-back of the scaling it applies
-(``speed_fraction × speed_scaling``; 0 while the program does not run). After the slider drops, the controller
-decelerates over its braking time: the robot's real ratio ``a`` then lags above s. The bridge reports
+(``speed_fraction × speed_scaling``; 0 while the program does not run), a the ratio the robot really runs at, p the
+programmed velocity (at 100 %), so the robot's velocity is a · p. The read-back runs *ahead* of a through every ramp:
+after a drop, the controller brakes while s already shows the new value (a > s); after a raise, it accelerates
+while ABB's speed ratio (and any read-back of the input rather than of the applied scaling) already shows the new
+value (a < s). What the gateway needs, in this order:
 
-- ``override`` = U, the *braking envelope* of s: ``U = max(s, U_prev − Δt / t_b)``, t_b the smallest braking time
-  the gateway plans with for a moving link (the controller must stop at least that fast: ``check_braking_time``).
-  U ≥ a whenever the controller behaves, so the gateway is never told a lower speed than the robot's, and U exceeds
-  every recent command only when s does: the gateway's ``override_above_commanded`` check keeps its meaning (the
-  envelope is the gateway's own braking allowance). With a program model, ``override`` = min(a_measured, U), the
-  ratio measured along the programmed velocity (``qd · p / p · p``; U where the program stands nearly still).
-- ``qd``: the measured joint velocity (``actual_qd``; for ABB the difference of q over the sample times),
-  never derived from the override: the gateway's check ``qd ≈ override · qd_nominal`` compares reality with
-  the claim.
-- ``qd_nominal``, from the first source that applies (counted per source in the statistics):
+1. ``qd_nominal`` ≥ p per joint (magnitude, same sign) whenever the controller behaves: the gateway bounds δ with
+   it, and a programmed velocity below the truth lets it command too high a δ;
+2. ``override · qd_nominal ≈ qd`` (its consistency check), so ``override`` must be a *lower* bound of a;
+3. ``|qd_nominal|`` ≤ the URDF's limits (its ``qd_above_limit`` check).
+
+A lower bound of a. Let R be ``rise_time_s``, the longest time the controller takes to reach a raised speed input
+(from 0 to 1; at least the emulator's ``accel_time_s``). A behaving controller moves a toward its input c: down at
+any rate but never below c (it brakes *to* the new value), up reaching c within R. So at any time u,
+``a(u) ≥ min c over [u − R, u]``: within R of the start of that window a has risen to at least the window's minimum,
+and it never falls below a value the input does not go below. The bridge knows every value c took, because it is the
+only writer: the read-backs (each holding from its reading until the next one), plus the writes not yet read back
+(awaiting their read-back, or handed out and not yet reported written: a decrease acts before any read-back shows it;
+on UR times the last ``speed_scaling``). Their minimum over the window is m (:class:`ReadbackWindow`), and
+
+    a_lo = max(m, max_j |v_j| / limit_j),   qd_nominal = v / a_lo,   override = a_lo,
+
+with v the controller's velocity (``target_qd``; ABB offers none: the difference of q, see below). Since
+``|v_j| = a · |p_j| ≤ a · limit_j``, both terms are ≤ a, so a_lo ≤ a and ``|qd_nominal| = (a / a_lo) · |p| ≥ |p|``
+(1), with the sign of v, which is p's; ``override · qd_nominal = v ≈ qd`` (2, exactly for ABB); and
+``|qd_nominal_j| = |v_j| / a_lo ≤ limit_j`` (3). The price is conservatism: through a ramp ``qd_nominal`` exceeds p by
+a / a_lo (up to the limits while braking to 0), for R after a drop below the window's values.
+
+Times are the controller's own where the vendor gives one (RTDE's ``timestamp``, so the window does not depend on
+when packages arrive; each package's s and ``target_qd`` come from the same controller cycle, so a package repeating
+an older cycle still has s ≤ a), else the bridge's receive times (ABB). ABB's q is differenced over the poll
+interval, so its v is the mean of a · p over [t_prev, t]: the window then starts R before the *previous* reading
+(``t_prev − R``), which bounds a from below over the whole interval; the speed ratio is read before q in the same poll
+(8 ms on the simulated link), and a write between the two is still handed out or awaited, so it is in m. The q
+samples are not exactly the receive times apart: the controller serves q of its latest cycle, after a request whose
+round trip varies, so the samples may be up to j = ``sample_jitter_s`` closer than the Δt between receipts (and v up
+to Δt / (Δt − j) faster than Δq / Δt: in the simulated cell the poll waits for writes, and Δq / Δt swings ±20 %). The
+bridge therefore uses ``v = Δq / (Δt − j)`` (an upper bound of the mean velocity) and reports ``qd = Δq / Δt`` with
+``override = a_lo · (Δt − j) / Δt``, so ``override · qd_nominal = qd`` still. What remains is the lag of a mean: an
+accelerating program's velocity at the last sample exceeds the interval's mean by up to |dp/dt| · Δt / 2 (half a
+poll; a program model has none). A history
+the bridge cannot vouch for counts as 0 (the controller may be accelerating from standstill): before the first
+reading, after a gap longer than ``max_diff_gap_s`` and when the controller's clock goes back or leaps.
+
+With R = 0 the window is the current reading alone (and the pending writes): allowed for UR only, whose
+``speed_scaling × target_speed_fraction`` is the applied scaling while it rises (the emulator's is;
+``docs/controllers.md`` says what to check on a real UR before relying on it). The default is the conservative 1 s.
+
+What is lost: ``override`` ≤ a, so a behaving controller never shows an override above the commands, and the gateway's
+``override_above_commanded`` check can fire through a bridge only when the read-back stays above every recent command
+for a whole window R with no lower write awaiting its read-back (a read-back that confirmed a write, then went back
+up), or the robot moves on some joint faster than the commanded fraction of its limit. A controller
+that ignores the speed input is caught by the echo instead: a written value its read-back never shows is never
+confirmed, ``override_seq`` stops advancing and the gateway's ``override_path_stale`` stops the robot. A controller
+whose read-back shows the written value while it runs faster is caught by nothing here (nor was it before): that is
+what a program model's measured ratio, or the controller's own safety functions, are for.
+
+The bridge reports
+
+- ``qd``: the measured joint velocity (``actual_qd``; for ABB the difference of q over the sample times), never
+  derived from the override.
+- ``qd_nominal`` and ``override``, from the first source that applies (counted per source in the statistics):
   1. ``program_model``: the recorded program's velocity at the located point (``ProgramModel.locate``): independent
-     of the scaling, exact through ramps and at δ ≈ 0.
-  2. ``target_qd``: ``target_qd / U`` while U ≥ ``min_scaling`` (the gateway's ``streams.qd_tolerance_ratio``,
-     0.02): exact when the read-back shows the applied scaling (UR's combined scaling) or the controller brakes at
-     the envelope, and then ``override · qd_nominal = target_qd ≈ qd``. During a ramp that the read-back runs
-     *ahead* of (the controller brakes faster than t_b, or accelerates after the slider rose) it is below the
-     programmed velocity by a / U while the reported speed ``override · qd_nominal`` stays the robot's: commission a
-     program model (source 1) for such a controller. ``qd`` replaces ``target_qd`` for an interface without it
-     (ABB); then the gateway's qd check says nothing about that controller.
+     of the scaling, exact through ramps and at δ ≈ 0. ``override`` is then the ratio measured along it
+     (``qd · p / p · p``), at most U, the braking envelope of s (``U = max(s, U_prev − Δt / t_b)``, t_b the
+     smallest braking time the gateway plans with; on the same times as the window), so the gateway's
+     ``override_above_commanded`` check keeps its meaning with a model; U where the program stands nearly still.
+  2. ``target_qd`` (``qd`` for ABB): ``v / a_lo`` while a_lo ≥ ``min_scaling`` (the gateway's
+     ``streams.qd_tolerance_ratio``, 0.02), ``override`` = a_lo.
   3. ``velocity_limits``: the URDF's joint velocity limits with the sign of the motion (+ for a joint at rest):
-     never zero. Used below ``min_scaling``, where ``|qd − U · limit| ≤ U · limit ≤ min_scaling · limit`` stays
-     within the gateway's tolerance whenever the robot moves no faster than U allows.
+     never zero; ``override`` = a_lo. Used below ``min_scaling``, where ``|v_j − a_lo · limit_j| ≤ a_lo · limit_j <
+     min_scaling · limit_j`` stays within the gateway's tolerance (a_lo ≥ |v_j| / limit_j).
 
 **Hostile answers.** A reading with the wrong joint count, a non-finite value, a fraction outside [0, 1] or a
 time not after the previous one is refused and counted by reason (as are the interface's own
@@ -209,11 +256,17 @@ class BridgeSettings:
         robot: the robot's name (overrides for another are refused; the joint state carries it).
         speed_input: the vendor's speed input (:data:`SPEED_INPUTS`).
         velocity_limit_radps: the URDF's joint velocity limits, one per joint [rad/s].
-        braking_time_s: t_b of the envelope: the smallest braking time the gateway plans with for a moving link [s].
+        braking_time_s: t_b of the envelope (the program model's override): the smallest braking time the gateway
+            plans with for a moving link [s].
         watchdog_s: no valid override for this long → write 0 [s].
         heartbeat_s: the speed input is written at least this often [s].
         min_scaling: below this applied scaling ``qd_nominal`` is not derived from the controller [1].
-        max_diff_gap_s: q is not differentiated over a longer gap between readings [s].
+        max_diff_gap_s: q is not differentiated over a longer gap between readings; after one (or a leap of the
+            controller's clock) the read-back history counts as 0 [s].
+        rise_time_s: R, the longest time the controller takes to reach a raised speed input (the module docstring,
+            "A lower bound of a"); 0: the read-back is the applied scaling while it rises (UR only) [s].
+        sample_jitter_s: for a differenced q, how much the controller's sampling of q may differ from the bridge's
+            receive times (the controller's cycle and the request's round-trip variation) [s].
     """
 
     robot: str
@@ -224,10 +277,16 @@ class BridgeSettings:
     heartbeat_s: float
     min_scaling: float = 0.02
     max_diff_gap_s: float = 0.1
+    rise_time_s: float = 1.0
+    sample_jitter_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.velocity_limit_radps or not all(v > 0 and math.isfinite(v) for v in self.velocity_limit_radps):
             raise ValueError(f"velocity_limit_radps = {self.velocity_limit_radps}; allowed: > 0, finite, one a joint")
+        for name in ("rise_time_s", "sample_jitter_s"):
+            value = getattr(self, name)
+            if not (value >= 0 and math.isfinite(value)):
+                raise ValueError(f"{name} = {value}; allowed: >= 0, finite")
         for name in ("braking_time_s", "watchdog_s", "heartbeat_s", "min_scaling", "max_diff_gap_s"):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
@@ -312,6 +371,47 @@ class NominalVelocity(NamedTuple):
     source: str
 
 
+class _Held(NamedTuple):
+    """A read-back value, in force from its reading's time until the next reading's (``end_s``, inf until then)."""
+
+    t_s: float
+    value: float
+    end_s: float
+
+
+class ReadbackWindow:
+    """The smallest read-back over a trailing window: m of the module docstring ("A lower bound of a").
+
+    Each pushed value holds from its time until the next push; :meth:`minimum` is the smallest value in force at any
+    instant of ``[start_s, now]``. A monotonic queue (values increasing from front to back): amortised O(1) per reading
+    at 500 Hz over a window of seconds. ``start_s`` must not decrease from call to call (it follows the readings).
+    """
+
+    def __init__(self) -> None:
+        self._held: deque[_Held] = deque()
+
+    def reset(self, t_s: float) -> None:
+        """Forget the history: from ``t_s`` the controller may be accelerating from standstill (a value of 0)."""
+        self._held.clear()
+        self._held.append(_Held(t_s, 0.0, math.inf))
+
+    def push(self, t_s: float, value: float) -> None:
+        """A reading at ``t_s`` [s] shows ``value`` [1] (times strictly increasing: :meth:`reset` otherwise)."""
+        held = self._held
+        if held:
+            held[-1] = held[-1]._replace(end_s=t_s)
+        while held and held[-1].value >= value:  # newer and no larger: the older one can never be the minimum
+            held.pop()
+        held.append(_Held(t_s, value, math.inf))
+
+    def minimum(self, start_s: float) -> float:
+        """The smallest value in force at any instant since ``start_s`` [s]; 0 with nothing pushed."""
+        held = self._held
+        while len(held) > 1 and held[0].end_s <= start_s:
+            held.popleft()
+        return held[0].value if held else 0.0
+
+
 def braking_envelope(previous: float | None, dt_s: float, readback: float, braking_time_s: float) -> float:
     """U = max(s, U_prev − Δt / t_b): the highest ratio a controller braking within t_b may still apply [1]."""
     if previous is None:
@@ -319,23 +419,44 @@ def braking_envelope(previous: float | None, dt_s: float, readback: float, braki
     return max(readback, previous - max(dt_s, 0.0) / braking_time_s)
 
 
+def scaling_lower_bound(readback_min: float, velocity_radps: FloatArray, velocity_limit_radps: FloatArray) -> float:
+    """a_lo = max(m, max_j |v_j| / limit_j), ≥ 0: a lower bound of the applied scaling (the module docstring).
+
+    Not clipped at 1: ``v / a_lo`` stays within the limits even when v is above them (a differenced v bounded from
+    above, or a controller beyond its limits, which the gateway's ``qd_above_limit`` refuses on ``qd``).
+
+    Args:
+        readback_min: m, the smallest read-back and pending write over the window [1].
+        velocity_radps: v, the controller's velocity (``target_qd``, or the differenced q) [rad/s].
+        velocity_limit_radps: the URDF's limits [rad/s].
+    """
+    moving = float(np.max(np.abs(velocity_radps) / velocity_limit_radps))
+    return max(min(readback_min, 1.0), moving, 0.0)
+
+
 def nominal_velocity(
+    scaling_lo: float,
     envelope: float,
     qd_radps: FloatArray,
     target_qd_radps: FloatArray | None,
     model_qd_radps: FloatArray | None,
     velocity_limit_radps: FloatArray,
     min_scaling: float,
+    sample_share: float = 1.0,
 ) -> NominalVelocity:
     """``qd_nominal`` and ``override`` from the first source that applies (the module docstring, 1–3).
 
     Args:
+        scaling_lo: a_lo, the lower bound of the applied scaling (:func:`scaling_lower_bound`) [1].
         envelope: U, the braking envelope of the applied scaling (0 when the program does not run) [1].
         qd_radps: the measured joint velocity [rad/s].
         target_qd_radps: the controller's target velocity, None without [rad/s].
         model_qd_radps: the program model's velocity at the robot's position, None without [rad/s].
         velocity_limit_radps: the URDF's limits [rad/s].
-        min_scaling: below this U, source 2 is not used [1].
+        min_scaling: below this a_lo, source 2 is not used [1].
+        sample_share: for a differenced q, the shortest share of the interval the samples may really be apart,
+            (Δt − jitter) / Δt: v = qd / share bounds the velocity from above, and ``override`` = a_lo · share keeps
+            ``override · qd_nominal = qd`` [1].
     """
     if model_qd_radps is not None:
         override = envelope
@@ -344,13 +465,14 @@ def nominal_velocity(
             measured = float(qd_radps @ model_qd_radps) / speed2
             override = min(max(measured, 0.0), envelope, 1.0)
         return NominalVelocity(model_qd_radps, override, "program_model")
-    if envelope >= min_scaling:
+    if scaling_lo >= min_scaling:
         if target_qd_radps is not None:
-            return NominalVelocity(target_qd_radps / envelope, envelope, "target_qd")
-        return NominalVelocity(qd_radps / envelope, envelope, "qd")
+            return NominalVelocity(target_qd_radps / scaling_lo, scaling_lo, "target_qd")
+        return NominalVelocity(qd_radps / sample_share / scaling_lo, scaling_lo * sample_share, "qd")
     motion = target_qd_radps if target_qd_radps is not None and np.any(target_qd_radps) else qd_radps
     sign = np.where(motion < 0.0, -1.0, 1.0)
-    return NominalVelocity(sign * velocity_limit_radps, envelope, "velocity_limits")
+    share = 1.0 if target_qd_radps is not None else sample_share
+    return NominalVelocity(sign * velocity_limit_radps, scaling_lo * share, "velocity_limits")
 
 
 def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns: int | None) -> str | None:
@@ -359,7 +481,8 @@ def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns:
     if any(v is not None and len(v) != n_joints for v in vectors):
         return "wrong_joint_count"
     scalars = [reading.speed_fraction, 1.0 if reading.speed_scaling is None else reading.speed_scaling]
-    values = [x for v in vectors if v is not None for x in v] + scalars
+    times = [] if reading.controller_time_s is None else [reading.controller_time_s]
+    values = [x for v in vectors if v is not None for x in v] + scalars + times
     if not all(isinstance(x, int | float) and math.isfinite(x) for x in values):
         return "non_finite"
     if not all(0.0 <= x <= 1.0 for x in scalars):
@@ -369,6 +492,13 @@ def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns:
     if reading.received_wall_ns < 0:
         return "out_of_range"
     return None
+
+
+def _time_s(reading: ControllerReading) -> float:
+    """The reading's time: the controller's own where the vendor gives one, else the bridge's receive time [s]."""
+    if reading.controller_time_s is not None:
+        return reading.controller_time_s
+    return reading.received_mono_ns / NS_PER_S
 
 
 class Bridge:
@@ -402,6 +532,7 @@ class Bridge:
         # readings
         self._previous: ControllerReading | None = None
         self._envelope: float | None = None
+        self._window = ReadbackWindow()
         self._override_seq = -1
         self._seq = 0
         self._readings = 0
@@ -527,29 +658,46 @@ class Bridge:
             self._confirm(reading)
             self._in_force = reading.speed_fraction
             dt_s = None if previous is None else (reading.received_mono_ns - previous.received_mono_ns) / NS_PER_S
-            scaling = reading.speed_fraction * (1.0 if reading.speed_scaling is None else reading.speed_scaling)
-            applied = scaling if reading.running else 0.0
+            t_s, previous_t_s = _time_s(reading), None if previous is None else _time_s(previous)
+            scaling = 1.0 if reading.speed_scaling is None else reading.speed_scaling
+            applied = reading.speed_fraction * scaling if reading.running else 0.0
+            gap_s = self.settings.max_diff_gap_s
+            if previous_t_s is None or dt_s is None or not (0.0 < t_s - previous_t_s <= gap_s) or dt_s > gap_s:
+                self._window.reset(t_s)  # a history the bridge cannot vouch for: the controller may be accelerating
+            self._window.push(t_s, applied)
             self._envelope = envelope = braking_envelope(
-                self._envelope, dt_s or 0.0, applied, self.settings.braking_time_s
+                self._envelope,
+                0.0 if previous_t_s is None else t_s - previous_t_s,
+                applied,
+                self.settings.braking_time_s,
             )
             if not reading.running:
                 self._envelope = envelope = 0.0
             q = np.asarray(reading.q_rad, dtype=float)
+            share = 1.0
             if reading.qd_radps is not None:
                 qd = np.asarray(reading.qd_radps, dtype=float)
+                start_s = t_s - self.settings.rise_time_s
             elif previous is not None and dt_s is not None and dt_s <= self.settings.max_diff_gap_s:
                 qd = (q - np.asarray(previous.q_rad, dtype=float)) / dt_s
+                start_s = _time_s(previous) - self.settings.rise_time_s  # qd: the mean since the previous reading
+                share = max(dt_s - self.settings.sample_jitter_s, 0.5 * dt_s) / dt_s
             else:
                 return None  # nothing to differentiate yet: no joint state rather than a guessed velocity
             target = None if reading.target_qd_radps is None else np.asarray(reading.target_qd_radps, dtype=float)
+            pending = [w.value for w in self._awaiting] + ([] if self._handed is None else [self._handed.value])
+            readback_min = min([self._window.minimum(start_s)] + [scaling * w for w in pending])
+            scaling_lo = scaling_lower_bound(readback_min, qd / share if target is None else target, self._limits)
             model = self._locate_model(q, qd)
-            nominal = nominal_velocity(envelope, qd, target, model, self._limits, self.settings.min_scaling)
+            nominal = nominal_velocity(
+                scaling_lo, envelope, qd, target, model, self._limits, self.settings.min_scaling, share
+            )
             self._sources[nominal.source] += 1
             mode: ControllerMode = "running"
             if not reading.running or self._watchdog_expired:
                 mode = "protective_stop"
-            elif nominal.override == 0.0:
-                mode = "stopped"
+            elif applied == 0.0 and nominal.override == 0.0:
+                mode = "stopped"  # the controller holds its input at 0 and the robot stands
             state = JointState(
                 robot=self.settings.robot,
                 seq=self._seq,

@@ -91,7 +91,8 @@ def select_robot(config: CellConfig, robot: str | None) -> str:
 
 
 def braking_time_of(model: RobotModel) -> float:
-    """The smallest braking time the gateway plans with for a moving link [s] (the envelope's t_b)."""
+    """The smallest braking time the gateway plans with for a moving link [s] (t_b of the program model's
+    envelope)."""
     moving = model.t_brake_link_s[model.t_brake_link_s > 0.0]
     return float(moving.min()) if moving.size else float(model.braking_time_s.max())
 
@@ -110,6 +111,8 @@ def bridge_settings(config: CellConfig, name: str, model: RobotModel) -> BridgeS
         heartbeat_s=1.0 / interface.write_rate_hz,
         min_scaling=max(config.streams.qd_tolerance_ratio, 1e-3),
         max_diff_gap_s=interface.read_timeout_s,
+        rise_time_s=interface.rise_time_s,
+        sample_jitter_s=interface.sample_jitter_s if isinstance(interface, AbbRwsInterfaceConfig) else 0.0,
     )
 
 

@@ -107,6 +107,7 @@ def reading_from_values(values: dict[str, object], now: Clocks) -> ControllerRea
         speed_scaling=_fraction("speed_scaling", values["speed_scaling"]),
         running=running,
         state_text=f"runtime_state={runtime_state} safety_mode={safety_mode} robot_mode={robot_mode}",
+        controller_time_s=timestamp_s,
     )
 
 

@@ -47,6 +47,8 @@ class ControllerReading:
             offered.
         running: the program runs (not stopped, paused, or in a protective or emergency stop).
         state_text: the controller's state words, for the log and the status (e.g. ``runtime_state=2 safety_mode=1``).
+        controller_time_s: the controller's own time of the reading (UR RTDE ``timestamp``) [s]; None when the
+            interface offers none (the bridge then uses ``received_mono_ns``).
     """
 
     received_wall_ns: int
@@ -58,6 +60,7 @@ class ControllerReading:
     speed_scaling: float | None
     running: bool
     state_text: str
+    controller_time_s: float | None = None
 
 
 class VendorInterface(Protocol):

@@ -430,6 +430,14 @@ class _BridgeInterfaceConfig(_Frozen):
         125.0,
         description="The speed input is written at least this often, as a heartbeat, and at once on a new override.",
     )
+    rise_time_s: Annotated[float, Field(ge=0.0, le=10.0, allow_inf_nan=False)] = Field(
+        1.0,
+        description="The longest time the controller takes to reach a raised speed input, from 0 to 1 [s]: the "
+        "bridge bounds the applied scaling from below by the smallest read-back over this window (qd_nominal = "
+        "velocity / that bound, controller_bridge/bridge.py). At least the robot's controller.accel_time_s "
+        "(checked); 0 only on ur_rtde, whose read-back speed_scaling × target_speed_fraction shows the applied "
+        "scaling while it rises (docs/controllers.md says what to check on the robot first).",
+    )
 
 
 class UrRtdeInterfaceConfig(_BridgeInterfaceConfig):
@@ -457,6 +465,12 @@ class AbbRwsInterfaceConfig(_BridgeInterfaceConfig):
     )
     poll_rate_hz: Annotated[float, Field(gt=0.0, le=250.0, allow_inf_nan=False)] = Field(
         50.0, description="How often the speed ratio and the joint positions are read back [Hz]."
+    )
+    sample_jitter_s: Annotated[float, Field(ge=0.0, le=0.05, allow_inf_nan=False)] = Field(
+        0.004,
+        description="How far the controller's sampling of the joint positions may be from the bridge's receive times "
+        "(its cycle plus the variation of the request's round trip; measure it) [s]: the differenced velocity is "
+        "bounded with it (controller_bridge/bridge.py). At least the robot's controller.cycle_s (checked).",
     )
     write_rate_hz: Annotated[float, Field(ge=1.0, le=100.0, allow_inf_nan=False)] = Field(
         25.0, description="Heartbeat writes of the speed ratio per second (each is an HTTP POST) [Hz]."
@@ -493,6 +507,26 @@ class RobotConfig(_Frozen):
             raise ValueError(
                 f"interface.watchdog_s = {interface.watchdog_s} s is longer than controller.watchdog_s = "
                 f"{self.controller.watchdog_s} s; allowed: <= it"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _bridge_rise_time_covers_the_controllers(self) -> RobotConfig:
+        interface = self.interface
+        if not isinstance(interface, _BridgeInterfaceConfig):
+            return self
+        if isinstance(interface, AbbRwsInterfaceConfig) and interface.sample_jitter_s < self.controller.cycle_s:
+            raise ValueError(
+                f"interface.sample_jitter_s = {interface.sample_jitter_s} s is shorter than controller.cycle_s = "
+                f"{self.controller.cycle_s} s (q is sampled once a cycle); allowed: >= it"
+            )
+        if interface.rise_time_s == 0.0 and isinstance(interface, UrRtdeInterfaceConfig):
+            return self  # the read-back shows the applied scaling while it rises
+        if interface.rise_time_s < self.controller.accel_time_s:
+            raise ValueError(
+                f"interface.rise_time_s = {interface.rise_time_s} s is shorter than controller.accel_time_s = "
+                f"{self.controller.accel_time_s} s (the controller's ramp to a raised speed input); allowed: >= it, "
+                "or 0 on ur_rtde"
             )
         return self
 

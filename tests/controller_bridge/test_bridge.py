@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import heapq
 import math
 import random
+from typing import Any
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from controller_bridge.bridge import (
     quantise,
 )
 from controller_bridge.vendor import ControllerReading
+from hrc_contract.config import CellConfig
 from hrc_contract.messages import JointState, Override, to_payload
 from hrc_runtime.clocks import Clocks
 
@@ -26,7 +29,9 @@ MONO0 = 1_000_000_000
 QD_TOL = (0.01, 0.02)  # the gateway's streams.qd_tolerance_radps, qd_tolerance_ratio (defaults)
 
 
-def settings(kind: str = "ur_rtde", watchdog_s: float = 0.1) -> BridgeSettings:
+def settings(
+    kind: str = "ur_rtde", watchdog_s: float = 0.1, rise_time_s: float = 1.0, sample_jitter_s: float = 0.0
+) -> BridgeSettings:
     return BridgeSettings(
         robot="ur5",
         speed_input=SPEED_INPUTS[kind],
@@ -34,6 +39,8 @@ def settings(kind: str = "ur_rtde", watchdog_s: float = 0.1) -> BridgeSettings:
         braking_time_s=T_B,
         watchdog_s=watchdog_s,
         heartbeat_s=0.008,
+        rise_time_s=rise_time_s,
+        sample_jitter_s=sample_jitter_s,
     )
 
 
@@ -54,9 +61,12 @@ def reading(
     target_qd: tuple[float, ...] | None = None,
     scaling: float | None = 1.0,
     running: bool = True,
+    controller_time_s: float | None = None,
 ) -> ControllerReading:
     now = at(t_s)
-    return ControllerReading(now.wall_ns, now.mono_ns, q, qd, target_qd, fraction, scaling, running, "test")
+    return ControllerReading(
+        now.wall_ns, now.mono_ns, q, qd, target_qd, fraction, scaling, running, "test", controller_time_s
+    )
 
 
 def write(bridge: Bridge, t_s: float) -> float | None:
@@ -377,52 +387,350 @@ def test_a_write_is_never_above_delta_and_every_echo_is_proven_above_the_floor(k
                 assert set_by_write_at_s >= accepted_s, (seq, confirmed_s, accepted_s, set_by_write_at_s)
 
 
-# -- ramps ------------------------------------------------------------------------------------------------
+# -- ramps: qd_nominal never below the programmed velocity ------------------------------------------------------------
+
+P = np.array([1.0, -0.5, 0.0])
+"""The programmed velocity of the known-answer ramps [rad/s]."""
 
 
-def _ramp_states(readback_lags: bool) -> list[tuple[JointState, float]]:
-    """Slider 1 → 0.3 at t = 0; the controller brakes at 1/T_B; programmed velocity p on joint 0.
+def not_below(state: JointState, programmed: FloatArray, tolerance_radps: float = 1e-9) -> bool:
+    """|qd_nominal| ≥ |p| − tolerance per joint, with p's sign where p is not within the tolerance of 0."""
+    nominal = np.asarray(state.qd_nominal)
+    magnitude = np.abs(nominal) >= np.abs(programmed) - tolerance_radps
+    sign = (np.abs(programmed) <= tolerance_radps) | (np.sign(nominal) == np.sign(programmed))
+    return bool((magnitude & sign).all())
 
-    ``readback_lags`` False: the read-back shows the commanded 0.3 at once (the applied speed lags it).
-    """
-    p = np.array([1.0, -0.5, 0.0])
-    bridge = Bridge(settings())
+
+def within_limits(state: JointState) -> bool:
+    return bool((np.abs(state.qd_nominal) <= np.asarray(LIMITS) * (1 + 1e-9)).all())
+
+
+def _brake_states(rise_time_s: float) -> list[tuple[JointState, float]]:
+    """UR: slider 1 → 0.3 at t = 0.5 s, the read-back shows 0.3 at once; the controller brakes within T_B (at 2/T_B:
+    a braking time is a bound, a controller may stop faster)."""
+    bridge = Bridge(settings(rise_time_s=rise_time_s))
     out = []
-    applied = 1.0
-    for k in range(100):
+    for k in range(250):
         t = k * 0.004
-        applied = max(0.3, 1.0 - t / T_B)
-        shown = applied if readback_lags else 0.3
-        qd = tuple(applied * p)
-        state = bridge.on_reading(reading(t, shown if k else 1.0, qd=qd, target_qd=qd, q=(0.0, 0.0, 0.0)))
+        applied = 1.0 if t < 0.5 else max(0.3, 1.0 - (t - 0.5) * 2 / T_B)
+        qd = tuple(applied * P)
+        state = bridge.on_reading(reading(t, 1.0 if t < 0.5 else 0.3, qd=qd, target_qd=qd, controller_time_s=t))
         assert state is not None
         out.append((state, applied))
     return out
 
 
-@pytest.mark.parametrize("readback_lags", [False, True])
-def test_during_a_ramp_the_override_is_never_below_the_applied_one_and_the_state_is_consistent(
-    readback_lags: bool,
+@pytest.mark.parametrize("rise_time_s", [0.0, 1.0])
+def test_while_the_robot_brakes_behind_the_read_back_qd_nominal_is_never_below_the_programmed_velocity(
+    rise_time_s: float,
 ) -> None:
-    for state, applied in _ramp_states(readback_lags):
-        assert state.override >= applied - 1e-9
+    """The old rule's envelope assumed braking at exactly 1/t_b: a controller braking faster had ``target_qd / U``
+    below the programmed velocity (and on UR's timing the envelope fell below the applied scaling near the end of
+    braking: down to 0.27×)."""
+    for state, applied in _brake_states(rise_time_s):
+        assert state.override <= applied + 1e-9  # a lower bound of the applied scaling
+        assert not_below(state, P), (state, applied)
         assert consistent(state)
-        assert np.allclose(state.qd_nominal, [1.0, -0.5, 0.0], atol=1e-6)  # the envelope is the robot's ramp here
+        assert within_limits(state)
 
 
-def test_the_envelope_lets_the_override_fall_no_faster_than_the_braking_time() -> None:
-    bridge = Bridge(settings())
-    bridge.on_reading(reading(0.0, 1.0, target_qd=(0.0, 0.0, 0.0)))
-    state = bridge.on_reading(reading(0.04, 0.0, target_qd=(0.0, 0.0, 0.0)))
+def test_while_braking_behind_the_read_back_qd_nominal_is_the_velocity_over_the_new_value() -> None:
+    states = _brake_states(0.0)
+    state, applied = states[125 + 5]  # 20 ms into the braking: the robot still at 0.8
+    assert applied == pytest.approx(0.8)
+    assert state.override == pytest.approx(0.3)
+    assert state.qd_nominal == pytest.approx((0.8 / 0.3 * P).tolist())
+    assert states[-1][0].qd_nominal == pytest.approx(P.tolist())  # braked: the programmed velocity again
+
+
+def test_after_a_raise_the_override_stays_at_the_old_value_for_the_rise_time() -> None:
+    """ABB: the speed ratio reads 1.0 at once while the robot accelerates from 0.3 over 0.35 s (the old rule's ABB
+    finding: ``qd / ratio`` below the programmed velocity while the robot speeds up)."""
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.5))
+    q = np.zeros(3)
+    for k in range(100):
+        t = k * 0.02
+        applied = 0.3 if t < 1.0 else min(1.0, 0.3 + (t - 1.0) / 0.5)
+        q = q + applied * P * 0.02
+        state = bridge.on_reading(reading(t, 0.3 if t < 1.0 else 1.0, q=tuple(q), qd=None, scaling=None))
+        if state is None:
+            continue
+        assert not_below(state, P, 1e-6), (t, state)
+        assert consistent(state)
+        if 1.0 <= t < 1.5:  # within R of the previous reading's time: the old ratio
+            assert state.override == pytest.approx(max(0.3, applied * 1.0 / 3.0))  # |v_0| / limit_0 once above
+        if t >= 1.6:
+            assert state.override == pytest.approx(1.0)
+            assert state.qd_nominal == pytest.approx(P.tolist(), abs=1e-6)
+
+
+def test_qd_nominal_never_exceeds_the_velocity_limits() -> None:
+    """The old rule's UR finding: ``target_qd / U`` with U just above ``min_scaling`` while the robot still moved at
+    0.9 of its limits (``qd_above_limit``). Here a_lo ≥ max |v_j| / limit_j."""
+    bridge = Bridge(settings(rise_time_s=0.0))
+    qd = (2.7, -1.0, 0.0)
+    state = bridge.on_reading(reading(0.0, 0.05, qd=qd, target_qd=qd, controller_time_s=0.0))
+    assert state is not None
+    assert state.override == pytest.approx(0.9)
+    assert state.qd_nominal == pytest.approx([3.0, -1.0 / 0.9, 0.0])
+    assert consistent(state)
+
+
+def test_a_decrease_written_and_not_yet_read_back_lowers_the_bound_at_once() -> None:
+    """ABB: a lower ratio written after the poll read the ratio and before it read q (the robot already braking)."""
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.5))
+    bridge.on_override(override(0, 0.8, 0.0), at(0.0))
+    write(bridge, 0.0)
+    for k in range(31):  # 0.6 s at 0.8: the start's history of 0 has left the window
+        bridge.on_reading(reading(k * 0.02, 0.8, qd=None, scaling=None))
+    bridge.on_override(override(1, 0.2, 0.61), at(0.61))
+    assert bridge.next_write(at(0.61)) == pytest.approx(0.2)  # handed out: on_written has not come back yet
+    state = bridge.on_reading(reading(0.62, 0.8, q=(0.01, 0.0, 0.0), qd=None, scaling=None))
+    assert state is not None
+    assert state.override == pytest.approx(0.2)
+    assert state.qd_nominal == pytest.approx([2.5, 0.0, 0.0])
+    bridge.on_written(0.2, at(0.63))  # written: awaiting its read-back, still in the bound
+    state = bridge.on_reading(reading(0.64, 0.8, q=(0.02, 0.0, 0.0), qd=None, scaling=None))
+    assert state is not None
+    assert state.override == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize("cause", ["first_reading", "gap", "clock_back", "clock_leap"])
+def test_a_history_the_bridge_cannot_vouch_for_counts_as_zero(cause: str) -> None:
+    """Before the first reading, after a gap, when the controller's clock goes back or leaps, the controller may be
+    accelerating: a_lo is then only the velocity's share of the limits, for R."""
+    bridge = Bridge(settings(rise_time_s=0.5))
+    qd = (0.6, 0.0, 0.0)
+    t0 = 0.0
+    if cause != "first_reading":
+        for k in range(200):
+            bridge.on_reading(reading(k * 0.004, 1.0, qd=qd, target_qd=qd, controller_time_s=k * 0.004))
+        t0 = 1.0 if cause == "gap" else 0.8
+    clock = {"first_reading": t0, "gap": t0, "clock_back": 0.004, "clock_leap": 100.0}[cause]
+    state = bridge.on_reading(reading(t0, 1.0, qd=qd, target_qd=qd, controller_time_s=clock))
+    assert state is not None
+    assert state.override == pytest.approx(0.2)  # 0.6 / 3.0
+    assert state.qd_nominal == pytest.approx([3.0, 0.0, 0.0])
+    for k in range(1, 151):
+        later = bridge.on_reading(
+            reading(t0 + k * 0.004, 1.0, qd=qd, target_qd=qd, controller_time_s=clock + k * 0.004)
+        )
+        assert later is not None
+        assert later.override == pytest.approx(0.2 if k * 0.004 < 0.5 - 1e-9 else 1.0), k
+
+
+def test_the_window_runs_on_the_controllers_clock_not_on_arrival_times() -> None:
+    """RTDE packages whose ``timestamp`` steps 8 ms while they arrive 4 ms apart: the window follows the controller."""
+    bridge = Bridge(settings(rise_time_s=0.5))
+    qd = (0.3, 0.0, 0.0)
+
+    def package(k: int, fraction: float) -> JointState | None:
+        return bridge.on_reading(reading(k * 0.004, fraction, qd=qd, target_qd=qd, controller_time_s=k * 0.008))
+
+    for k in range(125):  # 1 s of controller time at 1.0 (the start's history of 0 has left the window)
+        package(k, 1.0)
+    package(125, 0.3)
+    for k in range(126, 188):  # 0.5 s of controller time (0.25 s of arrivals) later: 0.3 left the window
+        state = package(k, 1.0)
+        assert state is not None
+        assert state.override == pytest.approx(0.3 if (k - 1) * 0.008 - 1.0 < 0.5 - 1e-9 else 1.0), k
+
+
+def test_with_a_program_model_the_override_is_at_most_the_braking_envelope() -> None:
+    bridge = Bridge(settings(), locate=lambda q, qd: P)
+    bridge.on_reading(reading(0.0, 1.0, qd=tuple(P)))
+    state = bridge.on_reading(reading(0.04, 0.0, qd=tuple(0.9 * P)))
     assert state is not None
     assert state.override == pytest.approx(1.0 - 0.04 / T_B)
+    assert state.qd_nominal == pytest.approx(P.tolist())
+
+
+# -- the property: a behaving controller read with each vendor's timing --------------------------------------------
+
+
+class _Program:
+    """p(τ) = A sin(ω τ + φ) per joint, q(τ) its integral; |p| ≤ 0.95 · limit."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.amplitude = rng.uniform(0.3, 0.95, 3) * np.asarray(LIMITS)
+        self.omega = rng.uniform(0.3, 1.0, 3)
+        self.phase = rng.uniform(0.0, 2 * math.pi, 3)
+
+    def qd(self, tau_s: float) -> FloatArray:
+        return np.asarray(self.amplitude * np.sin(self.omega * tau_s + self.phase), dtype=float)
+
+    def q(self, tau_s: float) -> FloatArray:
+        return np.asarray(-self.amplitude / self.omega * np.cos(self.omega * tau_s + self.phase), dtype=float)
+
+    def max_accel_radps2(self) -> float:
+        return float(np.max(self.amplitude * self.omega))
+
+
+class _Cell:
+    """A controller that behaves, behind a bridge driven as its shell drives it, read with one vendor's timing.
+
+    The controller runs 4 ms cycles: its applied scaling a moves toward the input in force, down at 1/braking_s
+    (braking_s ≤ T_B) and up at 1/accel_s (accel_s ≤ R); the program time advances by a · dt. UR: an output package
+    every 2 ms repeating the latest cycle (``target_qd = actual_qd = a · p``, ``speed_scaling × slider`` = a while a
+    rises, else the slider), stamped with the package's controller time and received 0.5–2 ms later; a slider write
+    takes effect 0.5 ms after it is made. ABB: a poll every 18–26 ms (it waits for writes) reads the ratio, then
+    8 ms later q of the latest cycle (no velocities), and the reading arrives 2 ms after that; a POST takes effect
+    2 ms after it is handed out and its answer comes 2 ms later (a poll may land in between). Overrides at 250 Hz,
+    random δ held 40–600 ms.
+    """
+
+    CYCLE_US = 4000
+
+    def __init__(self, kind: str, seed: int, rise_time_s: float) -> None:
+        rng = np.random.default_rng(seed)
+        self.kind, self.rng = kind, rng
+        jitter_s = self.CYCLE_US / 1e6 if kind == "abb_rws" else 0.0  # q of the latest cycle, received 2 ms later
+        self.bridge = Bridge(settings(kind, rise_time_s=rise_time_s, sample_jitter_s=jitter_s))
+        self.program = _Program(rng)
+        self.braking_s = float(rng.uniform(0.05, T_B))
+        self.accel_s = float(rng.uniform(0.05, max(rise_time_s, 0.05)))
+        self.input, self.a, self.tau = 1.0 if kind == "abb_rws" else 0.0, 0.0, float(rng.uniform(0, 10))
+        self.cycle: tuple[float, float, float] = (self.a, self.tau, self.input)  # a, τ, input of the latest cycle
+        self.checked: list[tuple[JointState, FloatArray]] = []
+        self._events: list[tuple[int, int, str, Any]] = []
+        self._order = 0
+        self._busy = False  # ABB: a POST awaits its answer
+
+    def run(self, duration_s: float) -> list[tuple[JointState, FloatArray]]:
+        """Every joint state and the true programmed velocity at the cycle it shows."""
+        rng, us, push = self.rng, 1_000_000, self._push
+        push(0, "cycle")
+        push(1000, "override")
+        push(1500, "heartbeat")
+        push(int(rng.integers(0, 2000)) if self.kind == "ur_rtde" else int(rng.integers(0, 20000)), "read")
+        delta, hold_until_us, seq = 0.0, 0, 0
+        while self._events[0][0] < duration_s * us:
+            t_us, _, kind, data = heapq.heappop(self._events)
+            t_s = t_us / us
+            if kind == "cycle":
+                self._cycle()
+                push(t_us + self.CYCLE_US, "cycle")
+            elif kind == "override":
+                if t_us >= hold_until_us:
+                    delta = float(rng.choice([0.0, 0.005, 1.0, rng.uniform(), rng.uniform(), rng.uniform()]))
+                    hold_until_us = t_us + int(rng.integers(40_000, 600_000))
+                assert self.bridge.on_override(override(seq, delta, t_s), at(t_s)) is None
+                seq += 1
+                self._write(t_us)
+                push(t_us + 4000, "override")
+            elif kind == "heartbeat":
+                self._write(t_us)
+                push(t_us + 8000, "heartbeat")
+            elif kind == "apply":
+                self.input = data
+            elif kind == "written":
+                self.bridge.on_written(data, at(t_s))
+                self._busy = False
+            elif kind == "read":
+                self._read(t_us)
+                push(t_us + (2000 if self.kind == "ur_rtde" else int(rng.integers(18_000, 26_000))), "read")
+            elif kind == "ratio":  # ABB: the ratio is read now, q 8 ms later (two more round trips)
+                push(t_us + 8000, "q", self.input)
+            elif kind == "q":
+                _, tau, _ = self.cycle
+                push(t_us + 2000, "reading", (tuple(self.program.q(tau)), data, self.program.qd(tau)))
+            elif kind == "reading":
+                q, ratio, truth = data
+                self._publish(reading(t_s, ratio, q=q, qd=None, scaling=None), truth)
+            elif kind == "package":
+                values, truth = data
+                self._publish(reading(t_s, **values), truth)
+        return self.checked
+
+    def _push(self, t_us: int, kind: str, data: Any = None) -> None:
+        self._order += 1
+        heapq.heappush(self._events, (t_us, self._order, kind, data))
+
+    def _cycle(self) -> None:
+        dt = self.CYCLE_US / 1e6
+        c = self.input
+        self.a = max(c, self.a - dt / self.braking_s) if self.a > c else min(c, self.a + dt / self.accel_s)
+        self.tau += self.a * dt
+        self.cycle = (self.a, self.tau, c)
+
+    def _write(self, t_us: int) -> None:
+        """The shell's writer: UR's write is a package (written at once); ABB's POST acts 2 ms later, answers at 4."""
+        if self._busy:
+            return
+        value = self.bridge.next_write(at(t_us / 1e6))
+        if value is None:
+            return
+        if self.kind == "ur_rtde":
+            self.bridge.on_written(value, at(t_us / 1e6))
+            self._push(t_us + 500, "apply", value)
+        else:
+            self._busy = True
+            self._push(t_us + 2000, "apply", value)
+            self._push(t_us + 4000, "written", value)
+
+    def _read(self, t_us: int) -> None:
+        if self.kind == "abb_rws":
+            self._push(t_us + 2000, "ratio")
+            return
+        a, tau, slider = self.cycle  # the package repeats the latest 4 ms cycle
+        combined = a if a < slider else slider
+        p = self.program.qd(tau)
+        values = {
+            "fraction": slider,
+            "scaling": 1.0 if slider <= 0.0 else combined / slider,
+            "q": tuple(self.program.q(tau)),
+            "qd": tuple(a * p),
+            "target_qd": tuple(a * p),
+            "controller_time_s": t_us / 1e6,
+        }
+        self._push(t_us + 500 + int(self.rng.integers(0, 1500)), "package", (values, p))
+
+    def _publish(self, state_reading: ControllerReading, truth: FloatArray) -> None:
+        state = self.bridge.on_reading(state_reading)
+        if state is not None:
+            self.checked.append((state, truth))
+
+
+def _truth_tolerance_radps(cell: _Cell) -> float:
+    """UR: none (``target_qd`` and the read-back come from the same cycle). ABB: q is differenced over the poll, so its
+    velocity is the mean since the previous q sample while the truth is the last one: the programmed velocity's
+    change over half the longest poll interval, 13 ms (|dp/dτ| ≤ max A ω, τ advancing at most at 1); the sampling
+    jitter of q (up to one 4 ms cycle) is the bridge's ``sample_jitter_s``, not a tolerance."""
+    if cell.kind == "ur_rtde":
+        return 1e-9
+    return cell.program.max_accel_radps2() * 0.013
+
+
+@pytest.mark.parametrize(
+    ("kind", "rise_time_s"),
+    [("ur_rtde", 1.0), ("ur_rtde", 0.5), ("ur_rtde", 0.0), ("abb_rws", 1.0), ("abb_rws", 0.5)],
+)  # R = 0 only on UR: ABB's read-back is the input, not the applied scaling (the cell file refuses it)
+def test_a_behaving_controller_read_with_its_vendors_timing_is_never_reported_slower_than_its_program(
+    kind: str, rise_time_s: float
+) -> None:
+    """On every joint state: qd_nominal ≥ the true programmed velocity (− the stated tolerance), the gateway's check
+    ``|qd − override · qd_nominal| ≤ 0.01 + 0.02 |qd_nominal|`` holds, and |qd_nominal| ≤ the limits."""
+    for seed in range(6):
+        cell = _Cell(kind, 100 * seed + len(kind), rise_time_s)
+        states = cell.run(6.0)
+        assert len(states) > (2000 if kind == "ur_rtde" else 250)
+        tolerance = _truth_tolerance_radps(cell)
+        moving = 0
+        for state, truth in states:
+            qd = np.asarray(state.qd)
+            assert not_below(state, np.where(qd == 0.0, 0.0, truth), tolerance), (seed, state, truth)
+            assert np.all(np.abs(state.qd_nominal) >= np.abs(truth) - tolerance), (seed, state, truth)
+            assert consistent(state), (seed, state)
+            assert within_limits(state), (seed, state)
+            moving += bool(np.any(qd != 0.0))
+        assert moving > len(states) // 3  # the property was tested on a moving robot
 
 
 # -- q differentiation -------------------------------------------------------------------------------------
 
 
 def test_without_velocities_q_is_differentiated_over_the_sample_times() -> None:
-    bridge = Bridge(settings("abb_rws"))
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.0))  # the window: the previous reading and this one
     assert bridge.on_reading(reading(0.0, 0.5, q=(0.0, 0.0, 0.0), qd=None, scaling=None)) is None
     state = bridge.on_reading(reading(0.02, 0.5, q=(0.01, -0.004, 0.0), qd=None, scaling=None))
     assert state is not None
@@ -441,7 +749,7 @@ def test_q_is_not_differentiated_over_a_gap() -> None:
 
 
 def test_target_qd_over_the_applied_scaling_while_it_is_not_near_zero() -> None:
-    bridge = Bridge(settings())
+    bridge = Bridge(settings(rise_time_s=0.0))  # the window: this reading alone
     state = bridge.on_reading(reading(0.0, 0.5, qd=(0.2, 0.0, 0.0), target_qd=(0.2, 0.0, 0.0), scaling=0.8))
     assert state is not None
     assert state.qd_nominal == pytest.approx([0.5, 0.0, 0.0])
@@ -464,7 +772,7 @@ def test_the_program_model_comes_first_and_gives_the_velocity_at_delta_zero() ->
     def locate(q: FloatArray, qd: FloatArray) -> FloatArray | None:
         return programmed if q[0] < 1.0 else None
 
-    bridge = Bridge(settings(), locate=locate)
+    bridge = Bridge(settings(rise_time_s=0.0), locate=locate)
     state = bridge.on_reading(reading(0.0, 0.0, qd=(0.0, 0.0, 0.0), target_qd=(0.0, 0.0, 0.0)))
     assert state is not None
     assert state.qd_nominal == pytest.approx(programmed.tolist())
@@ -553,3 +861,55 @@ def test_the_dither_costs_about_half_a_step_of_speed(kind: str) -> None:
         settled = sim.in_force[200:]
         reductions.append(quantise(delta, SPEED_INPUTS[kind]) - sum(settled) / len(settled))
     assert all(-1e-12 <= r <= 0.7 * DITHER[kind] for r in reductions), reductions
+
+
+# -- the cell file's rise time ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("interface", "rise_time_s", "accepted"),
+    [
+        ({"kind": "abb_rws", "url": "http://127.0.0.3:8081", "password_env": "X"}, 0.5, True),
+        ({"kind": "abb_rws", "url": "http://127.0.0.3:8081", "password_env": "X"}, 0.4, False),
+        ({"kind": "abb_rws", "url": "http://127.0.0.3:8081", "password_env": "X"}, 0.0, False),
+        ({"kind": "ur_rtde", "host": "127.0.0.2"}, 0.0, True),
+        ({"kind": "ur_rtde", "host": "127.0.0.2"}, 0.3, False),
+    ],
+)
+def test_the_cell_file_refuses_a_rise_time_shorter_than_the_controllers_ramp(
+    cell_config: CellConfig, interface: dict[str, object], rise_time_s: float, accepted: bool
+) -> None:
+    raw = cell_config.model_dump()
+    raw["robots"]["ur5"]["controller"]["accel_time_s"] = 0.5
+    raw["robots"]["ur5"]["interface"] = interface | {"rise_time_s": rise_time_s}
+    if accepted:
+        config = CellConfig.model_validate(raw)
+        assert config.robots["ur5"].interface.rise_time_s == rise_time_s  # type: ignore[union-attr]
+    else:
+        with pytest.raises(ValueError, match=r"rise_time_s = .* shorter than controller.accel_time_s"):
+            CellConfig.model_validate(raw)
+    raw["robots"]["ur5"]["interface"] = interface
+    assert CellConfig.model_validate(raw).robots["ur5"].interface.rise_time_s == 1.0  # type: ignore[union-attr]
+
+
+def test_the_cell_file_refuses_a_sampling_jitter_below_the_controllers_cycle(cell_config: CellConfig) -> None:
+    raw = cell_config.model_dump()
+    raw["robots"]["ur5"]["controller"]["cycle_s"] = 0.004
+    abb = {"kind": "abb_rws", "url": "http://127.0.0.3:8081", "password_env": "X"}
+    raw["robots"]["ur5"]["interface"] = abb | {"sample_jitter_s": 0.002}
+    with pytest.raises(ValueError, match=r"sample_jitter_s = 0.002 s is shorter than controller.cycle_s"):
+        CellConfig.model_validate(raw)
+    raw["robots"]["ur5"]["interface"] = abb
+    assert CellConfig.model_validate(raw).robots["ur5"].interface.sample_jitter_s == 0.004  # type: ignore[union-attr]
+
+
+def test_a_differenced_velocity_is_bounded_with_the_sampling_jitter() -> None:
+    """Receipts 20 ms apart, samples maybe 16 ms apart: v = Δq / 16 ms, qd = Δq / 20 ms, override · qd_nominal = qd."""
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.0, sample_jitter_s=0.004))
+    bridge.on_reading(reading(0.0, 0.5, q=(0.0, 0.0, 0.0), qd=None, scaling=None))
+    state = bridge.on_reading(reading(0.02, 0.5, q=(0.01, -0.004, 0.0), qd=None, scaling=None))
+    assert state is not None
+    assert state.qd == pytest.approx([0.5, -0.2, 0.0])
+    assert state.qd_nominal == pytest.approx([1.25, -0.5, 0.0])  # Δq / 16 ms / 0.5
+    assert state.override == pytest.approx(0.4)  # 0.5 · 16 / 20
+    assert consistent(state)

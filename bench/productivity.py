@@ -49,6 +49,7 @@ from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from hrc_tools.sim.links import LinkFault, LinkFaults
 from hrc_tools.sim.scenarios import COLLABORATIVE_KINDS, SweepCase, case_of_cell
+from hrc_tools.sim.sweep import add_case_arguments, case_argument_problem
 from tracker_emu.scenario import Scenario
 
 NAME = "productivity"
@@ -551,20 +552,9 @@ def _target(d: dict[str, Any]) -> AtLeast:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.productivity", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenarios", type=int, default=40, help="cases of the suite (default 40)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the suite (default 0)")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 1 = in process)")
-    parser.add_argument("--duration-s", type=float, default=30.0, help="simulated time per case (default 30)")
-    parser.add_argument("--config", default=None, help="cell configuration (default configs/cell.toml)")
+    add_case_arguments(parser, scenarios=40, duration_s=30.0)
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument("--suite", choices=SUITES, default="stress", help="the case generator (default stress)")
-    parser.add_argument(
-        "--occlusion",
-        action="store_true",
-        help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids "
-        "(hrc_tools.sim.scenarios.with_occlusion); the same people, links and seeds as without",
-    )
     parser.add_argument(
         "--variants",
         nargs="+",
@@ -584,8 +574,9 @@ def main(argv: list[str] | None = None) -> int:
         help="run nothing: plot these earlier results, one panel each (e.g. the stress and the collaborative suite)",
     )
     args = parser.parse_args(argv)
-    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
-        parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
+    problem = case_argument_problem(args)
+    if problem is not None:
+        parser.error(problem)
     plot_path = args.plot if args.plot is not None else args.json.with_suffix(".png")
     if args.plot_from:
         return _plot_only(args.plot_from, plot_path)

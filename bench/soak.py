@@ -75,6 +75,10 @@ WARMUP_S = 20.0
 """The cell runs this long before the first fault; resources are sampled at its end ("start") [s]."""
 POLL_S = 0.1
 """The status is polled this often [s]."""
+SAMPLE_EVERY_S = 5.0
+"""After the warm-up, every program's memory, descriptors and threads are sampled this often [s]."""
+PROCESS_WARMUP_S = 15.0
+"""A process's RSS counts from when it is this old (a restarted one's start-up is no growth) [s]."""
 FLOOD_RATE_HZ = 2000.0
 """Frames per second of the flooding tracker."""
 PROGRAMS = ("gateway", "controller", "tracker", "relay-controller", "relay-tracker", "audit")
@@ -162,14 +166,67 @@ def stalls_by_cause(events: list[dict[str, Any]]) -> tuple[dict[str, int], dict[
 
 
 def resources(pid: int) -> dict[str, int] | None:
-    """RSS [kB], open descriptors and threads of a process (None if it is gone)."""
+    """RSS [kB], open descriptors, threads and age [s] of a process (None if it is gone)."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
         fds = len(os.listdir(f"/proc/{pid}/fd"))
-    except OSError:
+        started_ticks = int(Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[19])
+        uptime_s = float(Path("/proc/uptime").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
         return None
     fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
-    return {"rss_kb": int(fields["VmRSS"].split()[0]), "fds": fds, "threads": int(fields["Threads"])}
+    age_s = int(uptime_s - started_ticks / os.sysconf("SC_CLK_TCK"))
+    return {"rss_kb": int(fields["VmRSS"].split()[0]), "fds": fds, "threads": int(fields["Threads"]), "age_s": age_s}
+
+
+@dataclass(frozen=True)
+class Lifetime:
+    """One process of a program between its first and its last resource sample (after the warm-up)."""
+
+    pid: int
+    first: dict[str, int]
+    last: dict[str, int]
+    samples: int
+
+    @property
+    def rss_growth_percent(self) -> float:
+        """RSS growth from the first sample to the last [%]."""
+        return 100.0 * (self.last["rss_kb"] / self.first["rss_kb"] - 1.0)
+
+
+def lifetimes(samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S) -> dict[str, list[Lifetime]]:
+    """Resource samples (``sample_resources``' dictionaries, oldest first) as each program's process lifetimes.
+
+    A program restarted meanwhile has several: comparing a sample of one process with a sample of the next
+    compares two start-ups, not a growth. Samples of a process younger than ``warmup_s`` (its own start-up:
+    loading, compiling, connecting) [s] and samples without an RSS (the process was gone) are left out.
+    """
+    spans: dict[tuple[str, int], Lifetime] = {}
+    for sample in samples:
+        for name, res in sample.items():
+            if not res.get("rss_kb") or res.get("age_s", warmup_s) < warmup_s:
+                continue
+            key = (name, res["pid"])
+            seen = spans.get(key)
+            spans[key] = Lifetime(res["pid"], seen.first if seen else res, res, (seen.samples if seen else 0) + 1)
+    out: dict[str, list[Lifetime]] = {}
+    for (name, _pid), span in spans.items():
+        out.setdefault(name, []).append(span)
+    return out
+
+
+def rss_growth_percent(samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S) -> dict[str, float]:
+    """Per program, the largest RSS growth of any one of its processes over its own lifetime [%].
+
+    Only processes sampled at least twice after their warm-up (``warmup_s`` [s], see :func:`lifetimes`) count:
+    a growth needs two samples of the same process.
+    """
+    growth: dict[str, float] = {}
+    for name, spans in lifetimes(samples, warmup_s).items():
+        measured = [span.rss_growth_percent for span in spans if span.samples >= 2]
+        if measured:
+            growth[name] = round(max(measured), 2)
+    return growth
 
 
 def _children(pid: int) -> list[int]:
@@ -207,6 +264,9 @@ class Soak:
         self.relay_rules: dict[str, list[str]] = {"relay-controller": [], "relay-tracker": []}
         self.events_checks: list[dict[str, Any]] = []
         self.incarnation_loops: list[dict[str, Any]] = []
+        self.resource_samples: list[dict[str, Any]] = []  # every SAMPLE_EVERY_S once sampling is on
+        self.sampling = False
+        self.next_sample_s = 0.0
 
     # -- programs -------------------------------------------------------------------------------
 
@@ -258,7 +318,17 @@ class Soak:
         end_s = time.monotonic() + duration_s
         while not self.stop.is_set() and time.monotonic() < end_s:
             self.poll_status()
+            self.sample_now()
             self.stop.wait(min(POLL_S, max(0.0, end_s - time.monotonic())))
+
+    def sample_now(self, force: bool = False) -> dict[str, Any] | None:
+        """Sample every program's resources if sampling is on and it is time (or ``force``); the sample."""
+        if not self.sampling or (not force and time.monotonic() < self.next_sample_s):
+            return None
+        self.next_sample_s = time.monotonic() + SAMPLE_EVERY_S
+        sample = self.sample_resources()
+        self.resource_samples.append(sample)
+        return sample
 
     # -- the status -----------------------------------------------------------------------------
 
@@ -303,6 +373,7 @@ class Soak:
             end_s = time.monotonic() + duration_s
             while not self.stop.is_set() and time.monotonic() < end_s:
                 seen.update({k: v for k, v in self.reasons(self.poll_status()).items() if k not in seen})
+                self.sample_now()
                 self.stop.wait(POLL_S)
 
         try:
@@ -369,6 +440,7 @@ class Soak:
             if self.healthy():
                 return True, round(time.monotonic() - ended_s, 2)
             seen.update({k: v for k, v in self.reasons(self.latest).items() if k not in seen})
+            self.sample_now()
             self.stop.wait(POLL_S)
         return (None if self.stop.is_set() else False), None
 
@@ -530,7 +602,8 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
         print(f"soak: cell up in {work} (mutual TLS); warming up {WARMUP_S:.0f} s", flush=True)
         soak.sleep(min(WARMUP_S, minutes * 60.0 / 4))
         soak.supervise()
-        started = soak.sample_resources()
+        soak.sampling = True
+        started = soak.sample_now(force=True) or {}
         for kind in fault_schedule(seed, rounds=1000):
             if stop.is_set() or time.monotonic() > end_s - 10.0:
                 break
@@ -540,7 +613,7 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
             print(f"soak: t={result.t_s:7.1f} s {kind:24s} {state}; {'; '.join(result.reasons)[:160]}", flush=True)
             soak.sleep(SETTLE_S)
         soak.sleep(max(0.0, min(5.0, end_s - time.monotonic())))
-        ended = soak.sample_resources()
+        ended = soak.sample_now(force=True) or {}
         soak._before_gateway_stop()
     finally:
         for name in ("audit", "tracker", "controller", "relay-tracker", "relay-controller", "gateway"):
@@ -575,11 +648,8 @@ def build_report(
             rec = check_recording(Path(r["path"]))
             rec["lost_tail_s"] = round((r["killed_ns"] - rec["last_log_ns"]) / 1e9, 3) if rec["last_log_ns"] else None
             recordings.append(rec)
-    growth = {
-        name: round(100.0 * (ended[name]["rss_kb"] / started[name]["rss_kb"] - 1.0), 2)
-        for name in started
-        if name in ended and started[name].get("rss_kb") and ended[name].get("rss_kb")
-    }
+    growth = rss_growth_percent(soak.resource_samples)
+    spans = lifetimes(soak.resource_samples)
     return {
         "schema": "hrc.bench.soak/1",
         "machine": machine_info(),
@@ -606,6 +676,9 @@ def build_report(
         "resources_start": started,
         "resources_end": ended,
         "rss_growth_percent": growth,
+        "rss_growth_note": "per program, the largest growth of one process between its first sample after its "
+        f"warm-up ({PROCESS_WARMUP_S:g} s old) and its last (sampled every {SAMPLE_EVERY_S:g} s)",
+        "processes_sampled": {name: len(s) for name, s in spans.items()},
         "recordings_after_sigkill": recordings,
         "faults": [asdict(f) for f in faults],
         "faults_not_injected": [f.kind for f in faults if not f.injected],
@@ -624,7 +697,7 @@ def format_report(report: dict[str, Any]) -> str:
         f"  budget overruns: {report['budget_overruns']}; worst last lateness {report['worst_last_lateness_s']}",
         f"  events: {report['events']['in_file']} in the file, seq gaps {report['events']['seq_gaps'] or 'none'}, "
         f"API vs file: {[c.get('differing_seqs') for c in report['events']['api_vs_file']]}",
-        f"  RSS growth [%]: {report['rss_growth_percent']}",
+        f"  RSS growth [%], the largest of one process over its lifetime: {report['rss_growth_percent']}",
     ]
     for name, start in report["resources_start"].items():
         end = report["resources_end"].get(name, {})

@@ -1,12 +1,14 @@
 """The gateway process: Zenoh in, :class:`~gateway.node.GatewayNode` cycles, override and status out, REST in a child.
 
     Zenoh callback ──node.on_joint_state / on_humans──▶ (stored)
-    rate.sleep() ──▶ node.cycle(now, until next) ──▶ publish overrides ──▶ hand the cycle over ──▶ rate.sleep()
-                                                                              │ every ``status_rate_hz``
-    status thread ◀───────────────────────────────────────────────────────────┘
+    rate.sleep() ──▶ node.cycle(now, until next) ──▶ hand overrides over ──▶ hand the cycle over ──▶ rate.sleep()
+                                                          │ one sender per robot  │ every ``status_rate_hz``
+    override sender threads ◀─────────────────────────────┘                       │
+        └──▶ Zenoh put (BLOCK)                                                     │
+    status thread ◀────────────────────────────────────────────────────────────────┘
         └──▶ cycle_status ──▶ JSON ──▶ Zenoh status key and the HTTP child
 
-The safety loop's thread decides, publishes and hands over; nothing it does after publishing can delay the next
+The safety loop's thread decides and hands over (never waits for a put); nothing it does after that can delay the next
 decision beyond what that decision budgeted (:class:`DecisionIntervals`). Only Zenoh, timing, logging and the
 status live here; every decision is the node's.
 """
@@ -290,20 +292,97 @@ class _StatusSink:
             return line
 
 
+class OverrideSenders:
+    """One sender thread per robot: the loop hands each robot's newest override over and never waits for a put.
+
+    Each robot's publisher puts with congestion control BLOCK (:func:`_declare_overrides`), which waits while that
+    controller's link is congested (a frozen controller, a partition). On the loop's thread that wait held every
+    robot's decisions (the 60-minute soak: 22,964 of 35,575 missed ticks in the publish phase); here each put waits
+    on its robot's own thread (a :class:`~gateway.handoff.LatestJobThread`): an override not yet put is replaced by
+    the newer one (the newest decision is the one to be in force), and the other robots' overrides go out on time.
+
+    The send is recorded at decision time, before the put (:meth:`gateway.inputs.InputStore.on_override_sent`, from
+    the node): a put that waits lengthens the measured override path (conservative); a replaced override is never
+    echoed, which :class:`gateway.delay.OverridePath` takes as no news (no fault). The controller ignores an
+    override stamped no later than one it accepted; one thread per robot keeps each robot's overrides in order.
+
+    Args:
+        publishers: the robots' override publishers (``put(bytes)``).
+        realtime_priority: > 0: each sender thread puts itself under SCHED_FIFO at it
+            (``gateway.io_realtime_priority``, like the receiving threads).
+    """
+
+    LAST_WORD_TIMEOUT_S = 2.0
+    """How long the gateway waits on exit for its last override (δ = 0) to be put to every controller [s]; a link
+    still congested after it is left to the controller's watchdog."""
+
+    def __init__(self, publishers: Mapping[str, Any], realtime_priority: int = 0) -> None:
+        self._threads = {
+            name: LatestJobThread[bytes](
+                publisher.put,
+                f"hrc-override-{name}",
+                f"publishing robot {name}'s override",
+                log,
+                on_start=None
+                if not realtime_priority
+                else functools.partial(_use_realtime_scheduling, realtime_priority, f"robot {name}'s override sender"),
+            )
+            for name, publisher in publishers.items()
+        }
+
+    def offer(self, messages: Mapping[str, Override]) -> None:
+        """Hand each robot's override to its sender (never blocks; a newer one replaces one not yet put)."""
+        for name, message in messages.items():
+            self._threads[name].offer(to_payload(message))
+
+    def last_word(self, messages: Mapping[str, Override], timeout_s: float = LAST_WORD_TIMEOUT_S) -> list[str]:
+        """Put these last overrides (δ = 0 on exit) after any put under way, and stop the senders; waits for all
+        of them together at most ``timeout_s`` [s].
+
+        Returns:
+            The robots whose last override was not put within ``timeout_s`` (their link still congested).
+        """
+        for name, message in messages.items():
+            self._threads[name].offer_last(to_payload(message))
+        deadline_s = time.monotonic() + timeout_s
+        return [name for name, thread in self._threads.items() if not thread.close(deadline_s - time.monotonic())]
+
+
 @dataclass
 class _Outputs:
-    """The gateway's publishers, and what the status collects between two documents (loop thread only)."""
+    """The gateway's publishers, and what the status collects between two documents (loop thread only).
+
+    ``overrides``: the robots' override publishers, each put on a sender thread of its own (:class:`OverrideSenders`,
+    at ``io_realtime_priority``); :meth:`last_word` stops those threads.
+    """
 
     overrides: dict[str, Any]
     http: HttpServerProcess
     status_thread: StatusThread
+    io_realtime_priority: int = 0
     compute_max_s: float = 0.0
     event_seqs: list[int] = field(default_factory=list)
     events: EventLog = field(default_factory=EventLog)
+    senders: OverrideSenders = field(init=False)
 
-    def publish_overrides(self, messages: dict[str, Override]) -> None:
-        for name, message in messages.items():
-            self.overrides[name].put(to_payload(message))
+    def __post_init__(self) -> None:
+        self.senders = OverrideSenders(self.overrides, self.io_realtime_priority)
+
+    def offer_overrides(self, messages: Mapping[str, Override]) -> None:
+        """Hand the overrides to the robots' senders (never waits for a put)."""
+        self.senders.offer(messages)
+
+    def last_word(self, messages: Mapping[str, Override]) -> None:
+        """Put ``messages`` (δ = 0 on exit) to every controller, waiting a bounded time; a warning names those
+        not reached."""
+        late = self.senders.last_word(messages)
+        if late:
+            log.warning(
+                "the last override (δ = 0) was not put to robot(s) %s within %.1f s (link congested); their "
+                "controllers' watchdogs stop them",
+                ", ".join(late),
+                OverrideSenders.LAST_WORD_TIMEOUT_S,
+            )
 
     def offer_status(
         self,
@@ -330,8 +409,9 @@ def _declare_overrides(session: zenoh.Session, config: CellConfig) -> dict[str, 
     """One publisher per robot. Congestion control BLOCK: an override that lowers δ is never dropped on the way
     (DROP would leave the controller at the higher δ until a later one, or its watchdog, arrived, beyond the
     budget). A put waits only while the link's queue is full; a silent peer's link is closed after the session's
-    lease (1 s), a congested one after Zenoh's ``wait_before_close`` (5 s), which ends the wait; meanwhile the
-    controllers' watchdogs stop the robots and the next decision counts the overrun."""
+    lease (1 s), a congested one after Zenoh's ``wait_before_close`` (5 s), which ends the wait; meanwhile that
+    controller's watchdog stops its robot. Each put waits on its robot's sender thread (:class:`OverrideSenders`),
+    never on the safety loop: the other robots' decisions stay on time."""
     return {
         name: session.declare_publisher(
             keys.robot_override(config.cell, name),
@@ -378,7 +458,7 @@ def _cycle(
         stalls.enter(Phase.DECIDE)
         cycle = node.cycle(now, intervals.start(now.mono_ns))
         stalls.enter(Phase.PUBLISH)
-        out.publish_overrides(cycle.overrides)
+        out.offer_overrides(cycle.overrides)
         intervals.commanded(_moving(cycle.overrides))
         stalls.enter(Phase.EVENTS)
         service.cycle_done(woke_s, functools.partial(service_status_line, cycle.decisions, rate.missed_cycles))
@@ -469,7 +549,9 @@ def run_gateway(
             subscribers.append(session.declare_subscriber(bridges.key, bridges.on_sample))
         status_pub = session.declare_publisher(keys.gateway_status(config.cell))
         sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
-        out = _Outputs(_declare_overrides(session, config), http, StatusThread(sink.publish))
+        out = _Outputs(
+            _declare_overrides(session, config), http, StatusThread(sink.publish), config.gateway.io_realtime_priority
+        )
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
@@ -487,7 +569,7 @@ def run_gateway(
         try:
             return _loop(config, node, out, stop, wake)
         finally:
-            out.publish_overrides(node.stop_overrides(read_clocks()))  # last word to the controllers: stop
+            out.last_word(node.stop_overrides(read_clocks()))  # to every controller, a bounded wait: stop
             out.status_thread.close()
             out.http.offer_events(out.events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
             out.http.close()

@@ -127,7 +127,13 @@ def check_endpoints(endpoints: Sequence[str], options: SessionOptions) -> None:
 def session_config(
     listen: Sequence[str] = (), connect: Sequence[str] = (), options: SessionOptions = PLAIN_TCP_LOOPBACK
 ) -> zenoh.Config:
-    """A Zenoh configuration with explicit endpoints, no scouting, and the options' TLS and access control.
+    """A Zenoh configuration with explicit endpoints, no scouting, no shared memory, and the options' TLS and access
+    control.
+
+    Shared memory is off in every program: Zenoh (1.x) moves payloads above 3 kB (the gateway's status) through a
+    16 MB pool of the sender, which a receiver maps and keeps, with its descriptors, for its own lifetime even after
+    the sender exited (eclipse-zenoh/zenoh#2787): the soak's auditor grew by ~18 MB and 2 descriptors per gateway
+    restart, the relays and emulators likewise. Copies over the link cost nothing worth that at these rates.
 
     Raises:
         SecurityError: see :func:`check_endpoints`.
@@ -139,7 +145,7 @@ def session_config(
         "listen": {"endpoints": list(listen)},
         "connect": {"endpoints": list(connect)},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
-        "transport": {"link": link},
+        "transport": {"link": link, "shared_memory": {"enabled": False}},
     }
     if options.tls is None:
         link["protocols"] = ["tcp"]

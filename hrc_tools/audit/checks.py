@@ -38,6 +38,7 @@ import pinocchio as pin
 from hrc_contract.humans import HumanCapsules
 from hrc_runtime.link_motion import LinkMotion, link_motion
 from hrc_runtime.robot_model import RobotModel
+from hrc_tools.audit.bounded import LargestN, largest_in_order
 from hrc_tools.audit.contact import Contact
 from hrc_tools.audit.distance import CapsulePairs, CapsuleSet
 
@@ -48,6 +49,8 @@ MOVING_EPS_MPS = 0.01
 
 UNKNOWN_ZONE = "unknown"
 """Zone label used for cycles fed without a gateway zone."""
+MAX_ONSET_SPEEDS = 10_000
+"""Contact onset speeds a summary keeps (the fastest; all of them below this); the count of onsets is exact."""
 
 
 class CycleAudit(NamedTuple):
@@ -265,7 +268,8 @@ class AuditSummary:
         unacceptable_contacts: cycles with a contact the contact criterion does not accept (too fast for the body
             region, at the head or a body part of no region, or clamped): the contact criterion's violations.
         contact_speeds_mps: the speed at the onset of every contact (a link–capsule pair that was not in contact the
-            cycle before) [m/s].
+            cycle before), in onset order; beyond :data:`MAX_ONSET_SPEEDS` onsets, the fastest of them [m/s].
+        contact_onsets: how many contact onsets there were (all of them, kept or not).
         unacceptable_onsets: the onsets among them that were not acceptable.
     """
 
@@ -287,6 +291,7 @@ class AuditSummary:
     unacceptable_contacts: int = 0
     contact_speeds_mps: tuple[float, ...] = ()
     unacceptable_onsets: int = 0
+    contact_onsets: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dictionary (an infinite margin becomes None)."""
@@ -309,6 +314,7 @@ class AuditSummary:
             "unacceptable_contacts": self.unacceptable_contacts,
             "contact_speeds_mps": [round(v, 4) for v in self.contact_speeds_mps],
             "unacceptable_onsets": self.unacceptable_onsets,
+            "contact_onsets": self.contact_onsets,
         }
 
     def to_json(self, indent: int | None = None) -> str:
@@ -318,6 +324,9 @@ class AuditSummary:
 
 class AuditAccumulator:
     """Folds audited cycles into an :class:`AuditSummary` (the mutable builder of a run).
+
+    Its size does not grow with the run: running extremes, sums and counts, one time per zone label and at most
+    2 × :data:`MAX_ONSET_SPEEDS` onset speeds (:attr:`n_items_stored` counts what it holds).
 
     Usage::
 
@@ -345,9 +354,14 @@ class AuditAccumulator:
         self._program_cycles = 0
         self._contact_cycles = 0
         self._unacceptable = 0
-        self._onset_speeds: list[float] = []
+        self._onset_speeds = LargestN(MAX_ONSET_SPEEDS)
         self._unacceptable_onsets = 0
         self._in_contact: frozenset[tuple[str, str]] = frozenset()
+
+    @property
+    def n_items_stored(self) -> int:
+        """Figures held that a run could make grow: onset speeds, zone labels, pairs in contact now."""
+        return self._onset_speeds.n_stored + len(self._zones) + len(self._in_contact)
 
     def add_contacts(self, contacts: Sequence[Contact], labels: Sequence[str]) -> None:
         """Count one cycle's contacts (:func:`hrc_tools.audit.contact.audit_contacts`); ``labels[k]`` names the capsule
@@ -360,7 +374,7 @@ class AuditAccumulator:
                 self._unacceptable += 1
         for contact, label in zip(contacts, labels, strict=True):
             if (contact.link, label) not in self._in_contact:
-                self._onset_speeds.append(contact.speed_mps)
+                self._onset_speeds.add(contact.speed_mps)
                 self._unacceptable_onsets += not contact.acceptable
         self._in_contact = pairs
 
@@ -437,8 +451,9 @@ class AuditAccumulator:
             program_cycles_completed=self._program_cycles,
             contact_cycles=self._contact_cycles,
             unacceptable_contacts=self._unacceptable,
-            contact_speeds_mps=tuple(self._onset_speeds),
+            contact_speeds_mps=self._onset_speeds.values(),
             unacceptable_onsets=self._unacceptable_onsets,
+            contact_onsets=self._onset_speeds.count,
         )
 
 
@@ -477,6 +492,9 @@ def merge_summaries(summaries: Sequence[AuditSummary]) -> AuditSummary:
         program_cycles_completed=sum(s.program_cycles_completed for s in summaries),
         contact_cycles=sum(s.contact_cycles for s in summaries),
         unacceptable_contacts=sum(s.unacceptable_contacts for s in summaries),
-        contact_speeds_mps=tuple(v for s in summaries for v in s.contact_speeds_mps),
+        contact_speeds_mps=tuple(
+            largest_in_order((v for s in summaries for v in s.contact_speeds_mps), MAX_ONSET_SPEEDS)
+        ),
         unacceptable_onsets=sum(s.unacceptable_onsets for s in summaries),
+        contact_onsets=sum(s.contact_onsets for s in summaries),
     )

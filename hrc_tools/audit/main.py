@@ -25,7 +25,6 @@ import bisect
 import json
 import logging
 import math
-import statistics
 import sys
 import threading
 import time
@@ -51,6 +50,7 @@ from hrc_runtime.logs import configure_logging
 from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+from hrc_tools.audit.bounded import DelayHistogram
 from hrc_tools.audit.checks import AuditAccumulator, AuditSummary, audit_cycle
 
 PROG = "hrc-audit"
@@ -84,7 +84,7 @@ class _GatewayView(NamedTuple):
 
 @dataclass
 class _RobotRun:
-    """What the auditor keeps per robot."""
+    """What the auditor keeps per robot: counts, extremes and fixed-size summaries, nothing that grows with the run."""
 
     model: RobotModel
     data: pin.Data
@@ -98,7 +98,7 @@ class _RobotRun:
     unaudited_cycles: int = 0
     max_human_age_s: float = 0.0
     program_cycles: int | None = None
-    t_delay_s: list[float] = field(default_factory=list)
+    t_delay_s: DelayHistogram = field(default_factory=DelayHistogram)
     faults_seen: Counter[str] = field(default_factory=Counter)
     max_delta_while_faulted: float = 0.0
     violation_logged: bool = False
@@ -192,7 +192,7 @@ class TruthAuditor:
                 if entry is None:
                     continue
                 self._gateway[name] = _GatewayView(status.stamp_ns, entry.zone)
-                run.t_delay_s.append(entry.t_delay_s)
+                run.t_delay_s.add(entry.t_delay_s)
                 codes = {f.code for f in entry.faults}
                 for code in codes:
                     run.faults_seen[code] += 1
@@ -292,6 +292,15 @@ class TruthAuditor:
 
     # -- results -------------------------------------------------------------------------------------
 
+    def n_items_stored(self) -> int:
+        """Figures the auditor holds that a long run could make grow (its memory bound, in items, not bytes)."""
+        with self._lock:
+            per_robot = sum(
+                run.accumulator.n_items_stored + run.t_delay_s.n_buckets_stored + len(run.faults_seen)
+                for run in self._robots.values()
+            )
+            return per_robot + len(self._states) + len(self._humans) + len(self._gateway) + len(self.rejected)
+
     def summaries(self) -> dict[str, AuditSummary]:
         with self._lock:
             return {name: run.accumulator.summary() for name, run in self._robots.items()}
@@ -315,9 +324,9 @@ class TruthAuditor:
                     "max_human_truth_age_s": round(run.max_human_age_s, 6),
                     "controller_braking_time_s": run.braking_time_s,
                     "gateway": {
-                        "status_documents": len(run.t_delay_s),
-                        "t_delay_s_median": round(statistics.median(run.t_delay_s), 4) if run.t_delay_s else None,
-                        "t_delay_s_max": round(max(run.t_delay_s), 4) if run.t_delay_s else None,
+                        "status_documents": run.t_delay_s.count,
+                        "t_delay_s_median": _rounded(run.t_delay_s.median_s()),
+                        "t_delay_s_max": _rounded(run.t_delay_s.max_s),
                         "faults_seen": dict(sorted(run.faults_seen.items())),
                         "max_delta_while_faulted": run.max_delta_while_faulted,
                     },
@@ -338,6 +347,11 @@ class TruthAuditor:
             "rejected": rejected,
             "robots": robots,
         }
+
+
+def _rounded(value_s: float | None) -> float | None:
+    """A duration to 0.1 ms (the status' t_delay figures) [s]; None stays None."""
+    return None if value_s is None else round(value_s, 4)
 
 
 def _speed_mps(previous: _HumanTruth | None, stamp_ns: int, capsules: HumanCapsules) -> float:

@@ -536,18 +536,36 @@ def run_sweep(
     return dataclasses.replace(summary, interrupted=interrupted), results
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hrc-sweep", description="Randomized sweep of the simulated cell, audited")
-    parser.add_argument("--scenarios", type=int, default=1000, help="number of generated cases (default 1000)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the sweep (default 0)")
+def add_case_arguments(parser: argparse.ArgumentParser, scenarios: int, duration_s: float) -> None:
+    """The options of every runner of seeded simulated cases (``hrc-sweep``, ``bench.productivity``): ``--scenarios``,
+    ``--seed``, ``--workers``, ``--duration-s``, ``--config``, ``--occlusion``, ``--quiet`` (checked by
+    :func:`case_argument_problem`)."""
+    parser.add_argument("--scenarios", type=int, default=scenarios, help=f"number of cases (default {scenarios})")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the cases (default 0)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes (default 2; 1 = in process)")
     parser.add_argument(
-        "--duration-s",
-        type=float,
-        default=DEFAULT_DURATION_S,
-        help=f"simulated time per case (default {DEFAULT_DURATION_S})",
+        "--duration-s", type=float, default=duration_s, help=f"simulated time per case (default {duration_s})"
     )
     parser.add_argument("--config", default=None, help="cell configuration (default configs/cell.toml)")
+    parser.add_argument(
+        "--occlusion",
+        action="store_true",
+        help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids "
+        "(hrc_tools.sim.scenarios.with_occlusion); the same people, links and seeds as without",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def case_argument_problem(args: argparse.Namespace) -> str | None:
+    """What is wrong with the options of :func:`add_case_arguments`, or None."""
+    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
+        return "--scenarios and --workers must be >= 1, --duration-s > 0"
+    return None
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="hrc-sweep", description="Randomized sweep of the simulated cell, audited")
+    add_case_arguments(parser, scenarios=1000, duration_s=DEFAULT_DURATION_S)
     parser.add_argument("--json", default=None, metavar="PATH", help="write the summary and every case here")
     parser.add_argument(
         "--unsafe-ignore-delay",
@@ -560,12 +578,6 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="TEST ONLY: the gateway forgets a person as soon as no tracker reports them (the classic fail-open), to "
         "show the auditor's teeth (refused unless HRC_ALLOW_UNSAFE=unsafe_forget_lost_for_tests is set)",
-    )
-    parser.add_argument(
-        "--occlusion",
-        action="store_true",
-        help="the cases' trackers see with line of sight (robot links, other people), miss people and swap ids; "
-        "their poses and rates drawn per case from the seed",
     )
     parser.add_argument(
         "--tight-braking",
@@ -595,7 +607,6 @@ def _parser() -> argparse.ArgumentParser:
         help="the cases' trackers are ZED cameras: every frame goes capsules -> BODY_34 keypoints -> CDR -> the "
         "gateway's ROS 2 adapter -> capsules (docs/ros2.md)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress lines")
     parser.add_argument(
         "--first-case",
         type=int,
@@ -714,8 +725,9 @@ def cli(argv: list[str] | None = None) -> None:
         _merge_cli(args.merge)
     if args.first_case < 0:
         parser.error("--first-case must be >= 0")
-    if args.scenarios < 1 or args.workers < 1 or not args.duration_s > 0.0:
-        parser.error("--scenarios and --workers must be >= 1, --duration-s > 0")
+    problem = case_argument_problem(args)
+    if problem is not None:
+        parser.error(problem)
     variant = CellVariant(
         args.unsafe_ignore_delay,
         args.tight_braking,

@@ -40,6 +40,38 @@ def test_stalls_and_their_missed_ticks_are_counted_by_cause_from_the_events() ->
     assert soak.stalls_by_cause(events) == ({"gc": 2, "phase:decide": 1}, {"gc": 3, "phase:decide": 1})  # type: ignore[arg-type]
 
 
+def test_rss_growth_is_measured_over_each_process_lifetime_never_across_a_restart() -> None:
+    """A restarted program's new process is compared with itself: the relay's +24 % "growth" of the 60-minute
+    soak compared one process's start with the next's end."""
+
+    def sample(**programs: tuple[int, int]) -> dict[str, dict[str, int]]:
+        return {
+            name: {"pid": pid, "rss_kb": rss_kb, "fds": 9, "threads": 3} for name, (pid, rss_kb) in programs.items()
+        }
+
+    samples = [
+        sample(relay=(10, 80_000), audit=(20, 150_000)),
+        sample(relay=(10, 81_000), audit=(20, 151_500)),
+        sample(relay=(11, 100_000), audit=(20, 153_000)),  # the relay restarted: a bigger start
+        sample(relay=(11, 101_000), audit=(20, 153_000)),
+        {"relay": {"pid": 12}, "audit": {"pid": 20, "rss_kb": 153_000, "fds": 9, "threads": 3}},  # relay gone
+    ]
+    assert soak.rss_growth_percent(samples) == {"relay": 1.25, "audit": 2.0}
+    spans = soak.lifetimes(samples)
+    assert [(s.pid, s.samples) for s in spans["relay"]] == [(10, 2), (11, 2)]
+    assert soak.rss_growth_percent(samples[:1]) == {}  # one sample shows no growth
+
+
+def test_a_process_still_starting_is_not_compared() -> None:
+    """A restarted gateway is small while it starts (models, kernels): its own warm-up is no growth."""
+    samples = [
+        {"gateway": {"pid": 5, "rss_kb": 150_000, "age_s": 2}},
+        {"gateway": {"pid": 5, "rss_kb": 290_000, "age_s": 25}},
+        {"gateway": {"pid": 5, "rss_kb": 292_900, "age_s": 30}},
+    ]
+    assert soak.rss_growth_percent(samples, warmup_s=20.0) == {"gateway": 1.0}
+
+
 @pytest.mark.e2e
 def test_a_short_soak_runs_the_cell_under_faults_and_reports(tmp_path: Path) -> None:
     """20 s: warm-up, a fault or two, the report. No violation, no event lost, each fault injected or said why."""

@@ -16,14 +16,18 @@ import pytest
 import support.status_examples as ex
 import zenoh
 from pydantic import ValidationError
+from support.paths import DEFAULT_CELL_PATH
 
 from gateway import main as gateway_main
+from gateway.handoff import LatestJobThread
 from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode
 from gateway.status import effective_config
 from hrc_contract.config import CellConfig, GatewayConfig
+from hrc_contract.messages import Override, parse_message
 from hrc_contract.status_models import HumanCapsuleStatus
-from hrc_runtime.clocks import Clocks
+from hrc_runtime.clocks import Clocks, read_clocks
+from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_port, running_cell
@@ -383,3 +387,135 @@ def test_overrides_are_published_with_congestion_control_block(cell_config: Cell
         for publisher in publishers.values():
             assert publisher.congestion_control == zenoh.CongestionControl.BLOCK
             assert publisher.priority == zenoh.Priority.REAL_TIME
+
+
+GIVE_UP_S = 10.0
+"""A test's congested link gives up waiting after this long (only when the loop is held: the test then fails)."""
+
+DECISIONS_WHILE_BLOCKED = 50
+"""The free robot's overrides put while the other robot's put waits, before the test ends that wait."""
+
+
+class _CongestedPublisher(_Publisher):
+    """A congested link: the first put waits until :attr:`released` (at most :data:`GIVE_UP_S`)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waiting = False
+        self.entered = threading.Event()
+        self.released = threading.Event()
+
+    def put(self, payload: bytes) -> None:
+        super().put(payload)
+        if len(self.payloads) == 1:
+            self.waiting = True
+            self.entered.set()
+            self.released.wait(GIVE_UP_S)
+            self.waiting = False
+
+
+def _overrides(payloads: list[bytes]) -> list[Override]:
+    return [parse_message(payload, Override) for payload in payloads]
+
+
+def test_a_congested_robot_link_never_holds_the_loop_or_the_other_robots_overrides() -> None:
+    """Two robots; the first one's put waits (its link congested): the loop goes on deciding and the second robot
+    gets its overrides meanwhile; once the link clears, the first robot gets the newest override (the ones decided
+    meanwhile were replaced, never queued); on stop both get δ = 0 as the last word."""
+    config = load_cell_config(DEFAULT_CELL_PATH.parent / "cell_two_arms.toml")
+    congested_name, free_name = list(config.robots)  # the congested robot's override is offered first
+    node = gateway_main.build_node(config, None)
+    stop = StopEvent()
+    congested = _CongestedPublisher()
+
+    class _Free(_Publisher):
+        """Ends the congestion after DECISIONS_WHILE_BLOCKED puts meanwhile, stops the loop some puts later."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.while_blocked: list[bytes] = []
+
+        def put(self, payload: bytes) -> None:
+            super().put(payload)
+            if congested.waiting:
+                self.while_blocked.append(payload)
+                if len(self.while_blocked) >= DECISIONS_WHILE_BLOCKED:
+                    congested.released.set()
+            if len(self.payloads) >= len(self.while_blocked) + DECISIONS_WHILE_BLOCKED or (
+                len(self.payloads) >= GIVE_UP_AFTER_CYCLES  # the assertions below tell which
+            ):
+                stop.set()
+
+    free = _Free()
+    status_thread = gateway_main.StatusThread(lambda job: None)
+    out = gateway_main._Outputs({congested_name: congested, free_name: free}, _Http(), status_thread)  # type: ignore[arg-type]
+    with status_thread:
+        assert gateway_main._loop(config, node, out, stop, None) == 0
+        last = node.stop_overrides(read_clocks())
+        out.last_word(last)
+
+    assert congested.entered.is_set()
+    held = _overrides(free.while_blocked)
+    assert len(held) >= DECISIONS_WHILE_BLOCKED  # the free robot's overrides went on while the other put waited
+    assert [o.seq for o in held] == sorted({o.seq for o in held})  # each from its own decision, in order
+    first, *later = _overrides(congested.payloads)
+    assert held[0].seq >= first.seq
+    assert later[0].seq >= held[DECISIONS_WHILE_BLOCKED - 1].seq  # the newest at the release, not the next one
+    assert [o.seq for o in later] == sorted({o.seq for o in later})
+    for publisher, name in ((congested, congested_name), (free, free_name)):  # the last word: δ = 0, last seq
+        assert _overrides(publisher.payloads)[-1] == last[name]
+        assert last[name].delta == 0.0
+
+
+def test_the_last_word_is_put_to_every_controller_and_waits_a_bounded_time_for_a_congested_one() -> None:
+    congested, free = _CongestedPublisher(), _Publisher()
+    senders = gateway_main.OverrideSenders({"a": congested, "b": free})
+    stamp = time.time_ns()
+    senders.offer({name: Override(robot=name, seq=1, stamp_ns=stamp, delta=0.5) for name in ("a", "b")})
+    assert congested.entered.wait(GIVE_UP_S)
+    last = {name: Override(robot=name, seq=2, stamp_ns=stamp + 1, delta=0.0) for name in ("a", "b")}
+    late = senders.last_word(last)  # "a" still waits: its put of seq 1 holds its sender
+    assert late == ["a"]
+    assert _overrides(free.payloads)[-1] == last["b"]  # put before last_word returned
+    congested.released.set()  # the link clears: the last word follows the put under way
+    deadline = time.monotonic() + GIVE_UP_S
+    while len(congested.payloads) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert _overrides(congested.payloads) == [
+        Override(robot="a", seq=1, stamp_ns=stamp, delta=0.5),
+        last["a"],
+    ]
+
+
+def test_the_last_job_replaces_one_not_taken_and_follows_the_one_under_way() -> None:
+    started, release = threading.Event(), threading.Event()
+    done: list[int] = []
+
+    def work(job: int) -> None:
+        if job == 1:
+            started.set()
+            release.wait(GIVE_UP_S)
+        done.append(job)
+
+    worker = LatestJobThread[int](work, "test-worker", "working", logging.getLogger("test"))
+    worker.offer(1)
+    assert started.wait(GIVE_UP_S)
+    worker.offer(2)
+    worker.offer_last(3)  # replaces 2, not yet taken
+    assert not worker.close(0.0)  # 1 still under way
+    release.set()
+    assert worker.close(GIVE_UP_S)
+    assert done == [1, 3]
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_override_senders_run_under_fifo_at_the_io_priority() -> None:
+    seen: list[tuple[int, int]] = []
+
+    class _Scheduling:
+        def put(self, payload: bytes) -> None:
+            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+    senders = gateway_main.OverrideSenders({"a": _Scheduling()}, realtime_priority=4)
+    assert senders.last_word({"a": Override(robot="a", seq=0, stamp_ns=1, delta=0.0)}) == []
+    assert seen == [(os.SCHED_FIFO, 4)]

@@ -13,7 +13,15 @@ from support.known_cases import LINK_UP, moving_links, point_hands
 from hrc_contract.humans import NO_HUMANS
 from hrc_runtime.link_motion import LinkMotion, link_motion
 from hrc_runtime.robot_model import RobotModel
-from hrc_tools.audit.checks import AuditAccumulator, CycleAudit, audit_cycle, audit_links, merge_summaries
+from hrc_tools.audit.checks import (
+    MAX_ONSET_SPEEDS,
+    AuditAccumulator,
+    CycleAudit,
+    audit_cycle,
+    audit_links,
+    merge_summaries,
+)
+from hrc_tools.audit.contact import Contact
 
 K = 1.6  # human approach speed [m/s]
 T_B = 0.24  # controller braking time (δ 1 → 0) [s]
@@ -220,3 +228,27 @@ def test_merging_summaries_adds_counts_and_keeps_the_smallest() -> None:
     assert got.program_cycles_completed == 3
     assert set(got.time_in_zone_s) == {"guarded_distance", "safety_exception", "reduced_speed"}
     assert merge_summaries([]).cycles == 0
+
+
+def test_100k_cycles_and_contact_onsets_keep_the_accumulator_bounded() -> None:
+    """A run of weeks: the accumulator holds at most 2 × MAX_ONSET_SPEEDS onset speeds, the fastest, and counts
+    every onset; below that it holds them all (what the sweep reports is unchanged)."""
+    acc = AuditAccumulator()
+    verdict = CycleAudit(False, 0.5, False, 0.3, "tool", 0, 0.2)
+    for k in range(100_000):
+        acc.add(verdict, t_s=k * 0.004, dt_s=0.004, delta_applied=1.0, zone="autonomous")
+        speed_mps = (k * 7919 % 100_000) * 1e-5  # 0 … 1 m/s, all different
+        # A contact every other cycle: each one is an onset (the cycle before had none).
+        contacts = [Contact("tool", 0, "hand", speed_mps, 1.0, False, True)] if k % 2 else []
+        acc.add_contacts(contacts, ["h1/hand_r"] * len(contacts))
+    summary = acc.summary()
+    assert summary.cycles == 100_000
+    assert summary.contact_onsets == 50_000
+    assert acc.n_items_stored <= 2 * MAX_ONSET_SPEEDS + 2  # a list held 50,000 speeds
+    assert len(summary.contact_speeds_mps) == MAX_ONSET_SPEEDS
+    assert (
+        min(summary.contact_speeds_mps)
+        >= sorted((k * 7919 % 100_000) * 1e-5 for k in range(1, 100_000, 2))[-MAX_ONSET_SPEEDS]
+    )
+    merged = merge_summaries([summary, summary])
+    assert (merged.contact_onsets, len(merged.contact_speeds_mps)) == (100_000, MAX_ONSET_SPEEDS)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import signal
+import statistics
 import subprocess
 import sys
 import time
@@ -20,7 +21,7 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import Capsule, Human, Humans, JointState, to_payload
 from hrc_runtime.robot_model import RobotModel
-from hrc_runtime.zenoh_session import session_config
+from hrc_runtime.zenoh_session import SessionOptions, session_config
 from hrc_tools.audit.main import (
     EXIT_INCONCLUSIVE,
     EXIT_OK,
@@ -176,6 +177,30 @@ def test_zones_program_cycles_gaps_and_rejections(auditor: TruthAuditor) -> None
     assert report["rejected"]["status/invalid"] == 3
     assert report["rejected"]["emu_stats/invalid"] == 3
     json.dumps(report, allow_nan=False)  # the report is strict JSON
+
+
+def test_100k_status_documents_keep_the_auditor_bounded_with_the_same_figures(auditor: TruthAuditor) -> None:
+    """Every status' delay figure is summarised, not kept: the items held stay within the histogram's buckets."""
+    marker = 0.123456789
+    template = ex.gateway_status(START_NS, ur5=ex.robot_status(t_delay_s=marker)).model_dump_json()
+    assert template.count(repr(marker)) == 1
+    delays_s = [0.05 + (k * 7919 % 100_000) * 1e-5 for k in range(100_000)]  # 0.05 … 1.05 s, all different
+    for delay_s in delays_s:
+        auditor.on_status(template.replace(repr(marker), repr(delay_s)).encode())
+    gateway = auditor.report(1.0)["robots"]["ur5"]["gateway"]
+    assert auditor.status_received == 100_000
+    assert auditor.n_items_stored() <= 10_100  # 1 s / 0.1 ms buckets at most; a list held 100,000
+    assert gateway["status_documents"] == 100_000
+    assert gateway["t_delay_s_max"] == round(max(delays_s), 4)
+    assert gateway["t_delay_s_median"] == pytest.approx(statistics.median(delays_s), abs=1e-4)
+
+
+def test_every_programs_zenoh_session_maps_no_shared_memory() -> None:
+    """Zenoh keeps every shared-memory pool a sender ever lent it, with its descriptors, after the sender exited
+    (~18 MB and 2 descriptors per gateway restart for the auditor in the 60-minute soak): every session has it off."""
+    conf = session_config([], ["tcp/127.0.0.1:7447"], SessionOptions())
+    assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7447"]
 
 
 # -- the program ---------------------------------------------------------------------------------------

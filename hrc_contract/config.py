@@ -447,9 +447,7 @@ class UrRtdeInterfaceConfig(_BridgeInterfaceConfig):
     host: Annotated[str, Field(min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:_-]+$")] = Field(
         description="The controller's address (IPv4, IPv6 or host name, no port: RTDE's port is 30004)."
     )
-    frequency_hz: Literal[125, 500] = Field(
-        500, description="RTDE output frequency: 125 (CB3) or 500 (e-Series) [Hz]."
-    )
+    frequency_hz: Literal[125, 500] = Field(500, description="RTDE output frequency: 125 (CB3) or 500 (e-Series) [Hz].")
 
 
 class AbbRwsInterfaceConfig(_BridgeInterfaceConfig):
@@ -723,7 +721,8 @@ class Ros2Config(_Frozen):
     """The gateway's ROS 2 face over rmw_zenoh (``gateway/ros2_face.py``, docs/ros2.md): off unless enabled.
 
     It publishes what the status shows, on a Zenoh session of its own (its own endpoints, certificate CN ``ros2``
-    with TLS), and reads nothing: no ROS 2 message can reach the safety loop through it.
+    with TLS, under the ROS 2 session's access control), and reads only the topics of the cell's ROS 2 trackers
+    (``trackers.<name>.ros2``), which go through the same door as native trackers (``gateway/ros2_trackers.py``).
     """
 
     enabled: bool = False

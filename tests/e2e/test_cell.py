@@ -39,6 +39,7 @@ def _cell_config_with_tracker_latency(tmp_path: Path, extra_latency_s: float) ->
     text = "\n".join(lines).replace('model = "robots/', f'model = "{REPO_ROOT}/configs/robots/')
     text = text.replace('program = "programs/', f'program = "{REPO_ROOT}/configs/programs/')
     text = text.replace('scenarios_dir = "scenarios"', f'scenarios_dir = "{REPO_ROOT}/configs/scenarios"')
+    text = text.replace('pfl_body_regions = "', f'pfl_body_regions = "{REPO_ROOT}/configs/')
     path = tmp_path / "cell.toml"
     path.write_text(text)
     return path

@@ -117,6 +117,7 @@ def write_cell(
     text = text.replace('model = "robots/', f'model = "{REPO_ROOT}/configs/robots/')
     text = text.replace('program = "programs/', f'program = "{REPO_ROOT}/configs/programs/')
     text = text.replace('scenarios_dir = "scenarios"', f'scenarios_dir = "{scenarios}"')
+    text = text.replace('pfl_body_regions = "', f'pfl_body_regions = "{REPO_ROOT}/configs/')
     text, n = re.subn(r"(?m)^max_data_age_s = [0-9.]+", f"max_data_age_s = {max_data_age_s}", text)
     assert n == 1
     if ignore_delay:

@@ -494,6 +494,27 @@ def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns:
     return None
 
 
+STAMP_CATCH_UP = 1e-3
+"""A stamp advances by the controller's own time step times (1 + this), so that it catches up with the receive time
+after a late reading and follows a controller clock a little slower than the bridge's."""
+
+
+def joint_state_stamp_ns(received_wall_ns: int, previous_stamp_ns: int | None, controller_dt_s: float | None) -> int:
+    """The joint state's stamp [ns, the bridge's wall clock].
+
+    Where the vendor gives the controller's own time (RTDE ``timestamp``), a stamp advances by the controller's time
+    step since the previous reading, but never past the receive time: a reading the bridge received late (its
+    thread descheduled, packages bunched) keeps the time it was taken, so two readings received 0.5 ms apart but
+    taken 2 ms apart do not look like a joint moving four times faster (the gateway's ``q_jump`` check). Never after
+    the receive time: a joint state is never younger than it is. Without the controller's time, or after a gap:
+    the receive time.
+    """
+    if previous_stamp_ns is None or controller_dt_s is None or not 0.0 < controller_dt_s <= 1.0:
+        return received_wall_ns
+    predicted_ns = previous_stamp_ns + round(controller_dt_s * (1.0 + STAMP_CATCH_UP) * NS_PER_S)
+    return min(received_wall_ns, predicted_ns)
+
+
 def _time_s(reading: ControllerReading) -> float:
     """The reading's time: the controller's own where the vendor gives one, else the bridge's receive time [s]."""
     if reading.controller_time_s is not None:
@@ -518,6 +539,7 @@ class Bridge:
         self._lock = threading.Lock()
         self._newest: _Accepted | None = None
         self._newest_stamp_ns = -1
+        self._stamp_ns: int | None = None  # the last joint state's stamp
         self._overrides_rejected: Counter[str] = Counter()
         # writes
         self._handed: _Handed | None = None
@@ -698,10 +720,16 @@ class Bridge:
                 mode = "protective_stop"
             elif applied == 0.0 and nominal.override == 0.0:
                 mode = "stopped"  # the controller holds its input at 0 and the robot stands
+            controller_dt_s = (
+                None
+                if previous is None or reading.controller_time_s is None or previous.controller_time_s is None
+                else reading.controller_time_s - previous.controller_time_s
+            )
+            self._stamp_ns = joint_state_stamp_ns(reading.received_wall_ns, self._stamp_ns, controller_dt_s)
             state = JointState(
                 robot=self.settings.robot,
                 seq=self._seq,
-                stamp_ns=reading.received_wall_ns,
+                stamp_ns=self._stamp_ns,
                 q=q.tolist(),
                 qd=qd.tolist(),
                 qd_nominal=nominal.qd_nominal_radps.tolist(),

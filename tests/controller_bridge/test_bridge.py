@@ -913,3 +913,21 @@ def test_a_differenced_velocity_is_bounded_with_the_sampling_jitter() -> None:
     assert state.qd_nominal == pytest.approx([1.25, -0.5, 0.0])  # Δq / 16 ms / 0.5
     assert state.override == pytest.approx(0.4)  # 0.5 · 16 / 20
     assert consistent(state)
+
+
+def test_a_late_reading_keeps_the_time_it_was_taken_and_no_stamp_is_younger_than_its_arrival() -> None:
+    from controller_bridge.bridge import joint_state_stamp_ns
+
+    ms = 1_000_000
+    first = joint_state_stamp_ns(100 * ms, None, None)
+    assert first == 100 * ms
+    # taken 2 ms later, received 3.5 ms late (the bridge was descheduled): stamped by the controller's step
+    late = joint_state_stamp_ns(105_500_000, first, 0.002)
+    assert late == pytest.approx(102 * ms, abs=10_000)
+    # the next one, taken 2 ms after it, arrived 0.5 ms after the late one: 2 ms apart, not 0.5 ms
+    after = joint_state_stamp_ns(106 * ms, late, 0.002)
+    assert after - late == pytest.approx(2 * ms, abs=10_000)
+    # never younger than its arrival; without the controller's time, or after a gap: the arrival
+    assert joint_state_stamp_ns(101 * ms, first, 0.002) == 101 * ms
+    assert joint_state_stamp_ns(107 * ms, after, None) == 107 * ms
+    assert joint_state_stamp_ns(107 * ms, after, 5.0) == 107 * ms

@@ -499,6 +499,12 @@ STAMP_CATCH_UP = 1e-3
 after a late reading and follows a controller clock a little slower than the bridge's."""
 
 
+STAMP_MAX_LAG_S = 0.002
+"""A stamp is at most this much before the arrival: a controller clock that runs slow (an emulator's ticks slipping
+under load) never drags the stamps far into the past, and an echo's stamp stays within the gateway's clock
+tolerance of the send it confirms (``streams.max_future_stamp_s``, 5 ms by default)."""
+
+
 def joint_state_stamp_ns(received_wall_ns: int, previous_stamp_ns: int | None, controller_dt_s: float | None) -> int:
     """The joint state's stamp [ns, the bridge's wall clock].
 
@@ -507,12 +513,12 @@ def joint_state_stamp_ns(received_wall_ns: int, previous_stamp_ns: int | None, c
     thread descheduled, packages bunched) keeps the time it was taken, so two readings received 0.5 ms apart but
     taken 2 ms apart do not look like a joint moving four times faster (the gateway's ``q_jump`` check). Never after
     the receive time: a joint state is never younger than it is. Without the controller's time, or after a gap:
-    the receive time.
+    the receive time. At most :data:`STAMP_MAX_LAG_S` before the receive time.
     """
     if previous_stamp_ns is None or controller_dt_s is None or not 0.0 < controller_dt_s <= 1.0:
         return received_wall_ns
     predicted_ns = previous_stamp_ns + round(controller_dt_s * (1.0 + STAMP_CATCH_UP) * NS_PER_S)
-    return min(received_wall_ns, predicted_ns)
+    return min(received_wall_ns, max(predicted_ns, received_wall_ns - round(STAMP_MAX_LAG_S * NS_PER_S)))
 
 
 def _time_s(reading: ControllerReading) -> float:

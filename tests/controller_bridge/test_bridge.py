@@ -921,12 +921,15 @@ def test_a_late_reading_keeps_the_time_it_was_taken_and_no_stamp_is_younger_than
     ms = 1_000_000
     first = joint_state_stamp_ns(100 * ms, None, None)
     assert first == 100 * ms
-    # taken 2 ms later, received 3.5 ms late (the bridge was descheduled): stamped by the controller's step
+    # taken 2 ms later, received 3.5 ms late (the bridge was descheduled): at most 2 ms before its arrival
     late = joint_state_stamp_ns(105_500_000, first, 0.002)
-    assert late == pytest.approx(102 * ms, abs=10_000)
+    assert late == pytest.approx(103_500_000, abs=10_000)
     # the next one, taken 2 ms after it, arrived 0.5 ms after the late one: 2 ms apart, not 0.5 ms
     after = joint_state_stamp_ns(106 * ms, late, 0.002)
     assert after - late == pytest.approx(2 * ms, abs=10_000)
+    # a controller clock that runs slow never drags the stamps more than 2 ms into the past
+    slow = joint_state_stamp_ns(150 * ms, after, 0.002)
+    assert slow == 148 * ms
     # never younger than its arrival; without the controller's time, or after a gap: the arrival
     assert joint_state_stamp_ns(101 * ms, first, 0.002) == 101 * ms
     assert joint_state_stamp_ns(107 * ms, after, None) == 107 * ms

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from support.cell_files import zed_cell
 from support.paths import REPO_ROOT
 
 from hrc_tools.cell.procs import collapse, free_endpoint, is_subsequence, record, running_cell
@@ -24,25 +25,8 @@ the hand is still far from the moving links: the robot stops from guarded distan
 CONFIGS = REPO_ROOT / "configs"
 
 
-def _zed_cell(tmp_path: Path, endpoint: str) -> Path:
-    """configs/cell_ros2_zed.toml with absolute paths and the ROS 2 session on ``endpoint``."""
-    text = (CONFIGS / "cell_ros2_zed.toml").read_text()
-    for old, new in (
-        ('model = "robots/', f'model = "{CONFIGS}/robots/'),
-        ('program = "programs/', f'program = "{CONFIGS}/programs/'),
-        ('scenarios_dir = "scenarios"', f'scenarios_dir = "{CONFIGS}/scenarios"'),
-        ('pfl_body_regions = "body_regions.toml"', f'pfl_body_regions = "{CONFIGS}/body_regions.toml"'),
-        ('listen = ["tcp/127.0.0.1:7449"]', f'listen = ["{endpoint}"]'),
-    ):
-        assert old in text, f"{old!r} not in cell_ros2_zed.toml: the test is out of date"
-        text = text.replace(old, new)
-    path = tmp_path / "cell_ros2_zed.toml"
-    path.write_text(text)
-    return path
-
-
 def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(tmp_path: Path) -> None:
-    config = _zed_cell(tmp_path, free_endpoint())
+    config = zed_cell(tmp_path, free_endpoint())
     with running_cell(tmp_path, config=config, trackers=[["--publish", "zed"]]) as cell:
         cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 30.0, "a fault-free autonomous cell")
         trace: list[dict[str, Any]] = record(cell, SCENARIO_S + 4.0)

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 import zenoh
+from support.cell_files import zed_cell
 from support.paths import REPO_ROOT
 
 from hrc_contract.config import CellConfig
@@ -36,23 +37,6 @@ FORGE_S = 4.0
 FORGE_RATE_HZ = 30.0
 MIN_FORGED = 60
 REFUSAL_FAULTS = {"tracker_invalid", "tracker_out_of_order", "tracker_implausible"}
-
-
-def _zed_cell(tmp_path: Path, ros2_endpoint: str) -> Path:
-    """configs/cell_ros2_zed.toml with absolute paths and the ROS 2 session on ``ros2_endpoint``."""
-    text = (CONFIGS / "cell_ros2_zed.toml").read_text()
-    for old, new in (
-        ('model = "robots/', f'model = "{CONFIGS}/robots/'),
-        ('program = "programs/', f'program = "{CONFIGS}/programs/'),
-        ('scenarios_dir = "scenarios"', f'scenarios_dir = "{CONFIGS}/scenarios"'),
-        ('pfl_body_regions = "body_regions.toml"', f'pfl_body_regions = "{CONFIGS}/body_regions.toml"'),
-        ('listen = ["tcp/127.0.0.1:7449"]', f'listen = ["{ros2_endpoint}"]'),
-    ):
-        assert old in text, f"{old!r} not in cell_ros2_zed.toml: the test is out of date"
-        text = text.replace(old, new)
-    path = tmp_path / "cell_ros2_zed.toml"
-    path.write_text(text)
-    return path
 
 
 def _person_at_the_robot(stamp_ns: int) -> Humans:
@@ -91,7 +75,7 @@ def test_a_valid_certificate_of_another_role_cannot_move_people_over_ros2(
 ) -> None:
     monkeypatch.setenv("HRC_STATE_DIR", str(tmp_path / "state"))  # the programs' PKI: a CA of this test's own
     pki_dir = tmp_path / "state" / "pki"
-    config_path = _zed_cell(tmp_path, f"tls/127.0.0.1:{free_port()}")
+    config_path = zed_cell(tmp_path, f"tls/127.0.0.1:{free_port()}")
     config = load_cell_config(config_path)
     with running_cell(tmp_path, config=config_path, trackers=[["--publish", "zed"]]) as cell:
         cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 120.0, "a fault-free autonomous cell")
@@ -122,7 +106,7 @@ def test_a_valid_certificate_of_another_role_cannot_move_people_over_ros2(
 
 
 def test_ros2_trackers_on_plain_tcp_refuse_to_start_without_the_flag(tmp_path: Path) -> None:
-    config_path = _zed_cell(tmp_path, free_endpoint())  # tcp/127.0.0.1:<port>
+    config_path = zed_cell(tmp_path, free_endpoint())  # tcp/127.0.0.1:<port>
     args = ["--config", str(config_path), "--zenoh-listen", f"tls/127.0.0.1:{free_port()}", "--pki-dir"]
     env = program_env(plain_tcp=False) | {"HRC_STATE_DIR": str(tmp_path / "state")}
     result = subprocess.run(

@@ -41,3 +41,20 @@ def write_cell(tmp_path: Path, cell: Edit | None = None, robot: Edit | None = No
     path = tmp_path / "cell.toml"
     path.write_text(cell(cell_text) if cell else cell_text)
     return path
+
+
+def zed_cell(tmp_path: Path, ros2_endpoint: str) -> Path:
+    """configs/cell_ros2_zed.toml with absolute paths and the ROS 2 session on ``ros2_endpoint``."""
+    text = (CONFIGS / "cell_ros2_zed.toml").read_text()
+    for old, new in (
+        ('model = "robots/', f'model = "{CONFIGS}/robots/'),
+        ('program = "programs/', f'program = "{CONFIGS}/programs/'),
+        ('scenarios_dir = "scenarios"', f'scenarios_dir = "{CONFIGS}/scenarios"'),
+        ('pfl_body_regions = "body_regions.toml"', f'pfl_body_regions = "{CONFIGS}/body_regions.toml"'),
+        ('listen = ["tcp/127.0.0.1:7449"]', f'listen = ["{ros2_endpoint}"]'),
+    ):
+        assert old in text, f"{old!r} not in cell_ros2_zed.toml: the test is out of date"
+        text = text.replace(old, new)
+    path = tmp_path / "cell_ros2_zed.toml"
+    path.write_text(text)
+    return path

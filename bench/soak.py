@@ -10,8 +10,10 @@ auditor reaches every program directly. This process supervises them as systemd 
 started again after :data:`RESTART_AFTER_S`; ``hrc-cell`` itself stops the cell instead) and injects, in a seeded
 order, one fault at a time: kill each program, freeze (SIGSTOP) the tracker and the controller, delay, loss and
 partitions on each link, a flood of valid frames from an authenticated tracker, stream clients coming and going,
-a gateway restart while a person is near. After each fault it waits until the gateway shows no fault again (the
-recovery time) and keeps what the status showed meanwhile (the reason).
+a gateway restart while a person is near, a wall-clock step on the tracker's and on the controller's host (each
+emulator runs under libfaketime, its wall clock offset by a file of this folder: :class:`HostClock`). After each
+fault it waits until the gateway shows no fault again (the recovery time) and keeps what the status showed
+meanwhile (the reason).
 
 The report (printed and ``DIR/soak.json``): violations within K (the auditor), missed ticks by cause (the
 ``loop_stall`` events, every gateway run), budget overruns, memory, descriptors and threads per program at start
@@ -37,7 +39,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -46,9 +48,10 @@ import httpx
 import zenoh
 
 from bench._report import machine_info
+from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.messages import Humans, parse_message
-from hrc_runtime.access_control import CellPolicy, control_key
+from hrc_contract.messages import Humans, JointState, MessageError, parse_message
+from hrc_runtime.access_control import AUDITOR, CellPolicy, control_key
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.pki import CellPki
 from hrc_runtime.signals import stop_on_signals
@@ -100,9 +103,30 @@ FAULT_KINDS = (
     "streams",
     "restart-near:gateway",
     "clock-step:tracker",
+    "clock-step:controller",
 )
 """Every fault of the schedule; each round plays them all, in a seeded order."""
 _MISSED = re.compile(r"\((\d+) missed\)")
+CLOCK_STEP_S = (1.0, 5.0)
+"""Size of a wall-clock step, drawn uniformly in this range; the direction alternates from a seeded first [s]."""
+STEP_SEEN_FRACTION = 0.5
+"""A clock step counts as injected when the program's stamps were seen off by at least this part of it."""
+FAKETIME_CACHE_S = 1
+"""libfaketime reads the offset file at most this often (``FAKETIME_CACHE_DURATION``, whole seconds): a step takes
+effect within this long. Re-reading it at every clock call (``FAKETIME_NO_CACHE``) costs a file read per call of
+a 250 Hz program [s]."""
+FAKETIME_LIBRARIES = (
+    "/usr/lib/x86_64-linux-gnu/faketime/libfaketimeMT.so.1",
+    "/usr/lib/aarch64-linux-gnu/faketime/libfaketimeMT.so.1",
+    "/usr/lib/faketime/libfaketimeMT.so.1",
+    "/usr/local/lib/faketime/libfaketimeMT.so.1",
+)
+"""Where Debian's ``libfaketime`` (and ``make install``) put the preload library. The MT variant serialises its
+clock calls: the emulators read the clock from several threads (Python's and Zenoh's)."""
+NO_FAKETIME = (
+    "libfaketime is not installed (Debian's package libfaketime: scripts/bootstrap.sh installs it as root with "
+    "apt): the emulators run on this host's clock, and this benchmark does not change the machine's clock"
+)
 
 
 @dataclass
@@ -121,6 +145,72 @@ class FaultResult:
 
 class NotInjectedError(Exception):
     """A fault that cannot be injected here; the message says why."""
+
+
+def find_libfaketime() -> Path | None:
+    """libfaketime's preload library (:data:`FAKETIME_LIBRARIES`), None if it is not installed."""
+    return next((Path(p) for p in FAKETIME_LIBRARIES if Path(p).is_file()), None)
+
+
+@dataclass(frozen=True)
+class HostClock:
+    """A program's wall clock: this host's, offset by what ``offset_file`` says (libfaketime, no test hook).
+
+    The program runs with the library preloaded (:meth:`environment`); it reads the offset (``+0``, ``+2.5``,
+    ``-3``: seconds) at most every :data:`FAKETIME_CACHE_S`, so :meth:`step` moves its ``CLOCK_REALTIME``
+    (Python's ``time.time_ns``, Rust's ``SystemTime`` in Zenoh) within that long, as a step of its host's clock by
+    NTP or a person would. ``CLOCK_MONOTONIC`` is left alone (``FAKETIME_DONT_FAKE_MONOTONIC``), as a real step
+    leaves it, and so are the program's timers and waits (``Event.wait``, ``select``, Zenoh's).
+
+    Caveat of libfaketime 0.9.10 (Debian 12): with ``FAKETIME_DONT_FAKE_MONOTONIC`` it still converts the absolute
+    ``CLOCK_MONOTONIC`` deadline of ``clock_nanosleep`` as if it were faked, so Python's ``time.sleep`` fails with
+    ``EINVAL``. The emulators wait on events, never with ``time.sleep``.
+
+    Attributes:
+        library: libfaketime's preload library (:func:`find_libfaketime`).
+        offset_file: the program's offset, one line (libfaketime's ``FAKETIME_TIMESTAMP_FILE``).
+    """
+
+    library: Path
+    offset_file: Path
+
+    def environment(self, env: Mapping[str, str]) -> dict[str, str]:
+        """``env`` with libfaketime preloaded and reading :attr:`offset_file`."""
+        preload = " ".join(filter(None, (str(self.library), env.get("LD_PRELOAD", ""))))
+        return {k: v for k, v in env.items() if k != "FAKETIME"} | {  # FAKETIME would override the file
+            "LD_PRELOAD": preload,
+            "FAKETIME_TIMESTAMP_FILE": str(self.offset_file),
+            "FAKETIME_CACHE_DURATION": str(FAKETIME_CACHE_S),
+            "FAKETIME_DONT_FAKE_MONOTONIC": "1",
+            "FAKETIME_DISABLE_SHM": "1",  # ≥ 0.9.11: no /dev/shm files (0.9.10 ignores it: remove_dead_faketime_files)
+        }
+
+    def step(self, offset_s: float) -> None:
+        """Set the program's wall clock ``offset_s`` [s] off this host's (0: set right), replacing the file whole
+        so that the program never reads half of it."""
+        partial = self.offset_file.with_name(self.offset_file.name + ".new")
+        partial.write_text(f"{offset_s:+.3f}\n")
+        partial.replace(self.offset_file)
+
+
+def remove_dead_faketime_files(shm_dir: Path = Path("/dev/shm")) -> int:
+    """Remove the files libfaketime 0.9.10 leaves in ``shm_dir`` for each process it ran in (``faketime_shm_<pid>``,
+    ``sem.faketime_sem_<pid>``; never removed, even at a clean exit) whose process has ended; how many."""
+    removed = 0
+    for path in shm_dir.glob("*faketime_s*_*"):
+        prefix, _, pid = path.name.rpartition("_")
+        if prefix in ("faketime_shm", "sem.faketime_sem") and pid.isdigit() and not Path(f"/proc/{pid}").exists():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed += 1
+    return removed
+
+
+def clock_step_s(rng: random.Random, index: int, first_sign: int) -> float:
+    """The ``index``-th clock step of a run [s]: a size drawn in :data:`CLOCK_STEP_S`, the direction alternating
+    from ``first_sign`` (+1 or -1) so that a run of two steps or more plays both."""
+    sign = first_sign if index % 2 == 0 else -first_sign
+    return round(sign * rng.uniform(*CLOCK_STEP_S), 1)
 
 
 def fault_schedule(seed: int, rounds: int) -> list[str]:
@@ -267,6 +357,14 @@ class Soak:
         self.resource_samples: list[dict[str, Any]] = []  # every SAMPLE_EVERY_S once sampling is on
         self.sampling = False
         self.next_sample_s = 0.0
+        library = find_libfaketime()
+        self.clocks: dict[str, HostClock] = {}  # the emulators' hosts' wall clocks (none without libfaketime)
+        if library is not None:
+            self.clocks = {n: HostClock(library, work / f"clock-{n}.offset") for n in ("tracker", "controller")}
+            for clock in self.clocks.values():
+                clock.step(0.0)
+        self.clock_steps = 0
+        self.first_step_sign = self.rng.choice((1, -1))
 
     # -- programs -------------------------------------------------------------------------------
 
@@ -304,7 +402,11 @@ class Soak:
 
     def start(self, name: str) -> None:
         module, args = self._command(name)
-        self.procs[name] = start_program(module, args, self.work / f"{name}.log", env=program_env(plain_tcp=False))
+        env = program_env(plain_tcp=False)
+        if name in self.clocks:
+            env = self.clocks[name].environment(env)
+            remove_dead_faketime_files()  # the previous run's, if this is a restart
+        self.procs[name] = start_program(module, args, self.work / f"{name}.log", env=env)
 
     def supervise(self) -> None:
         """Start again, after :data:`RESTART_AFTER_S`, every program that exited (not one a fault holds)."""
@@ -426,10 +528,7 @@ class Soak:
         elif action == "streams":
             return self._streams(hold_s)
         elif action == "clock-step":
-            raise NotInjectedError(
-                "not injected: the emulators have no test-only clock offset, and this benchmark does not change the "
-                "machine's clock"
-            )
+            return self._clock_step(target, hold_s, watch)
         return ""
 
     def _recover(self, seen: dict[str, str]) -> tuple[bool | None, float | None]:
@@ -520,6 +619,58 @@ class Soak:
             raise OSError("no tracker frame to copy arrived")
         watch(0.5)
         return f"{puts} copies of real frames put in {duration_s:.1f} s"
+
+    def _clock_step(self, target: str, hold_s: float, watch: Callable[[float], None]) -> str:
+        """Step ``target``'s wall clock (seeded, ±1–5 s), hold it ``hold_s`` [s], set it right again (as NTP or PTP
+        would); check on the wire that its stamps moved.
+
+        Raises:
+            NotInjectedError: no libfaketime, or the program's stamps did not move.
+        """
+        clock = self.clocks.get(target)
+        if clock is None:
+            raise NotInjectedError(NO_FAKETIME)
+        step_s = clock_step_s(self.rng, self.clock_steps, self.first_step_sign)
+        self.clock_steps += 1
+        offsets_s: list[float] = []
+        with self._stamp_watch(target, offsets_s):
+            clock.step(step_s)
+            try:
+                watch(hold_s)
+            finally:
+                clock.step(0.0)
+        seen_s = max(offsets_s, key=abs, default=0.0)
+        if abs(seen_s) < STEP_SEEN_FRACTION * abs(step_s):
+            raise NotInjectedError(
+                f"the {target}'s clock was stepped by {step_s:+.1f} s (libfaketime), but its stamps did not move: "
+                f"{len(offsets_s)} messages, at most {seen_s:+.3f} s off this host's clock"
+            )
+        return (
+            f"the {target}'s wall clock stepped by {step_s:+.1f} s for {hold_s:.1f} s (libfaketime), then set right; "
+            f"its stamps seen up to {seen_s:+.3f} s off this host's clock"
+        )
+
+    @contextlib.contextmanager
+    def _stamp_watch(self, target: str, offsets_s: list[float]) -> Iterator[None]:
+        """Within the block, append to ``offsets_s`` each of ``target``'s messages' stamp − this host's clock at
+        arrival [s] (read as an observer through the gateway, which routes them)."""
+        cell = self.config.cell
+        key = keys.tracker_humans(cell, "*") if target == "tracker" else keys.robot_state(cell, "*")
+        model: type[Humans] | type[JointState] = Humans if target == "tracker" else JointState
+        lock = threading.Lock()
+
+        def on_message(sample: zenoh.Sample) -> None:
+            arrived_ns = time.time_ns()
+            try:
+                stamp_ns = parse_message(sample.payload.to_bytes(), model).stamp_ns
+            except MessageError:
+                return
+            with lock:
+                offsets_s.append((stamp_ns - arrived_ns) / 1e9)
+
+        with self._session(AUDITOR, [self.ep("gateway")]) as session:
+            session.declare_subscriber(key, on_message)
+            yield
 
     def _streams(self, duration_s: float) -> str:
         """Stream clients (``/api/v1/stream``) come and go: each reads a random while, then drops the connection."""
@@ -620,6 +771,7 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
             if name in soak.procs:
                 with contextlib.suppress(Exception):
                     stop_program(soak.procs[name])
+        remove_dead_faketime_files()
     if not started:
         started = {}
         ended = {}
@@ -718,7 +870,9 @@ def format_report(report: dict[str, Any]) -> str:
             lines.append(f"    t={f['t_s']:7.1f} {f['kind']:24s} NOT INJECTED: {f['note']}")
             continue
         rec = f"recovered in {f['recovery_s']} s" if f["recovered"] else f"recovered={f['recovered']}"
-        lines.append(f"    t={f['t_s']:7.1f} {f['kind']:24s} held {f['held_s']} s, {rec}; {'; '.join(f['reasons'])}")
+        note = f" [{f['note']}]" if f["note"] else ""
+        reasons = "; ".join(f["reasons"])
+        lines.append(f"    t={f['t_s']:7.1f} {f['kind']:24s} held {f['held_s']} s, {rec}; {reasons}{note}")
     return "\n".join(lines) + "\n"
 
 

@@ -41,3 +41,18 @@ if ! command -v promtool >/dev/null 2>&1 && [ ! -x .venv/bin/promtool ] && comma
   fi
   rm -rf "$promdir"
 fi
+# libfaketime (Debian's package libfaketime): the soak (bench/soak.py) and tests/e2e/test_clock_step.py step an
+# emulator's wall clock through it. Installed only when missing, as root, with apt; elsewhere the soak reports the
+# clock steps as not injected and the test skips, each saying why.
+if ! ls /usr/lib/*/faketime/libfaketimeMT.so.1 /usr/lib/faketime/libfaketimeMT.so.1 \
+    /usr/local/lib/faketime/libfaketimeMT.so.1 >/dev/null 2>&1; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing libfaketime (for the soak's and the e2e test's wall-clock steps)" >&2
+    if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime; } \
+        >/tmp/hrc-bootstrap-faketime.log 2>&1; then
+      echo "bootstrap: could not install libfaketime (see /tmp/hrc-bootstrap-faketime.log); clock steps not injected" >&2
+    fi
+  else
+    echo "bootstrap: libfaketime missing and not root with apt: the soak's clock steps are not injected" >&2
+  fi
+fi

@@ -1,8 +1,16 @@
-"""The soak: its seeded schedule, its event checks (pure), and a short run of the real cell (e2e)."""
+"""The soak: its seeded schedule, its event checks (pure), its host clocks, and a short run of the real cell (e2e)."""
 
 from __future__ import annotations
 
 import json
+import os
+import queue
+import random
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -24,7 +32,7 @@ def test_the_schedule_is_seeded_and_plays_every_fault_each_round() -> None:
 
 def test_events_are_split_into_gateway_runs_and_gaps_found() -> None:
     events = [_event(1, "start"), _event(2), _event(4), _event(1, "start"), _event(2)]
-    runs = soak.split_runs(events)  # type: ignore[arg-type]
+    runs = soak.split_runs(events)
     assert [len(r) for r in runs] == [3, 2]
     assert soak.seq_gaps(runs[0]) == [3]
     assert soak.seq_gaps(runs[1]) == []
@@ -37,7 +45,7 @@ def test_stalls_and_their_missed_ticks_are_counted_by_cause_from_the_events() ->
         _event(3, "loop_stall", cause="phase:decide", message="loop stall: tick 5.0 ms late (1 missed), ..."),
         _event(4),
     ]
-    assert soak.stalls_by_cause(events) == ({"gc": 2, "phase:decide": 1}, {"gc": 3, "phase:decide": 1})  # type: ignore[arg-type]
+    assert soak.stalls_by_cause(events) == ({"gc": 2, "phase:decide": 1}, {"gc": 3, "phase:decide": 1})
 
 
 def test_rss_growth_is_measured_over_each_process_lifetime_never_across_a_restart() -> None:
@@ -70,6 +78,108 @@ def test_a_process_still_starting_is_not_compared() -> None:
         {"gateway": {"pid": 5, "rss_kb": 292_900, "age_s": 30}},
     ]
     assert soak.rss_growth_percent(samples, warmup_s=20.0) == {"gateway": 1.0}
+
+
+def test_clock_steps_are_seeded_sized_one_to_five_seconds_and_alternate_in_direction() -> None:
+    steps = [soak.clock_step_s(random.Random(4), i, -1) for i in range(6)]
+    assert steps == [soak.clock_step_s(random.Random(4), i, -1) for i in range(6)]
+    assert [s > 0 for s in steps] == [False, True, False, True, False, True]
+    assert all(soak.CLOCK_STEP_S[0] <= abs(s) <= soak.CLOCK_STEP_S[1] for s in steps)
+    assert "clock-step:tracker" in soak.FAULT_KINDS
+    assert "clock-step:controller" in soak.FAULT_KINDS
+
+
+def test_a_host_clock_preloads_libfaketime_reading_its_offset_file_and_steps_it_whole(tmp_path: Path) -> None:
+    clock = soak.HostClock(Path("/lib/libfaketimeMT.so.1"), tmp_path / "clock.offset")
+    env = clock.environment({"PATH": "/bin", "FAKETIME": "+1d", "LD_PRELOAD": "/lib/other.so"})
+    assert env["LD_PRELOAD"] == "/lib/libfaketimeMT.so.1 /lib/other.so"
+    assert "FAKETIME" not in env  # it would override the file
+    assert env["FAKETIME_TIMESTAMP_FILE"] == str(tmp_path / "clock.offset")
+    assert env["FAKETIME_DONT_FAKE_MONOTONIC"] == "1"
+    assert env["FAKETIME_CACHE_DURATION"] == "1"
+    assert env["PATH"] == "/bin"
+    clock.step(-2.5)
+    assert (tmp_path / "clock.offset").read_text() == "-2.500\n"
+    clock.step(0.0)
+    assert (tmp_path / "clock.offset").read_text() == "+0.000\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clock.offset"]
+
+
+def test_libfaketimes_leftovers_of_ended_processes_are_removed_and_no_others(tmp_path: Path) -> None:
+    alive, ended = os.getpid(), 999_999_999
+    names = [f"faketime_shm_{alive}", f"sem.faketime_sem_{alive}", f"faketime_shm_{ended}", f"sem.faketime_sem_{ended}"]
+    for name in [*names, "faketime_shm_x", "other_99999999"]:
+        (tmp_path / name).touch()
+    assert soak.remove_dead_faketime_files(tmp_path) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([*names[:2], "faketime_shm_x", "other_99999999"])
+
+
+_CLOCK_PRINTER = """
+import datetime, threading, time, zenoh
+from hrc_runtime.zenoh_session import session_config
+with zenoh.open(session_config()) as session:
+    while True:
+        zenoh_s = session.new_timestamp().get_time().replace(tzinfo=datetime.UTC).timestamp()
+        print(time.time_ns(), time.monotonic_ns(), zenoh_s, flush=True)
+        threading.Event().wait(0.05)  # not time.sleep: libfaketime 0.9.10 breaks it (HostClock)
+"""
+
+
+@pytest.mark.e2e
+@pytest.mark.skipif(soak.find_libfaketime() is None, reason=soak.NO_FAKETIME)
+def test_a_host_clock_steps_a_programs_wall_clock_in_python_and_in_zenoh_and_leaves_its_monotonic_clock(
+    tmp_path: Path,
+) -> None:
+    """A Python program with a Zenoh session under :class:`soak.HostClock`: ``time.time_ns`` and the Rust library's
+    ``SystemTime`` (a session timestamp) follow the offset file; ``time.monotonic_ns`` stays this host's."""
+    library = soak.find_libfaketime()
+    assert library is not None
+    clock = soak.HostClock(library, tmp_path / "clock.offset")
+    clock.step(0.0)
+    env = clock.environment(os.environ)
+    lines: queue.Queue[str] = queue.Queue()
+    with subprocess.Popen([sys.executable, "-c", _CLOCK_PRINTER], env=env, stdout=subprocess.PIPE, text=True) as proc:
+        assert proc.stdout is not None
+        stdout = proc.stdout
+
+        def read_lines() -> None:
+            for line in stdout:
+                lines.put(line)
+
+        threading.Thread(target=read_lines, daemon=True).start()
+        try:
+
+            def offsets() -> tuple[float, float, float]:
+                """The program's wall, monotonic and Zenoh clocks minus this process's, from its next line [s]."""
+                wall_ns, mono_ns, zenoh_s = lines.get(timeout=30.0).split()
+                return (
+                    (int(wall_ns) - time.time_ns()) / 1e9,
+                    (int(mono_ns) - time.monotonic_ns()) / 1e9,
+                    float(zenoh_s) - time.time(),
+                )
+
+            def until(holds: Callable[[tuple[float, float, float]], bool], what: str) -> tuple[float, float, float]:
+                deadline_s = time.monotonic() + 30.0
+                while time.monotonic() < deadline_s:
+                    seen = offsets()
+                    if holds(seen):
+                        return seen
+                raise AssertionError(f"{what}: the program's clocks are off by {seen} s")
+
+            until(lambda o: abs(o[0]) < 0.5, "on this host's clock at +0")
+            clock.step(2.5)
+            _, mono_s, zenoh_s = until(lambda o: o[0] > 2.0, "2.5 s ahead")
+            assert abs(mono_s) < 0.5
+            assert 2.0 < zenoh_s < 3.0
+            clock.step(-3.0)
+            _, mono_s, _ = until(lambda o: o[0] < -2.5, "3 s behind")
+            assert abs(mono_s) < 0.5
+            clock.step(0.0)
+            until(lambda o: abs(o[0]) < 0.5, "set right")
+        finally:
+            proc.kill()
+    proc.wait()
+    soak.remove_dead_faketime_files()
 
 
 @pytest.mark.e2e

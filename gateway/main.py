@@ -95,9 +95,11 @@ def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.
 
     def on_sample(sample: zenoh.Sample) -> None:
         received = read_clocks()
-        if realtime_priority and not getattr(scheduled, "done", False):
+        if not getattr(scheduled, "done", False):
             scheduled.done = True
-            _use_realtime_scheduling(realtime_priority, "a Zenoh thread that receives inputs")
+            threading.current_thread().name = "zenoh-input"  # so that a stall record names it
+            if realtime_priority:
+                _use_realtime_scheduling(realtime_priority, "a Zenoh thread that receives inputs")
         key = str(sample.key_expr)
         try:
             node.on_message(key, sample.payload.to_bytes(), received)
@@ -249,17 +251,30 @@ class StatusThread(LatestJobThread[StatusJob]):
 
     :meth:`offer` never blocks its caller: the job goes into a one-place slot (the newest wins: one not yet taken
     is replaced) and a counter (an eventfd) wakes the thread; no lock is shared with the loop, so the status thread
-    being descheduled cannot hold the loop up. The thread runs at normal scheduling. What it cannot avoid is
-    Python's interpreter lock: it builds the document under :func:`collections_paused` (a full collection while a
-    document of thousands of capsules is alive held the lock 5–10 ms) and serialises it in chunks (:func:`status_json`).
-    An exception while publishing is logged and counted; the thread goes on.
+    being descheduled cannot hold the loop up. What it cannot avoid is Python's interpreter lock: it builds the
+    document under :func:`collections_paused` (a full collection while a document of thousands of capsules is alive
+    held the lock 5–10 ms) and serialises it in chunks (:func:`status_json`), and it runs under SCHED_FIFO at
+    ``realtime_priority`` (``gateway.io_realtime_priority``) like the other threads that take the lock: at normal
+    scheduling another program could deschedule it while it held the lock, and the loop waited for the lock until
+    it ran again (a priority inversion; measured on the default cell: each ``blocked`` stall at normal scheduling had
+    this thread waiting 8–18 ms on a run queue meanwhile, none under SCHED_FIFO). An exception while publishing is
+    logged and counted; the thread goes on.
 
     Args:
         publish: builds and publishes one job's document (called on the status thread).
+        realtime_priority: > 0: the thread puts itself under SCHED_FIFO at it; 0: normal scheduling.
     """
 
-    def __init__(self, publish: Callable[[StatusJob], None]) -> None:
-        super().__init__(publish, "hrc-status", "publishing a status document", log)
+    def __init__(self, publish: Callable[[StatusJob], None], realtime_priority: int = 0) -> None:
+        super().__init__(
+            publish,
+            "hrc-status",
+            "publishing a status document",
+            log,
+            on_start=None
+            if not realtime_priority
+            else functools.partial(_use_realtime_scheduling, realtime_priority, "the status thread"),
+        )
 
 
 @dataclass(frozen=True)
@@ -550,7 +565,10 @@ def run_gateway(
         status_pub = session.declare_publisher(keys.gateway_status(config.cell))
         sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
         out = _Outputs(
-            _declare_overrides(session, config), http, StatusThread(sink.publish), config.gateway.io_realtime_priority
+            _declare_overrides(session, config),
+            http,
+            StatusThread(sink.publish, config.gateway.io_realtime_priority),
+            config.gateway.io_realtime_priority,
         )
         out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(

@@ -39,7 +39,7 @@ import numpy as np
 import zenoh
 
 from gateway.handoff import LatestJobThread
-from gateway.ros2_trackers import tracker_wires, trackers_node_name
+from gateway.ros2_trackers import tracker_topics, trackers_node_name
 from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
 from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
@@ -404,6 +404,7 @@ RUN_TIME_CHUNKS = (2, 3, 4)
 """Chunks of an rmw_zenoh liveliness key chosen at run time: the session's Zenoh id, the node's and entity's ids."""
 NODE_CHUNKS = (6, 7, 8)
 """The enclave, namespace and node name of a liveliness key: a tracker's own (a ZED wrapper's ``zed_node``)."""
+TOPIC_NAME_CHUNK = 9
 TYPE_CHUNKS = (10, 11)
 QOS_CHUNK = 12
 ANY_TYPE = TopicType("*", "*", "*")
@@ -439,15 +440,23 @@ def ros2_policy(config: CellConfig) -> Ros2Policy:
         token = endpoint_token("MP", domain, "0", 0, 0, ns, node, fq_name, wire)
         tokens.append(token_expr(token, (*RUN_TIME_CHUNKS, QOS_CHUNK)))
     trackers = []
-    for name, (fq_name, wire) in tracker_wires(config).items():
-        token = endpoint_token("MS", domain, "0", 0, 0, ns, trackers_node_name(ros2), fq_name, wire)
-        tokens.append(token_expr(token, (*RUN_TIME_CHUNKS, QOS_CHUNK)))
-        publisher = endpoint_token("MP", domain, "0", 0, 0, "/", "n", fq_name, wire)
-        own_tokens = (
-            token_expr(node_token(domain, "0", 0, "/", "n"), (*RUN_TIME_CHUNKS, *NODE_CHUNKS)),
-            token_expr(publisher, (*RUN_TIME_CHUNKS, *NODE_CHUNKS, *TYPE_CHUNKS, QOS_CHUNK)),
-        )
-        trackers.append((name, Ros2Rights((topic_key(domain, fq_name, ANY_TYPE),), own_tokens)))
+    for name, topics in tracker_topics(config).items():
+        own_puts: list[str] = []
+        own_tokens = [token_expr(node_token(domain, "0", 0, "/", "n"), (*RUN_TIME_CHUNKS, *NODE_CHUNKS))]
+        for source in topics:
+            if source.announced:
+                token = endpoint_token(
+                    "MS", domain, "0", 0, 0, ns, trackers_node_name(ros2), source.fq_name, source.wire
+                )
+                tokens.append(token_expr(token, (*RUN_TIME_CHUNKS, QOS_CHUNK)))
+            # A name with ``*`` (a ROS4HRI body's joint states, one topic per body id): any topic name in the token.
+            name_chunk = () if source.announced else (TOPIC_NAME_CHUNK,)
+            publisher = endpoint_token("MP", domain, "0", 0, 0, "/", "n", source.fq_name.replace("*", "b"), source.wire)
+            own_tokens.append(
+                token_expr(publisher, (*RUN_TIME_CHUNKS, *NODE_CHUNKS, *name_chunk, *TYPE_CHUNKS, QOS_CHUNK))
+            )
+            own_puts.append(topic_key(domain, source.fq_name, ANY_TYPE))
+        trackers.append((name, Ros2Rights(tuple(own_puts), tuple(own_tokens))))
     read = (f"{domain}/**", f"{ADMIN_SPACE}/{domain}/**")
     return Ros2Policy(read, Ros2Rights(tuple(puts), tuple(tokens)), tuple(trackers))
 

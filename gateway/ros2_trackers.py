@@ -19,6 +19,16 @@ Refused before the door, with these reasons: what rmw_zenoh itself drops (``no_a
 ``unknown_body_format`` … of :mod:`hrc_runtime.ros2_people` and :mod:`hrc_runtime.skeletons`); a message in
 another frame than configured (``wrong_frame``); anything else that raises (``internal_error``, logged).
 
+ROS4HRI bodies (format ``ros4hri_bodies``, :class:`Ros4hriAdapter`): three streams feed one tracker. The tracked list
+(``hri_msgs/IdsList`` on the configured topic, e.g. ``/humans/bodies/tracked``) makes the frames: its sequence number,
+and as stamp the oldest capture stamp of what the frame uses. Each body's ``sensor_msgs/JointState`` on
+``<the list's namespace>/<id>/joint_states`` and its ``body_<id>`` frame on the TF topic (``tf2_msgs/TFMessage``, in
+the configured ``frame_id``) are checked when they arrive and kept (:mod:`hrc_runtime.ros4hri_body`). A listed body
+without both, or with either older than ``max_body_age_s`` at the list's stamp (or older than the last frame's
+stamp), is left out of the frame: lost, not gone. A refused joint state or TF message faults the tracker as a refused
+frame does. Further reasons: ``wrong_topic``, ``joint_count_mismatch``, ``unknown_joint``, ``duplicate_joint``,
+``joint_out_of_limits``, ``bad_quaternion``, ``bad_body_id``.
+
 Cost: the conversion runs on the ROS 2 session's receiving thread, never on the safety loop's (which it shares the
 interpreter lock with); measured per frame in docs/ros2.md ("ROS 2 trackers").
 """
@@ -38,7 +48,7 @@ import zenoh
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2Config, Ros2TrackerInput
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
-from hrc_runtime import ros2_people
+from hrc_runtime import ros2_people, ros4hri_body
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.rmw_zenoh import (
     Attachment,
@@ -59,8 +69,14 @@ from hrc_runtime.zenoh_session import SecurityError, SessionOptions
 
 log = logging.getLogger("hrc-gateway.ros2-trackers")
 
-MSGTYPES = {"zed_objects": ros2_people.ZED_OBJECTS, "k4abt_markers": ros2_people.MARKER_ARRAY}
-"""The ROS 2 message type of each tracker format."""
+MSGTYPES = {
+    "zed_objects": ros2_people.ZED_OBJECTS,
+    "k4abt_markers": ros2_people.MARKER_ARRAY,
+    "ros4hri_bodies": ros2_people.IDS_LIST,
+}
+"""The ROS 2 message type of each tracker format (of its configured topic: ROS4HRI's tracked list)."""
+JOINT_STATES_TOPIC = "joint_states"
+"""A ROS4HRI body's joint states: ``<the tracked list's namespace>/<id>/joint_states``."""
 
 SENSOR_DATA_QOS = Qos(reliability=2, durability=2, history=1, depth=5)
 """What the subscriptions announce: rclcpp's sensor-data profile (best effort, volatile, keep last 5)."""
@@ -76,7 +92,8 @@ def trackers_node_name(ros2: Ros2Config) -> str:
 
 
 def tracker_wires(config: CellConfig) -> dict[str, tuple[str, TopicType]]:
-    """Each ROS 2 tracker's (fully qualified topic, type on the wire).
+    """Each ROS 2 tracker's (fully qualified topic, type on the wire): its configured topic (ROS4HRI: the tracked
+    list; :func:`tracker_topics` has all of its topics).
 
     Raises:
         ConfigError: an unknown distro, a topic that is not a ROS name.
@@ -87,6 +104,50 @@ def tracker_wires(config: CellConfig) -> dict[str, tuple[str, TopicType]]:
         for name, t in sorted(config.trackers.items())
         if t.ros2 is not None
     }
+
+
+class TrackerTopic(NamedTuple):
+    """A topic a ROS 2 tracker reads: its fully qualified name (``*``: any one token, a body id), its type on the
+    wire, and whether the subscription is announced by a liveliness token (not for a name with ``*``)."""
+
+    fq_name: str
+    wire: TopicType
+    announced: bool = True
+
+
+def ros4hri_topics(ros2: Ros2Config, source: Ros2TrackerInput) -> tuple[TrackerTopic, TrackerTopic, TrackerTopic]:
+    """A ROS4HRI tracker's topics: the tracked list, every body's joint states, the TF topic.
+
+    Raises:
+        ConfigError: an unknown distro, a topic that is not a ROS name.
+    """
+    tracked = fully_qualified_name(ros2.namespace, source.topic)
+    bodies = tracked.rpartition("/")[0]
+    return (
+        TrackerTopic(tracked, topic_type(ros2.distro, ros2_people.IDS_LIST)),
+        TrackerTopic(f"{bodies}/*/{JOINT_STATES_TOPIC}", topic_type(ros2.distro, ros4hri_body.JOINT_STATE), False),
+        TrackerTopic(
+            fully_qualified_name(ros2.namespace, source.tf_topic), topic_type(ros2.distro, ros4hri_body.TF_MESSAGE)
+        ),
+    )
+
+
+def tracker_topics(config: CellConfig) -> dict[str, tuple[TrackerTopic, ...]]:
+    """Every topic each ROS 2 tracker reads (what its subscriptions listen to and its publisher must be let put).
+
+    Raises:
+        ConfigError: an unknown distro, a topic that is not a ROS name.
+    """
+    out: dict[str, tuple[TrackerTopic, ...]] = {}
+    for name, tracker in sorted(config.trackers.items()):
+        if tracker.ros2 is None:
+            continue
+        if tracker.ros2.format == "ros4hri_bodies":
+            out[name] = ros4hri_topics(config.ros2, tracker.ros2)
+        else:
+            fq_name, wire = tracker_wires(config)[name]
+            out[name] = (TrackerTopic(fq_name, wire),)
+    return out
 
 
 Door = Callable[[str, bytes, Clocks], None]
@@ -197,14 +258,126 @@ class SkeletonAdapter:
         return out
 
 
+def key_topic(key: str) -> str:
+    """The fully qualified topic of an rmw_zenoh data key ``<domain>/<topic…>/<type>/<hash>``."""
+    head = key.rsplit("/", 2)[0]
+    return "/" + head.partition("/")[2]
+
+
+@dataclass
+class Ros4hriAdapter:
+    """A ROS4HRI tracker's three streams → its ``hrc.humans/1`` frames (one per tracked list).
+
+    Not thread-safe: one sample at a time (:class:`TrackerSubscription` holds a lock around :meth:`on_sample`).
+
+    Args:
+        tracker: the tracker's name in the cell.
+        source: its ROS 2 input (tracked list topic, TF topic, parent frame, placement, height, age limit).
+        ros2: the cell's ROS 2 section (namespace, distro).
+    """
+
+    tracker: str
+    source: Ros2TrackerInput
+    ros2: Ros2Config
+    placement: ros2_people.Placement = field(init=False)
+    memories: dict[str, PersonMemory] = field(default_factory=dict, init=False)
+    joints: dict[str, ros4hri_body.BodyJoints] = field(default_factory=dict, init=False)
+    poses: dict[str, ros4hri_body.BodyPose] = field(default_factory=dict, init=False)
+    last_stamp_ns: int = field(default=-1, init=False)
+
+    def __post_init__(self) -> None:
+        self.placement = placement_of(self.source.sensor_pose_world)
+        self._store = typestore(self.ros2.distro)
+        height_m = self.source.body_height_m or ros4hri_body.DEFAULT_HEIGHT_M
+        self.human = ros4hri_body.build_human_model(height_m)
+        self.tracked, self.joint_states, self.tf = ros4hri_topics(self.ros2, self.source)
+        self._bodies_prefix = self.joint_states.fq_name.split("*")[0]
+        self._max_age_ns = round(self.source.max_body_age_s * 1e9)
+
+    def on_sample(self, key: str, payload: bytes, attachment: bytes | None) -> bytes | None:
+        """One sample of any of the three topics: the frame to hand on (a tracked list), or None (kept).
+
+        Raises:
+            MessageError: ``wrong_topic`` and see the module docstring (nothing kept of a refused sample).
+        """
+        topic = key_topic(key)
+        if topic == self.tracked.fq_name:
+            return self._on_tracked(payload, judge_sample(key, len(payload), attachment, self.tracked.wire))
+        if topic == self.tf.fq_name:
+            judge_sample(key, len(payload), attachment, self.tf.wire)
+            self._on_tf(payload)
+            return None
+        body_id, _, rest = topic.removeprefix(self._bodies_prefix).partition("/")
+        if topic.startswith(self._bodies_prefix) and body_id and rest == JOINT_STATES_TOPIC:
+            judge_sample(key, len(payload), attachment, self.joint_states.wire)
+            self._keep(self.joints, body_id, ros4hri_body.decode_joint_state(payload, self._store, self.human, body_id))
+            return None
+        raise Ros2TrackerError("wrong_topic", f"topic {topic[:80]!r} is none of this tracker's")
+
+    def _on_tf(self, payload: bytes) -> None:
+        poses = ros4hri_body.decode_body_poses(payload, self._store, self.source.frame_id)
+        for pose in poses:
+            self._keep(self.poses, pose.body_id, pose)
+
+    def _keep(self, table: dict[str, Any], body_id: str, value: Any) -> None:
+        """The newest sample wins (one publisher's samples arrive in order; a forged future stamp is replaced by the
+        next genuine one, and while it stands the body is lost: it is fresh at no list's stamp)."""
+        if body_id not in table and len(table) >= 2 * ros2_people.MAX_PEOPLE:
+            raise ros2_people.Ros2MessageError("too_many_people", f"more than {2 * ros2_people.MAX_PEOPLE} bodies kept")
+        table[body_id] = value
+
+    def _fresh(self, stamp_ns: int, list_stamp_ns: int) -> bool:
+        """Within the age limit of the list's stamp, either side, and newer than the last frame: the door takes
+        only frames stamped after the last one, so data a frame used already cannot stamp the next."""
+        return abs(list_stamp_ns - stamp_ns) <= self._max_age_ns and stamp_ns > self.last_stamp_ns
+
+    def _on_tracked(self, payload: bytes, attachment: Attachment) -> bytes:
+        list_stamp_ns, ids = ros2_people.decode_ids_list(payload, self._store)
+        for body_id in ids:
+            ros4hri_body.check_body_id(body_id)
+        people: list[tuple[str, BodyCapsules]] = []
+        memories: dict[str, PersonMemory] = {}
+        stamp_ns = list_stamp_ns
+        for body_id in dict.fromkeys(ids):
+            if body_id in self.memories:
+                memories[body_id] = self.memories[body_id]  # a lost body keeps its memory while listed
+            joints, pose = self.joints.get(body_id), self.poses.get(body_id)
+            if joints is None or pose is None:
+                continue
+            if not (self._fresh(joints.stamp_ns, list_stamp_ns) and self._fresh(pose.stamp_ns, list_stamp_ns)):
+                continue
+            body_stamp_ns = min(joints.stamp_ns, pose.stamp_ns)
+            body, memories[body_id] = ros4hri_body.body_capsules_world(
+                self.human, joints, pose, self.placement,
+                stamp_ns=body_stamp_ns, uncertainty_m=self.source.uncertainty_m, memory=self.memories.get(body_id),
+            )  # fmt: skip
+            people.append((body_id, body))
+            stamp_ns = min(stamp_ns, body_stamp_ns)
+        out = humans_payload(self.tracker, attachment.sequence_number, stamp_ns, tuple(people))
+        self.memories = memories
+        self.last_stamp_ns = max(self.last_stamp_ns, stamp_ns)
+        self._forget(set(ids), list_stamp_ns)
+        return out
+
+    def _forget(self, listed: set[str], list_stamp_ns: int) -> None:
+        """Drop what is kept of bodies neither listed nor fresh (a body's data may come before its listing)."""
+        for table in (self.joints, self.poses):
+            for body_id in [
+                b for b, v in table.items() if b not in listed and not self._fresh(v.stamp_ns, list_stamp_ns)
+            ]:
+                del table[body_id]
+
+
 # ----------------------------------------------------------------------------------------------- subscriptions
 
 
 class SampleCounts(NamedTuple):
-    """What one subscription did: frames handed to the door, samples refused before it (by reason)."""
+    """What one subscription did: frames handed to the door, samples refused before it (by reason), samples kept
+    without a frame (a ROS4HRI body's joint states and TF)."""
 
     converted: int
     refused: dict[str, int]
+    kept: int = 0
 
 
 @dataclass
@@ -220,7 +393,7 @@ class TrackerSubscription:
         clock: reads both clocks at arrival (``read_clocks``; a fake in tests).
     """
 
-    adapter: SkeletonAdapter
+    adapter: SkeletonAdapter | Ros4hriAdapter
     wire: TopicType
     key: str
     door: Door
@@ -228,6 +401,7 @@ class TrackerSubscription:
     clock: Callable[[], Clocks] = read_clocks
     converted: int = 0
     refused: dict[str, int] = field(default_factory=dict)
+    kept: int = 0
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     @property
@@ -240,8 +414,11 @@ class TrackerSubscription:
         received = self.clock()
         try:
             with self._lock:  # one at a time: the people's memories; the door orders the frames itself
-                frame = self.adapter.convert(payload, judge_sample(key, len(payload), attachment, self.wire))
-                self.converted += 1
+                frame = self._convert(key, payload, attachment)
+                if frame is None:
+                    self.kept += 1
+                else:
+                    self.converted += 1
         except MessageError as exc:
             self._refuse(exc.reason, received)
             return
@@ -249,11 +426,17 @@ class TrackerSubscription:
             log.exception("error while converting a ROS 2 sample of tracker %s on %s", self.adapter.tracker, key)
             self._refuse("internal_error", received)
             return
-        self.door(self.key, frame, received)
+        if frame is not None:
+            self.door(self.key, frame, received)
+
+    def _convert(self, key: str, payload: bytes, attachment: bytes | None) -> bytes | None:
+        if isinstance(self.adapter, Ros4hriAdapter):
+            return self.adapter.on_sample(key, payload, attachment)
+        return self.adapter.convert(payload, judge_sample(key, len(payload), attachment, self.wire))
 
     def counts(self) -> SampleCounts:
         with self._lock:
-            return SampleCounts(self.converted, dict(self.refused))
+            return SampleCounts(self.converted, dict(self.refused), self.kept)
 
     def _refuse(self, reason: str, received: Clocks) -> None:
         with self._lock:
@@ -273,7 +456,11 @@ def tracker_subscriptions(config: CellConfig, door: Door, reject: Rejection) -> 
         if tracker.ros2 is None:
             continue
         wire = topic_type(distro, MSGTYPES[tracker.ros2.format])
-        adapter = SkeletonAdapter(name, tracker.ros2, distro)
+        adapter: SkeletonAdapter | Ros4hriAdapter
+        if tracker.ros2.format == "ros4hri_bodies":
+            adapter = Ros4hriAdapter(name, tracker.ros2, config.ros2)
+        else:
+            adapter = SkeletonAdapter(name, tracker.ros2, distro)
         subscriptions[name] = TrackerSubscription(adapter, wire, keys.tracker_humans(config.cell, name), door, reject)
     return subscriptions
 
@@ -312,18 +499,13 @@ class Ros2Trackers:
 
 
 def declare(node: Ros2Node, subscriptions: Mapping[str, TrackerSubscription], config: CellConfig) -> Ros2Trackers:
-    """Each subscription on ``node``'s session: listening on ``<domain>/<topic>/*/*`` (every type and hash, so that
-    a wrong one is seen and counted), announced by an ``MS`` token as an rmw_zenoh subscription."""
+    """Each subscription on ``node``'s session: per topic of the tracker (:func:`tracker_topics`) listening on
+    ``<domain>/<topic>/*/*`` (every type and hash, so that a wrong one is seen and counted), announced by an ``MS``
+    token as an rmw_zenoh subscription (not a ROS4HRI body's joint states: one listener for every body)."""
     trackers = Ros2Trackers(node, subscriptions)
-    for entity_id, (name, subscription) in enumerate(sorted(subscriptions.items()), start=node.node_id + 1):
-        source = config.trackers[name].ros2
-        if source is None:
-            continue
-        fq_name = fully_qualified_name(node.namespace, source.topic)
-        token = endpoint_token(
-            "MS", node.domain_id, node.session_id, node.node_id, entity_id, node.namespace, node.name, fq_name,
-            subscription.wire, SENSOR_DATA_QOS,
-        )  # fmt: skip
+    topics = tracker_topics(config)
+    entity_id = node.node_id
+    for name, subscription in sorted(subscriptions.items()):
 
         def on_sample(sample: zenoh.Sample, subscription: TrackerSubscription = subscription) -> None:
             attachment = sample.attachment
@@ -331,10 +513,17 @@ def declare(node: Ros2Node, subscriptions: Mapping[str, TrackerSubscription], co
                 str(sample.key_expr), sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
             )
 
-        listen_key = f"{node.domain_id}/{fq_name.strip('/')}/*/*"
-        trackers._handles.append(node.session.declare_subscriber(listen_key, on_sample))
-        trackers._handles.append(node.session.liveliness().declare_token(token))
-        log.info("ROS 2 tracker %s: %s (%s) on %s", name, fq_name, subscription.wire.msgtype, listen_key)
+        for topic in topics.get(name, ()):
+            listen_key = f"{node.domain_id}/{topic.fq_name.strip('/')}/*/*"
+            trackers._handles.append(node.session.declare_subscriber(listen_key, on_sample))
+            if topic.announced:
+                entity_id += 1
+                token = endpoint_token(
+                    "MS", node.domain_id, node.session_id, node.node_id, entity_id, node.namespace, node.name,
+                    topic.fq_name, topic.wire, SENSOR_DATA_QOS,
+                )  # fmt: skip
+                trackers._handles.append(node.session.liveliness().declare_token(token))
+            log.info("ROS 2 tracker %s: %s (%s) on %s", name, topic.fq_name, topic.wire.msgtype, listen_key)
     return trackers
 
 

@@ -13,16 +13,27 @@ What is measured between two wake-ups of the loop thread (the interval a late ti
 - the thread's time waiting on a run queue, runnable but not running (``/proc/self/task/<tid>/schedstat``, its
   second field), and its time on a CPU (its CPU clock: the schedstat field lags by up to a scheduler tick),
   :class:`ThreadSchedstat`; read at each wake-up (3 µs measured: ``os.pread`` of a descriptor kept open and
-  ``time.thread_time_ns``, ~0.08 % of a core at 250 Hz);
+  ``time.thread_time_ns``, ~0.08 % of a core at 250 Hz), and how many times it was put on a CPU (the third
+  field): once when its sleep ended, once more after each other block or preemption;
 - what is left, neither intended sleep, nor on a CPU, nor runnable: *blocked* (waiting for the interpreter lock
   another thread holds, for a lock or I/O, or the process was stopped). The only lock the loop takes is the HTTP
   child's event queue (phase ``events``); a Zenoh put waits only while the link's queue is full (``publish``).
+  If the thread did not block again (put on a CPU once if asleep at the due time, else never), that time is on
+  none of its clocks although it waited for nothing: its CPU did not run at all (*stolen*: on a virtual machine
+  the hypervisor did not run the virtual CPU, whose steal time the kernel leaves out of the task's clocks, or
+  woke an idle one late for the timer; on bare metal, interrupts held off by firmware);
+- the process's other Python threads' time on a CPU and on a run queue meanwhile (:class:`OtherThreads`, each
+  one's schedstat: one ``pread`` per thread at each wake-up, parsed only at a stall; 11.5 µs measured for the
+  default cell's 7, ~0.4 % of a core at 250 ticks and ~60 tracker frames a second), so that a stall names who ran
+  while the loop waited: a thread on a CPU may hold the interpreter lock in a long C call; one that waited on a
+  run queue may have held it while descheduled (a priority inversion).
 
 :func:`attribute` gives each stall one cause, checked in this order: ``gc`` (collections overlapped at least half
 the lateness), ``runqueue`` (the thread waited on a run queue at least half of it: another thread or program ran),
-``phase:<name>`` (our own work ran past the due time, in that phase), ``blocked`` (the wake-up was late and the
-thread was blocked at least half of it), ``unknown``. A stall with ``missed`` ticks counts them all for its cause,
-so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
+``stolen`` (at least half of it on none of the thread's clocks, and the thread did not block again: the CPU did not
+run, see above), ``phase:<name>`` (our own work ran past the due time, in that phase), ``blocked`` (the wake-up was
+late and the thread was blocked at least half of it), ``unknown``. A stall with ``missed`` ticks counts them all for
+its cause, so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
 """
 
 from __future__ import annotations
@@ -32,7 +43,9 @@ import os
 import threading
 import time
 from array import array
+from collections.abc import Callable, Mapping
 from enum import IntEnum
+from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
@@ -46,6 +59,15 @@ GC_WINDOWS = 64
 
 MAX_MARKS = 16
 """Phase marks kept per loop iteration (an iteration has at most 6)."""
+
+OTHERS_SHOWN = 3
+"""A stall's message names at most this many of the other threads (the most time on a CPU or a run queue)."""
+
+OTHERS_MIN_NS = 100_000
+"""Another thread is named in a stall's message only with at least this much time on a CPU or a run queue [ns]."""
+
+OTHERS_REFRESH_NS = NS_PER_S
+"""The process's Python threads are listed again after this long, and at each stall [ns]."""
 
 
 class Phase(IntEnum):
@@ -66,7 +88,7 @@ class Phase(IntEnum):
 
 
 PHASE_NAMES = tuple(p.name.lower() for p in Phase)
-CAUSES = ("gc", "runqueue", "blocked", "unknown", *(f"phase:{name}" for name in PHASE_NAMES[1:]))
+CAUSES = ("gc", "runqueue", "stolen", "blocked", "unknown", *(f"phase:{name}" for name in PHASE_NAMES[1:]))
 """Every cause :func:`attribute` can give (the metrics export each, 0 before the first)."""
 
 
@@ -82,6 +104,11 @@ class StallSample(NamedTuple):
         gc_ns: garbage collections (any thread) within the interval [ns].
         cpu_ns: the loop thread's time on a CPU within the interval [ns]; None without schedstat.
         runqueue_ns: its time runnable but waiting for a CPU within the interval [ns]; None without schedstat.
+        timeslices: how many times the loop thread was put on a CPU within the interval: once when its sleep
+            ended, once more after each other block (the interpreter lock, a lock, I/O) or preemption; None
+            without schedstat.
+        others: the process's other Python threads that were on a CPU or waited on a run queue within the interval,
+            the most first (:meth:`OtherThreads.between`); empty without schedstat.
     """
 
     late_ns: int
@@ -92,6 +119,8 @@ class StallSample(NamedTuple):
     gc_ns: int
     cpu_ns: int | None
     runqueue_ns: int | None
+    timeslices: int | None = None
+    others: tuple[ThreadTime, ...] = ()
 
     @property
     def blocked_ns(self) -> int | None:
@@ -99,6 +128,30 @@ class StallSample(NamedTuple):
         if self.cpu_ns is None or self.runqueue_ns is None:
             return None
         return max(0, self.interval_ns - self.slept_ns - self.cpu_ns - self.runqueue_ns)
+
+    @property
+    def blocked_again(self) -> bool | None:
+        """Whether the loop thread blocked within the interval other than in its sleep for the tick (the interpreter
+        lock, a lock, I/O; or a second wait of its sleep, for a tracker frame), or was preempted (None without
+        schedstat): put on a CPU more often than its sleep alone explains (once if asleep at the due time, else
+        never: the sleep began after the due time and did not wait)."""
+        if self.timeslices is None:
+            return None
+        return self.timeslices > (1 if self.phase == PHASE_NAMES[Phase.SLEEP] else 0)
+
+
+class ThreadTime(NamedTuple):
+    """Another thread's time within a stall's interval (from its schedstat: it lags by up to a scheduler tick).
+
+    Attributes:
+        name: the thread's Python name and its id.
+        cpu_ns: its time on a CPU [ns].
+        runqueue_ns: its time runnable but waiting for a CPU [ns].
+    """
+
+    name: str
+    cpu_ns: int
+    runqueue_ns: int
 
 
 class StallRecord(NamedTuple):
@@ -121,10 +174,15 @@ class StallRecord(NamedTuple):
         def ms(value_ns: int | None) -> str:
             return "n/a" if value_ns is None else f"{value_ns / 1e6:.1f} ms"
 
+        others = "".join(
+            f"; {t.name} on CPU {ms(t.cpu_ns)}, run-queue wait {ms(t.runqueue_ns)}" for t in s.others[:OTHERS_SHOWN]
+        )
         return (
             f"loop stall: tick {ms(s.late_ns)} late ({self.missed} missed), cause {self.cause}: in phase {s.phase} "
             f"at the due time; gc {ms(s.gc_ns)}, run-queue wait {ms(s.runqueue_ns)}, blocked {ms(s.blocked_ns)}, "
-            f"on CPU {ms(s.cpu_ns)} of {ms(s.interval_ns)} since the previous wake-up"
+            f"on CPU {ms(s.cpu_ns)} of {ms(s.interval_ns)} since the previous wake-up, put on a CPU "
+            f"{'n/a' if s.timeslices is None else s.timeslices} time(s)"
+            + (f"; meanwhile{others[1:]}" if others else "")
         )
 
 
@@ -132,17 +190,20 @@ def attribute(sample: StallSample) -> str:
     """The one cause of a late tick (the order is the module docstring's).
 
     Returns:
-        ``gc``, ``runqueue``, ``phase:<name>``, ``blocked`` or ``unknown``.
+        ``gc``, ``runqueue``, ``stolen``, ``phase:<name>``, ``blocked`` or ``unknown``.
     """
     half_late_ns = sample.late_ns / 2
     if sample.gc_ns >= half_late_ns:
         return "gc"
     if sample.runqueue_ns is not None and sample.runqueue_ns >= half_late_ns:
         return "runqueue"
+    blocked_ns = sample.blocked_ns
+    unaccounted = blocked_ns is not None and blocked_ns >= half_late_ns
+    if unaccounted and sample.blocked_again is False:
+        return "stolen"
     if sample.phase != PHASE_NAMES[Phase.SLEEP]:
         return f"phase:{sample.phase}"
-    blocked_ns = sample.blocked_ns
-    if blocked_ns is not None and blocked_ns >= half_late_ns:
+    if unaccounted:
         return "blocked"
     return "unknown"
 
@@ -233,7 +294,8 @@ class GcWindows:
 
 class ThreadSchedstat:
     """The creating thread's time on a CPU (its CPU clock) and waiting on a run queue
-    (``/proc/self/task/<tid>/schedstat``, second field) [ns]; read on that thread only.
+    (``/proc/self/task/<tid>/schedstat``, second field) [ns], and how many times it was put on a CPU (third field:
+    once after each block or preemption); read on that thread only.
 
     The descriptor stays open; :meth:`read` is one ``pread`` and one clock read (3 µs measured). Where the file is
     missing (not Linux, a kernel without ``CONFIG_SCHED_INFO``), :attr:`available` is False and :meth:`read`
@@ -251,13 +313,13 @@ class ThreadSchedstat:
     def available(self) -> bool:
         return self._fd is not None
 
-    def read(self) -> tuple[int, int] | None:
-        """``(on_cpu_ns, runqueue_ns)`` since the thread started, None if unavailable."""
+    def read(self) -> tuple[int, int, int] | None:
+        """``(on_cpu_ns, runqueue_ns, timeslices)`` since the thread started, None if unavailable."""
         if self._fd is None:
             return None
         try:
             fields = os.pread(self._fd, 128, 0).split()
-            return time.thread_time_ns(), int(fields[1])
+            return time.thread_time_ns(), int(fields[1]), int(fields[2])
         except (OSError, ValueError, IndexError):
             return None
 
@@ -265,6 +327,94 @@ class ThreadSchedstat:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+def _python_thread_names() -> dict[int, str]:
+    """The Python threads' names by native id (threads Python never saw are absent)."""
+    return {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+
+
+def _parse_schedstat(raw: bytes) -> tuple[int, int] | None:
+    """``(on_cpu_ns, runqueue_ns)`` from the text of a schedstat file (None if it does not parse)."""
+    fields = raw.split()
+    try:
+        return int(fields[0]), int(fields[1])
+    except (ValueError, IndexError):
+        return None
+
+
+class OtherThreads:
+    """The process's other Python threads (those that can hold the interpreter lock: Python's own and the foreign
+    threads that called into Python, such as Zenoh's callback threads), their schedstat read at each wake-up of
+    the loop and compared at a stall.
+
+    :meth:`read` is one ``pread`` per thread (descriptors kept open, bytes kept unparsed: ~1–2 µs a thread);
+    :meth:`between` parses two readings only when a tick was late. :meth:`refresh` takes the threads Python knows
+    now (``names``) and opens the new ones' schedstat in ``task_dir``. A thread started since the last refresh is
+    missing until the next; one that ended is dropped. Threads that never run Python code (Zenoh's runtime, a BLAS
+    pool) are left out: they cannot hold the lock, and they cannot take a CPU from the loop under SCHED_FIFO.
+
+    Args:
+        own_tid: the thread left out (the loop's own).
+        task_dir: the process's task directory.
+        names: the Python threads' names by native id.
+    """
+
+    def __init__(
+        self,
+        own_tid: int | None = None,
+        task_dir: Path = Path("/proc/self/task"),
+        names: Callable[[], dict[int, str]] = _python_thread_names,
+    ) -> None:
+        self._own_tid = threading.get_native_id() if own_tid is None else own_tid
+        self._task_dir = task_dir
+        self._names_of = names
+        self._fds: dict[int, int] = {}
+        self.names: dict[int, str] = {}
+        """The threads followed, ``name (id)`` by id."""
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Follow the Python threads there are now (open the new ones' schedstat, close the ended ones')."""
+        python_names = self._names_of()
+        python_names.pop(self._own_tid, None)
+        for tid in set(self._fds) - set(python_names):
+            os.close(self._fds.pop(tid))
+        for tid in set(python_names) - set(self._fds):
+            try:
+                self._fds[tid] = os.open(self._task_dir / str(tid) / "schedstat", os.O_RDONLY)
+            except OSError:  # ended meanwhile
+                continue
+        self.names = {tid: f"{python_names[tid]} ({tid})" for tid in self._fds}
+
+    def read(self) -> dict[int, bytes]:
+        """Each thread's schedstat text now (a thread that ended is left out)."""
+        reading = {}
+        for tid, fd in self._fds.items():
+            try:
+                reading[tid] = os.pread(fd, 128, 0)
+            except OSError:
+                continue
+        return reading
+
+    def between(self, before: Mapping[int, bytes], after: Mapping[int, bytes]) -> tuple[ThreadTime, ...]:
+        """The threads' time on a CPU and on a run queue between two readings, those with at least
+        :data:`OTHERS_MIN_NS` of either, the most (CPU plus run queue) first."""
+        times = []
+        for tid, raw in after.items():
+            then = _parse_schedstat(before.get(tid, b""))
+            now = _parse_schedstat(raw)
+            if then is None or now is None:
+                continue
+            cpu_ns, runq_ns = now[0] - then[0], now[1] - then[1]
+            if max(cpu_ns, runq_ns) >= OTHERS_MIN_NS:
+                times.append(ThreadTime(self.names.get(tid, str(tid)), cpu_ns, runq_ns))
+        return tuple(sorted(times, key=lambda t: -(t.cpu_ns + t.runqueue_ns)))
+
+    def close(self) -> None:
+        for fd in self._fds.values():
+            os.close(fd)
+        self._fds.clear()
 
 
 class StallMonitor:
@@ -279,6 +429,7 @@ class StallMonitor:
         threshold_periods: a tick later than this many periods is a stall (> 0).
         schedstat: the loop thread's schedstat (default: the calling thread's).
         gc_windows: the collections (default: new ones, installed in ``gc.callbacks`` until closed).
+        others: the process's other Python threads (default: all but the calling one; read at each wake-up).
 
     Raises:
         ValueError: ``period_s`` or ``threshold_periods`` not > 0.
@@ -290,6 +441,7 @@ class StallMonitor:
         threshold_periods: float = STALL_THRESHOLD_PERIODS,
         schedstat: ThreadSchedstat | None = None,
         gc_windows: GcWindows | None = None,
+        others: OtherThreads | None = None,
     ) -> None:
         if not (period_s > 0.0 and threshold_periods > 0.0):
             raise ValueError(f"period_s = {period_s}, threshold_periods = {threshold_periods}; allowed: > 0")
@@ -301,8 +453,11 @@ class StallMonitor:
         if self._own_gc:
             self.gc_windows.install()
         self.trace = PhaseTrace()
+        self.others = OtherThreads() if others is None else others
         self._woke_ns = time.monotonic_ns()  # the first interval starts here
-        self._stat: tuple[int, int] | None = self._schedstat.read()
+        self._refreshed_ns = self._woke_ns
+        self._stat: tuple[int, int, int] | None = self._schedstat.read()
+        self._others_stat = self.others.read()
         self._missed_cycles = 0
         self.stalls: dict[str, int] = {}
         """Stalls by cause since the start."""
@@ -325,14 +480,15 @@ class StallMonitor:
             Either way the next iteration's trace begins (phase ``read``).
         """
         stat = self._schedstat.read()
+        others_stat = self.others.read()
         record = None
         missed, self._missed_cycles = max(0, missed_cycles - self._missed_cycles), missed_cycles
         late_ns = round(late_s * NS_PER_S)
         if tick and (missed > 0 or late_ns > self.threshold_ns):
             due_ns = now_ns - late_ns
-            cpu_ns = runq_ns = None
+            cpu_ns = runq_ns = timeslices = None
             if stat is not None and self._stat is not None:
-                cpu_ns, runq_ns = stat[0] - self._stat[0], stat[1] - self._stat[1]
+                cpu_ns, runq_ns, timeslices = (now - then for now, then in zip(stat, self._stat, strict=True))
             sample = StallSample(
                 late_ns=late_ns,
                 period_ns=self.period_ns,
@@ -342,11 +498,17 @@ class StallMonitor:
                 gc_ns=self.gc_windows.within_ns(self._woke_ns, now_ns),
                 cpu_ns=cpu_ns,
                 runqueue_ns=runq_ns,
+                timeslices=timeslices,
+                others=self.others.between(self._others_stat, others_stat),
             )
             record = StallRecord(attribute(sample), missed, sample)
             self.stalls[record.cause] = self.stalls.get(record.cause, 0) + 1
             self.missed[record.cause] = self.missed.get(record.cause, 0) + record.missed
-        self._woke_ns, self._stat = now_ns, stat
+        if record is not None or now_ns - self._refreshed_ns >= OTHERS_REFRESH_NS:
+            self.others.refresh()
+            others_stat = self.others.read()
+            self._refreshed_ns = now_ns
+        self._woke_ns, self._stat, self._others_stat = now_ns, stat, others_stat
         self.trace.restart(Phase.READ, now_ns)
         return record
 
@@ -358,6 +520,7 @@ class StallMonitor:
         if self._own_gc:
             self.gc_windows.remove()
         self._schedstat.close()
+        self.others.close()
 
     def __enter__(self) -> StallMonitor:
         return self

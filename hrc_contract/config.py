@@ -336,9 +336,10 @@ class GatewayConfig(_Frozen):
     io_realtime_priority: Annotated[int, Field(ge=0, le=98)] = Field(
         0,
         description="Linux SCHED_FIFO priority of the gateway's I/O threads (Zenoh's threads that receive inputs, "
-        "the thread that feeds the HTTP child, the log writer), below loop_realtime_priority; 0 = normal "
-        "scheduling. They share Python's interpreter lock with the loop: at normal priority any other program can "
-        "deschedule one while it holds the lock, and the loop waits (a priority inversion, seen with many robots).",
+        "the thread that feeds the HTTP child, the status thread, the log writer), below loop_realtime_priority; "
+        "0 = normal scheduling. They share Python's interpreter lock with the loop: at normal priority any other "
+        "program can deschedule one while it holds the lock, and the loop waits (a priority inversion, seen with many "
+        "robots).",
     )
 
     @model_validator(mode="after")
@@ -767,9 +768,14 @@ class Ros2Config(_Frozen):
         return self
 
 
-Ros2TrackerFormat = Literal["zed_objects", "k4abt_markers"]
-"""What a ROS 2 body tracker publishes: ``zed_msgs/ObjectsStamped`` (ZED body tracking) or the Azure Kinect
-driver's ``visualization_msgs/MarkerArray`` (``hrc_runtime/ros2_people.py``)."""
+Ros2TrackerFormat = Literal["zed_objects", "k4abt_markers", "ros4hri_bodies"]
+"""What a ROS 2 body tracker publishes: ``zed_msgs/ObjectsStamped`` (ZED body tracking), the Azure Kinect
+driver's ``visualization_msgs/MarkerArray`` (``hrc_runtime/ros2_people.py``), or ROS4HRI bodies (REP 155: the tracked
+list, per body ``sensor_msgs/JointState`` of the human model and its ``body_<id>`` frame on /tf;
+``hrc_runtime/ros4hri_body.py``)."""
+MAX_ROS4HRI_BODY_HEIGHT_M = 1.87
+"""Tallest ROS4HRI human model [m]: the P95 stature of ``hrc_runtime/skeletons.py``; a taller model's segments
+outgrow the reach spheres that stand for a body part whose joint is missing."""
 MAX_SKELETON_CAPSULE_RADIUS_M = 2.0
 """Largest radius a skeleton tracker's capsules may be allowed [m]: the contract's ``Capsule.radius`` limit."""
 
@@ -805,6 +811,27 @@ class Ros2TrackerInput(_Frozen):
     max_capsule_length_m: Annotated[float, Field(gt=0.0, le=2.5, allow_inf_nan=False)] = Field(
         2.5,
         description="Longest capsule of this tracker at the door [m] (a part enclosed with where it was last seen).",
+    )
+    # -- format "zed_objects" only: how the camera is set up (the tracker emulator and the sweep play it) ----------
+    enable_body_fitting: bool = Field(
+        False,
+        description="zed_objects: the ZED wrapper's body_tracking.enable_body_fitting (its default: false). On, the "
+        "SDK fits a skeleton and publishes an estimate for keypoints it cannot see; off, those are NaN. The gateway "
+        "cannot tell a fitted keypoint from a seen one (zed_msgs has no per-keypoint confidence): docs/ros2.md.",
+    )
+    # -- format "ros4hri_bodies" only (topic: the tracked list, e.g. /humans/bodies/tracked) --------------------
+    tf_topic: Annotated[str, Field(pattern=ROS2_NAME_PATTERN)] = Field(
+        "/tf", description="ros4hri_bodies: where the body_<id> frames are broadcast (tf2_msgs/TFMessage)."
+    )
+    body_height_m: Annotated[float, Field(ge=1.0, le=MAX_ROS4HRI_BODY_HEIGHT_M, allow_inf_nan=False)] | None = Field(
+        None,
+        description="ros4hri_bodies: height of the human model the joint states drive [m]; None: the P95 stature "
+        "(1.87 m). hri_fullbody builds its model at the template's default 1.65 m.",
+    )
+    max_body_age_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.2,
+        description="ros4hri_bodies: a tracked body whose joint states or body frame are older than this at the "
+        "tracked list's stamp is lost (left out of the frame, not gone) [s]. At most 1 s, as any data age.",
     )
 
 

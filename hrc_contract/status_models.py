@@ -272,9 +272,10 @@ class LoopStatus(_Strict):
     stalls: dict[str, Count] = Field(
         default_factory=dict,
         description="Ticks later than a period (each made the loop skip ticks), by cause, since the gateway started: "
-        "``gc``, ``runqueue`` (runnable, another thread or program ran), ``phase:<name>`` (the loop's own work ran "
-        "past the due time), ``blocked`` (woke late without being runnable: the interpreter lock or the process "
-        "stopped), ``unknown``. Each is logged as an event ``loop_stall`` with its figures.",
+        "``gc``, ``runqueue`` (runnable, another thread or program ran), ``stolen`` (on none of the thread's clocks "
+        "while blocked on nothing but its sleep: the CPU did not run, e.g. the hypervisor's steal), ``phase:<name>`` "
+        "(the loop's own work ran past the due time), ``blocked`` (woke late without being runnable: the interpreter "
+        "lock or the process stopped), ``unknown``. Each is logged as an event ``loop_stall`` with its figures.",
     )
     missed_by_cause: dict[str, Count] = Field(
         default_factory=dict,

@@ -519,3 +519,19 @@ def test_override_senders_run_under_fifo_at_the_io_priority() -> None:
     senders = gateway_main.OverrideSenders({"a": _Scheduling()}, realtime_priority=4)
     assert senders.last_word({"a": Override(robot="a", seq=0, stamp_ns=1, delta=0.0)}) == []
     assert seen == [(os.SCHED_FIFO, 4)]
+
+
+@pytest.mark.skipif(not _may_use_fifo(), reason="SCHED_FIFO needs root or CAP_SYS_NICE")
+def test_the_status_thread_runs_under_fifo_at_the_io_priority() -> None:
+    """It takes the interpreter lock to build each document: at normal scheduling another program could deschedule
+    it while it held the lock, and the loop waited (``blocked`` stalls on a quiet machine)."""
+    for priority, policy in ((4, os.SCHED_FIFO), (0, os.SCHED_OTHER)):
+        seen: list[tuple[int, int]] = []
+
+        def publish(job: object, seen: list[tuple[int, int]] = seen) -> None:
+            seen.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+        status = gateway_main.StatusThread(publish, priority)
+        status.offer_last(object())  # type: ignore[arg-type]
+        assert status.close(GIVE_UP_S)
+        assert seen == [(policy, priority)]

@@ -18,13 +18,13 @@ import zenoh
 from support.paths import REPO_ROOT
 
 from gateway.ros2_face import Ros2Face, ros2_policy, ros2_session_options
-from gateway.ros2_trackers import running_ros2_trackers
-from hrc_contract.config import CellConfig
+from gateway.ros2_trackers import running_ros2_trackers, tracker_topics
+from hrc_contract.config import CellConfig, Ros2TrackerInput
 from hrc_contract.messages import Capsule, Human, Humans
-from hrc_runtime.access_control import ROS2_FACE, may_declare_token
+from hrc_runtime.access_control import ROS2_FACE, may_declare_token, may_put
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import liveliness_keys
+from hrc_runtime.rmw_zenoh import endpoint_token, liveliness_keys, topic_key
 from hrc_runtime.robot_model import RobotModel
 from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
 from hrc_tools.cell.procs import free_port, wait_or_fail
@@ -161,3 +161,25 @@ def test_members_find_and_read_what_the_face_publishes(tmp_path: Path, config: C
     assert all(may_declare_token(policy, ROS2_FACE, token) for token in seen), seen
     endpoints = [token for token in seen if "/NN/" not in token]  # a tracker may name its node anything
     assert not any(may_declare_token(policy, "tracker-front", token) for token in endpoints)
+
+
+def test_a_ros4hri_tracker_may_put_every_topic_it_is_read_from_and_nothing_else(config: CellConfig) -> None:
+    """Its tracked list, each body's joint states (one topic per body id) and /tf: with TLS, a policy that let it put
+    only the tracked list would drop every joint state and root pose (the person would stay lost)."""
+    ros4hri = Ros2TrackerInput(format="ros4hri_bodies", topic="/humans/bodies/tracked", frame_id="world")
+    trackers = dict(config.trackers) | {"front": config.trackers["front"].model_copy(update={"ros2": ros4hri})}
+    config = config.model_copy(update={"trackers": trackers})
+    policy = ros2_policy(config)
+    tracked, joint_states, tf = tracker_topics(config)["front"]
+    body_js = "/humans/bodies/b7/joint_states"
+    keys = {
+        "tracked": topic_key(0, tracked.fq_name, tracked.wire),
+        "joint_states": topic_key(0, body_js, joint_states.wire),
+        "tf": topic_key(0, tf.fq_name, tf.wire),
+    }
+    assert all(may_put(policy, "tracker-front", key) for key in keys.values()), keys
+    assert not any(may_put(policy, "tracker-side", key) for key in keys.values())
+    assert not may_put(policy, "tracker-front", topic_key(0, "/humans/bodies/b7/other", joint_states.wire))
+    publisher = endpoint_token("MP", 0, "a1b2", 3, 9, "/", "hri_fullbody", body_js, joint_states.wire)
+    assert may_declare_token(policy, "tracker-front", publisher)
+    assert not may_declare_token(policy, "tracker-side", publisher)

@@ -7,6 +7,7 @@ counted by reason and faults the tracker (δ = 0), never raising.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -16,18 +17,30 @@ from support.skeleton_poses import standing_keypoints
 
 from gateway.inputs import InputStore
 from gateway.ros2_trackers import (
+    SampleCounts,
     TrackerSubscription,
     check_ros2_inputs,
     placement_of,
     tracker_subscriptions,
+    tracker_topics,
 )
-from hrc_contract.config import CellConfig, ConfigError, Pose
+from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2TrackerInput
 from hrc_contract.humans import HumanCapsules
+from hrc_runtime import ros4hri_body
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import HUMBLE_TYPE_HASH, Attachment, Distro, encode_attachment, topic_type, typestore
+from hrc_runtime.rmw_zenoh import (
+    HUMBLE_TYPE_HASH,
+    Attachment,
+    Distro,
+    encode_attachment,
+    topic_key,
+    topic_type,
+    typestore,
+)
 from hrc_runtime.robot_model import RobotModel
-from hrc_runtime.ros2_people import ZED_OBJECTS
+from hrc_runtime.ros2_people import IDS_LIST, ZED_OBJECTS
+from hrc_runtime.ros4hri_body import JOINT_NAMES, JOINT_STATE, TF_MESSAGE
 from hrc_runtime.skeletons import COMPILED, ZED_34_NAMES
 from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, SecurityError, SessionOptions
 
@@ -301,3 +314,204 @@ def test_the_wire_type_is_rosbags_hash_of_the_zed_definitions(config: CellConfig
     assert subscription.wire.type_hash.startswith("RIHS01_")
     with pytest.raises(ConfigError):
         topic_type("jazzy", "zed_msgs/msg/NoSuchType")
+
+
+# -- ROS4HRI bodies: the tracked list, per body joint states and the body frame on /tf ---------------------------
+
+BODY = "ukxbg"
+CAMERA = "camera_color_optical_frame"
+UNIT_Q = (0.0, 0.0, 0.0, 1.0)
+
+
+def _header(frame_id: str, stamp_ns: int) -> Any:
+    store = typestore("jazzy")
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    return store.types["std_msgs/msg/Header"](
+        stamp=store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id
+    )
+
+
+def ids_bytes(ids: list[str], stamp_ns: int) -> bytes:
+    store = typestore("jazzy")
+    return bytes(store.serialize_cdr(store.types[IDS_LIST](header=_header(CAMERA, stamp_ns), ids=ids), IDS_LIST))
+
+
+def joint_state_bytes(angles: dict[str, float], stamp_ns: int, body_id: str = BODY) -> bytes:
+    store = typestore("jazzy")
+    msg = store.types[JOINT_STATE](
+        header=_header(CAMERA, stamp_ns), name=[f"{j}_{body_id}" for j in angles],
+        position=np.array(list(angles.values()), dtype=np.float64), velocity=np.zeros(0), effort=np.zeros(0),
+    )  # fmt: skip
+    return bytes(store.serialize_cdr(msg, JOINT_STATE))
+
+
+def tf_bytes(stamp_ns: int, xyz: tuple[float, float, float], parent: str = CAMERA, q: Any = UNIT_Q) -> bytes:
+    store = typestore("jazzy")
+    T = store.types
+    transform = T["geometry_msgs/msg/TransformStamped"](
+        header=_header(parent, stamp_ns), child_frame_id=f"body_{BODY}",
+        transform=T["geometry_msgs/msg/Transform"](
+            translation=T["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+            rotation=T["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+        ),
+    )  # fmt: skip
+    return bytes(store.serialize_cdr(T[TF_MESSAGE](transforms=[transform]), TF_MESSAGE))
+
+
+def straight(**angles: float) -> dict[str, float]:
+    return {name: angles.get(name, 0.0) for name in JOINT_NAMES}
+
+
+class HriRig(Rig):
+    """The front tracker as a ROS4HRI body tracker (its camera frame is the world), feeding a real InputStore."""
+
+    def __init__(self, config: CellConfig, ur5: RobotModel, **source: Any) -> None:
+        ros4hri = Ros2TrackerInput(format="ros4hri_bodies", topic="/humans/bodies/tracked", frame_id=CAMERA, **source)
+        trackers = dict(config.trackers) | {"front": config.trackers["front"].model_copy(update={"ros2": ros4hri})}
+        super().__init__(config.model_copy(update={"trackers": trackers}), ur5, identity=False)
+        tracked, joint_states, tf = tracker_topics(self.config)["front"]
+        self.key = topic_key(0, tracked.fq_name, tracked.wire)
+        self.tf_key = topic_key(0, tf.fq_name, tf.wire)
+        self.js_wire = joint_states.wire
+        self.seq = 0
+        self.height_m = ros4hri_body.DEFAULT_HEIGHT_M
+
+    def js_key(self, body_id: str = BODY) -> str:
+        return topic_key(0, f"/humans/bodies/{body_id}/joint_states", self.js_wire)
+
+    def body(self, stamp_ns: int, angles: dict[str, float] | None = None, xyz: Any = (2.0, 0.5, None)) -> None:
+        """What hri_fullbody publishes for one image: the body frame, the joint states, then the tracked list."""
+        x, y, z = xyz
+        self.seq += 1
+        self.feed(tf_bytes(stamp_ns, (x, y, self.height_m * 3.5 / 7.5 if z is None else z)), self.seq, self.tf_key)
+        self.feed(joint_state_bytes(straight() if angles is None else angles, stamp_ns), self.seq, self.js_key())
+        self.feed(ids_bytes([BODY], stamp_ns), self.seq, self.key)
+
+
+def test_a_ros4hri_body_passes_the_door_as_the_capsules_of_its_model(config: CellConfig, ur5: RobotModel) -> None:
+    rig = HriRig(config, ur5)
+    angles = straight(l_p_shoulder=1.5, r_elbow=1.0, waist=0.3, l_knee=-0.4)
+    rig.body(NOW - 40 * MS, angles)
+    assert rig.rejected() == {}
+    assert rig.fault() is None
+    frame = rig.store.snapshot(at()).humans["front"]
+    assert frame is not None
+    assert (frame.seq, frame.stamp_ns, frame.human_count) == (1, NOW - 40 * MS, 1)
+    assert set(frame.capsules.human_ids) == {f"front/{BODY}"}
+    human = ros4hri_body.build_human_model()
+    keypoints, seen = ros4hri_body.body_keypoints(human, angles)
+    assert seen.all()
+    assert inside(frame.capsules, keypoints + np.array([2.0, 0.5, rig.height_m * 3.5 / 7.5])).all()
+    assert rig.subscription.counts() == SampleCounts(1, {}, 2)
+
+
+def test_the_camera_pose_moves_the_body_into_the_world(config: CellConfig, ur5: RobotModel) -> None:
+    pose = Pose(xyz=(3.0, 0.0, 2.0), rpy=(0.0, 0.0, math.pi))
+    rig = HriRig(config, ur5, sensor_pose_world=pose)
+    rig.body(NOW - 30 * MS, xyz=(1.0, 0.0, -1.0))  # 1 m ahead of the camera, hips 1 m below it
+    assert rig.rejected() == {}
+    capsules = rig.capsules()
+    centre = (capsules.h_a_world + capsules.h_b_world).mean(axis=0) / 2
+    assert centre[0] == pytest.approx(2.0, abs=0.1)  # the camera faces -x from x = 3
+    assert capsules.h_a_world[:, 2].min() == pytest.approx(1.0 - rig.height_m * 3.5 / 7.5, abs=1e-9)
+
+
+def test_a_listed_body_without_fresh_joint_states_is_lost_not_gone(config: CellConfig, ur5: RobotModel) -> None:
+    rig = HriRig(config, ur5)
+    rig.now = NOW - 480 * MS
+    rig.feed(tf_bytes(NOW - 500 * MS, (2.0, 0.0, 0.9)), 1, rig.tf_key)
+    rig.feed(ids_bytes([BODY], NOW - 500 * MS), 1, rig.key)  # listed, no joint states yet
+    assert rig.rejected() == {}
+    frame = rig.store.snapshot(at(rig.now)).humans["front"]
+    assert frame is not None
+    assert (frame.seq, frame.human_count) == (1, 0)
+    # newer than the last frame, but 390 ms older than the next list (max_body_age_s = 0.2)
+    rig.feed(joint_state_bytes(straight(), NOW - 450 * MS), 2, rig.js_key())
+    rig.now = NOW
+    rig.feed(tf_bytes(NOW - 60 * MS, (2.0, 0.0, 0.9)), 2, rig.tf_key)
+    rig.feed(ids_bytes([BODY], NOW - 60 * MS), 2, rig.key)
+    assert rig.rejected() == {}
+    frame = rig.store.snapshot(at(rig.now)).humans["front"]
+    assert frame is not None
+    assert (frame.seq, frame.human_count) == (2, 0)
+    rig.seq = 2
+    rig.body(NOW - 30 * MS)
+    assert rig.rejected() == {}
+    assert set(rig.capsules().human_ids) == {f"front/{BODY}"}
+
+
+def test_data_a_frame_used_does_not_stamp_the_next(config: CellConfig, ur5: RobotModel) -> None:
+    rig = HriRig(config, ur5)
+    rig.body(NOW - 60 * MS)
+    rig.feed(ids_bytes([BODY], NOW - 30 * MS), 2, rig.key)  # a list without new joint states: the body is lost
+    assert rig.rejected() == {}  # no stamp_backwards: the frame is stamped with the list
+    frame = rig.store.snapshot(at()).humans["front"]
+    assert frame is not None
+    assert (frame.seq, frame.stamp_ns, frame.human_count) == (2, NOW - 30 * MS, 0)
+
+
+def _hri_hostile(rig: HriRig) -> dict[str, tuple[bytes, str, bytes | bool | None]]:
+    stamp = NOW - 20 * MS
+    js = joint_state_bytes(straight(), stamp)
+    humble_js = rig.js_key().replace(rig.js_wire.type_hash, HUMBLE_TYPE_HASH)
+    return {
+        "unknown_joint": (joint_state_bytes({"l_ankle": 0.0}, stamp), rig.js_key(), True),
+        "joint_out_of_limits": (joint_state_bytes(straight(l_elbow=-1.0), stamp), rig.js_key(), True),
+        "non_finite": (joint_state_bytes(straight(waist=float("nan")), stamp), rig.js_key(), True),
+        "wrong_type_hash": (js, humble_js, True),
+        "no_attachment": (js, rig.js_key(), False),
+        "wrong_frame": (tf_bytes(stamp, (2.0, 0.0, 0.9), parent="base_link"), rig.tf_key, True),
+        "bad_quaternion": (tf_bytes(stamp, (2.0, 0.0, 0.9), q=(0.0, 0.0, 0.0, 0.5)), rig.tf_key, True),
+        "absurd_keypoint": (tf_bytes(stamp, (2.0, 0.0, 1e9)), rig.tf_key, True),
+        "not_cdr": (ids_bytes([BODY], stamp)[:9], rig.key, True),
+        "wrong_topic": (js, rig.js_key().replace("joint_states", "skeleton2d"), True),
+    }
+
+
+@pytest.mark.parametrize(
+    "reason",
+    ["unknown_joint", "joint_out_of_limits", "non_finite", "wrong_type_hash", "no_attachment", "wrong_frame",
+     "bad_quaternion", "absurd_keypoint", "not_cdr", "wrong_topic"],
+)  # fmt: skip
+def test_hostile_ros4hri_input_is_counted_and_faults_the_tracker(
+    config: CellConfig, ur5: RobotModel, reason: str
+) -> None:
+    rig = HriRig(config, ur5)
+    rig.body(NOW - 60 * MS)
+    assert rig.fault() is None
+    payload, key, extra = _hri_hostile(rig)[reason]
+    rig.now += 10 * MS
+    rig.feed(payload, seq=5, key=key, attached=extra)
+    assert rig.rejected() == {reason: 1}
+    assert rig.fault() is not None  # a tracker fault: δ = 0 for every robot (gateway.core)
+
+
+def test_fuzzed_ros4hri_samples_never_raise_and_are_all_counted(config: CellConfig, ur5: RobotModel) -> None:
+    rig = HriRig(config, ur5)
+    rng = np.random.default_rng(155)
+    streams = [
+        (rig.tf_key, tf_bytes(NOW - 30 * MS, (2.0, 0.0, 0.9))),
+        (rig.js_key(), joint_state_bytes(straight(), NOW - 30 * MS)),
+        (rig.key, ids_bytes([BODY, "other"], NOW - 30 * MS)),
+    ]
+    for seq in range(1, 301):
+        key, good = streams[seq % 3]
+        data = bytearray(good)
+        for i in rng.integers(4, len(data), size=int(rng.integers(1, 20))):
+            data[i] = int(rng.integers(0, 256))
+        cut = int(rng.integers(0, len(data) + 1)) if seq % 2 else len(data)
+        rig.feed(bytes(data[:cut]), seq=seq, key=key)  # never raises
+    counts = rig.subscription.counts()
+    assert counts.converted + counts.kept + sum(counts.refused.values()) == 300
+    assert "internal_error" not in counts.refused
+
+
+def test_a_ros4hri_tracker_reads_three_topics(config: CellConfig, ur5: RobotModel) -> None:
+    rig = HriRig(config, ur5)
+    topics = tracker_topics(rig.config)["front"]
+    assert [(t.fq_name, t.wire.msgtype, t.announced) for t in topics] == [
+        ("/humans/bodies/tracked", IDS_LIST, True),
+        ("/humans/bodies/*/joint_states", JOINT_STATE, False),
+        ("/tf", TF_MESSAGE, True),
+    ]
+    assert all(t.wire == topic_type("jazzy", t.wire.msgtype) for t in topics)

@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import gc
 import json
+import threading
 import time
+from pathlib import Path
 
 import pytest
 import support.status_examples as ex
@@ -16,11 +18,14 @@ from gateway.http.metrics import GatewayMetrics
 from gateway.stalls import (
     CAUSES,
     GcWindows,
+    OtherThreads,
     Phase,
     PhaseTrace,
     StallMonitor,
+    StallRecord,
     StallSample,
     ThreadSchedstat,
+    ThreadTime,
     attribute,
 )
 from hrc_contract.config import CellConfig
@@ -57,6 +62,11 @@ def _sample(**fields: object) -> StallSample:
         ({"runqueue_ns": 4 * MS, "phase": "decide"}, "phase:decide"),
         ({"phase": "publish", "cpu_ns": 1 * MS}, "phase:publish"),  # blocked in a put: still the phase
         ({"cpu_ns": 1 * MS}, "blocked"),  # woke late, 10 ms neither running nor runnable
+        ({"cpu_ns": 1 * MS, "timeslices": 2}, "blocked"),  # and blocked again after its sleep (a lock)
+        ({"cpu_ns": 1 * MS, "timeslices": 1}, "stolen"),  # but it blocked only in its sleep: the CPU did not run
+        ({"phase": "decide", "cpu_ns": 1 * MS, "timeslices": 0}, "stolen"),  # at work, never blocked: not ours
+        ({"phase": "publish", "cpu_ns": 1 * MS, "timeslices": 1}, "phase:publish"),  # at work, blocked in a put
+        ({"cpu_ns": 9 * MS, "timeslices": 1}, "unknown"),  # on a CPU all along: not stolen either
         ({"cpu_ns": 9 * MS}, "unknown"),  # woke late, on a CPU all along (nothing explains it)
         ({"cpu_ns": None, "runqueue_ns": None}, "unknown"),  # no schedstat
         ({"cpu_ns": None, "runqueue_ns": None, "phase": "status"}, "phase:status"),
@@ -71,6 +81,14 @@ def test_blocked_is_what_is_left_of_the_interval_after_intended_sleep_cpu_and_ru
     assert _sample(cpu_ns=2 * MS, runqueue_ns=1 * MS).blocked_ns == 14 * MS - 3 * MS - 2 * MS - 1 * MS
     assert _sample(cpu_ns=20 * MS).blocked_ns == 0
     assert _sample(cpu_ns=None).blocked_ns is None
+
+
+def test_blocking_again_is_being_put_on_a_cpu_more_often_than_the_sleep_alone_explains() -> None:
+    assert _sample(timeslices=1).blocked_again is False  # asleep at the due time: once, when the sleep ended
+    assert _sample(timeslices=2).blocked_again is True
+    assert _sample(phase="decide", timeslices=0).blocked_again is False  # the sleep began late: it did not wait
+    assert _sample(phase="decide", timeslices=1).blocked_again is True
+    assert _sample().blocked_again is None  # no schedstat
 
 
 def test_the_trace_tells_the_phase_at_a_time_and_the_intended_sleep() -> None:
@@ -133,6 +151,7 @@ def test_this_threads_schedstat_counts_cpu_time() -> None:
     try:
         before = schedstat.read()
         sum(range(200_000))
+        time.sleep(0.001)  # a block: put on a CPU once more when it ends
         after = schedstat.read()
     finally:
         schedstat.close()
@@ -140,41 +159,148 @@ def test_this_threads_schedstat_counts_cpu_time() -> None:
     assert after is not None
     assert after[0] > before[0]
     assert after[1] >= before[1]
+    assert after[2] > before[2]
     assert schedstat.read() is None  # closed
+
+
+# -- the other threads ----------------------------------------------------------------------------
+
+
+def _task_dir(root: Path, threads: dict[int, tuple[int, int]]) -> Path:
+    """A fake ``/proc/self/task``: per thread id, its schedstat ``(on_cpu_ns, runqueue_ns)``."""
+    for tid, (cpu_ns, runq_ns) in threads.items():
+        (root / str(tid)).mkdir(exist_ok=True)
+        (root / str(tid) / "schedstat").write_text(f"{cpu_ns} {runq_ns} 7\n")
+    return root
+
+
+def test_other_python_threads_are_named_and_timed_between_two_readings_the_most_first(tmp_path: Path) -> None:
+    tasks = _task_dir(tmp_path, {1: (0, 0), 2: (0, 0), 3: (0, 0), 4: (0, 0), 5: (0, 0)})
+    python = {1: "MainThread", 2: "hrc-status", 3: "zenoh-input", 4: "hrc-override-ur5"}
+    others = OtherThreads(own_tid=1, task_dir=tasks, names=lambda: dict(python))
+    try:
+        assert others.names == {2: "hrc-status (2)", 3: "zenoh-input (3)", 4: "hrc-override-ur5 (4)"}  # not 1, 5
+        before = others.read()
+        _task_dir(tasks, {2: (1 * MS, 6 * MS), 3: (2 * MS, 0), 4: (50_000, 0), 5: (9 * MS, 0)})
+        after = others.read()
+        assert others.between(before, after) == (
+            ThreadTime("hrc-status (2)", 1 * MS, 6 * MS),
+            ThreadTime("zenoh-input (3)", 2 * MS, 0),
+        )  # thread 4: 0.05 ms, below what is worth naming; thread 5 never ran Python
+        assert others.between(after, after) == ()
+    finally:
+        others.close()
+
+
+def test_other_threads_follow_threads_started_and_ended_at_a_refresh(tmp_path: Path) -> None:
+    tasks = _task_dir(tmp_path, {1: (0, 0), 2: (0, 0), 5: (0, 0)})
+    python = {1: "MainThread", 2: "Thread-1"}
+    others = OtherThreads(own_tid=1, task_dir=tasks, names=lambda: dict(python))
+    try:
+        python[5] = "zenoh-input"
+        assert set(others.read()) == {2}  # not followed before a refresh
+        del python[2]
+        others.refresh()
+        assert others.names == {5: "zenoh-input (5)"}
+        assert set(others.read()) == {5}
+        assert others.between({}, others.read()) == ()  # no earlier reading: nothing to compare
+        python[6] = "ended-before-the-refresh"  # no task directory
+        others.refresh()
+        assert set(others.names) == {5}
+    finally:
+        others.close()
+
+
+def test_another_thread_of_this_process_on_a_cpu_meanwhile_is_seen_with_its_python_name() -> None:
+    others = OtherThreads()
+    if not (Path("/proc/self/task") / str(threading.get_native_id()) / "schedstat").exists():
+        others.close()
+        pytest.skip("no /proc/self/task/<tid>/schedstat here")
+    burnt, release = threading.Event(), threading.Event()
+
+    def burn() -> None:
+        sum(range(3_000_000))  # some ms on a CPU, while this thread waits
+        burnt.set()
+        release.wait()
+
+    thread = threading.Thread(target=burn, name="burner")
+    thread.start()
+    try:
+        others.refresh()
+        before = others.read()
+        burnt.wait()
+        after = others.read()
+    finally:
+        release.set()
+        thread.join()
+        others.close()
+    (burner,) = (t for t in others.between(before, after) if t.name.startswith("burner ("))
+    assert burner.cpu_ns > 0
+
+
+def test_a_stall_message_names_the_threads_that_ran_meanwhile() -> None:
+    sample = _sample(others=(ThreadTime("hrc-status (12)", 1 * MS, 6 * MS), ThreadTime("Thread-3 (3)", 2 * MS, 0)))
+    message = StallRecord("blocked", 2, sample).message()
+    assert message.endswith(
+        "; meanwhile hrc-status (12) on CPU 1.0 ms, run-queue wait 6.0 ms; "
+        "Thread-3 (3) on CPU 2.0 ms, run-queue wait 0.0 ms"
+    )
+    assert "meanwhile" not in StallRecord("blocked", 2, _sample()).message()
 
 
 # -- the monitor ----------------------------------------------------------------------------------
 
 
 class _Schedstat(ThreadSchedstat):
-    """Scripted ``(on_cpu_ns, runqueue_ns)`` readings."""
+    """Scripted ``(on_cpu_ns, runqueue_ns, timeslices)`` readings."""
 
-    def __init__(self, readings: list[tuple[int, int]]) -> None:
+    def __init__(self, readings: list[tuple[int, int, int]]) -> None:
         self._fd = None
         self._readings = readings
 
-    def read(self) -> tuple[int, int] | None:
+    def read(self) -> tuple[int, int, int] | None:
         return self._readings.pop(0)
 
 
+class _OtherThreads(OtherThreads):
+    """One other thread, ``status`` (id 2), with scripted schedstat texts; counts the refreshes."""
+
+    def __init__(self, readings: list[bytes]) -> None:
+        self._fds = {}
+        self.names = {2: "status (2)"}
+        self._readings = readings
+        self.refreshes = 0
+
+    def refresh(self) -> None:
+        self.refreshes += 1
+
+    def read(self) -> dict[int, bytes]:
+        return {2: self._readings.pop(0)}
+
+
 def test_the_monitor_records_late_ticks_only_and_counts_every_missed_tick_by_cause() -> None:
-    schedstat = _Schedstat([(0, 0), (1 * MS, 0), (2 * MS, 0), (3 * MS, 0), (4 * MS, 12 * MS)])
-    with StallMonitor(0.004, schedstat=schedstat, gc_windows=GcWindows()) as monitor:
+    schedstat = _Schedstat([(0, 0, 0), (1 * MS, 0, 1), (2 * MS, 0, 2), (3 * MS, 0, 3), (4 * MS, 12 * MS, 5)])
+    readings = [b"0 0 0", b"0 0 0", b"0 0 0", b"0 0 0", b"0 0 0", b"3000000 0 0", b"3000000 0 0"]
+    others = _OtherThreads(readings)
+    with StallMonitor(0.004, schedstat=schedstat, gc_windows=GcWindows(), others=others) as monitor:
         t0 = time.monotonic_ns()
         assert monitor.woke(t0, tick=True, late_s=0.0001, missed_cycles=0) is None
         assert monitor.woke(t0 + 3 * MS, tick=False, late_s=0.0, missed_cycles=0) is None  # an event cycle
-        # Work ran past the due time: decide from t0 + 3 ms to t0 + 20 ms, the tick due at t0 + 4 ms.
+        # Work ran past the due time: decide from t0 + 3 ms to t0 + 20 ms (blocked in it), the tick due at t0 + 4 ms.
         monitor.trace.enter(Phase.DECIDE, t0 + 3 * MS)
         record = monitor.woke(t0 + 20 * MS, tick=True, late_s=0.016, missed_cycles=4)
         assert record is not None
         assert (record.cause, record.missed, record.sample.phase) == ("phase:decide", 4, "decide")
+        assert record.sample.others == ()  # the other thread was idle
         # Asleep at the due time, and 12 ms on the run queue: another program ran.
         monitor.trace.enter(Phase.SLEEP, t0 + 21 * MS)
         record = monitor.woke(t0 + 40 * MS, tick=True, late_s=0.015, missed_cycles=7)
         assert record is not None
         assert (record.cause, record.missed) == ("runqueue", 3)
+        assert record.sample.others == (ThreadTime("status (2)", 3 * MS, 0),)
         assert "runqueue" in record.message()
         assert "12.0 ms" in record.message()
+        assert others.refreshes == 2  # at each stall: a thread started since is followed from then on
     assert monitor.stalls == {"phase:decide": 1, "runqueue": 1}
     assert monitor.missed == {"phase:decide": 4, "runqueue": 3}
     assert sum(monitor.missed.values()) == 7  # the loop's missed_cycles

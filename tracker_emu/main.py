@@ -37,7 +37,13 @@ from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.robot_links import RobotPoses
-from tracker_emu.ros2_zed import ZedPublishers, ros2_endpoints, ros2_session_options, zed_sources
+from tracker_emu.ros2_zed import (
+    ZedPublishers,
+    ros2_endpoints,
+    ros2_session_options,
+    with_body_fitting,
+    zed_sources,
+)
 from tracker_emu.scenario import Scenario, load_scenario, scenario_path
 from tracker_emu.sensor import covered_volume
 
@@ -296,11 +302,20 @@ def cli(argv: list[str] | None = None) -> None:
         choices=("capsules", "zed"),
         default="capsules",
         help="what the trackers publish: hrc.humans/1 capsules on the cell's Zenoh (default), or ZED "
-        "zed_msgs/ObjectsStamped (BODY_34) over rmw_zenoh to [ros2]'s endpoints (trackers need a zed_objects "
-        "ros2 input)",
+        "zed_msgs/ObjectsStamped over rmw_zenoh to [ros2]'s endpoints (trackers need a zed_objects ros2 input)",
+    )
+    parser.add_argument(
+        "--zed-body-fitting",
+        choices=("on", "off"),
+        default=None,
+        help="with --publish zed: the cameras' body_tracking.enable_body_fitting (ZED wrapper): on = BODY_34, hidden "
+        "keypoints fitted; off = BODY_38, hidden keypoints NaN (default: each tracker's enable_body_fitting in the "
+        "cell file, false unless set: the wrapper's default; docs/ros2.md)",
     )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
+    if args.zed_body_fitting is not None and args.publish != "zed":
+        parser.error("--zed-body-fitting applies to --publish zed only")
     if not 0.0 <= args.truth_rate_hz <= MAX_TRUTH_RATE_HZ:  # also rejects NaN
         print(
             f"{PROG}: invalid configuration: --truth-rate-hz {args.truth_rate_hz}; allowed: 0 (none) to "
@@ -318,6 +333,8 @@ def cli(argv: list[str] | None = None) -> None:
         ros2_options = None
         if args.publish == "zed":
             zed_sources(config, trackers)  # refuses trackers without a ZED input before anything starts
+            if args.zed_body_fitting is not None:
+                trackers = with_body_fitting(trackers, args.zed_body_fitting == "on")
             ros2_options = ros2_session_options(args, ros2_endpoints(config))
     except ConfigError as exc:
         print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)

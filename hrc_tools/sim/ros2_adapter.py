@@ -1,7 +1,7 @@
 """The simulated cell through the ROS 2 adapter: each tracker frame as the ZED camera it is, and back to capsules.
 
     emulator frame (hrc.humans/1: the capsules a sensor measured)
-        ──ZedSensor.objects (tracker_emu.ros2_zed: BODY_34 keypoints, tracking states)──▶ ObjectsStamped CDR
+        ──ZedSensor.objects (tracker_emu.ros2_zed: BODY_38 or fitted BODY_34, tracking states)──▶ ObjectsStamped CDR
         ──TrackerSubscription.on_sample (gateway.ros2_trackers: judge, decode, skeleton capsules)──▶ hrc.humans/1
         ──▶ the tracker's simulated link ──▶ the gateway's door
 
@@ -33,13 +33,15 @@ ROS2_ENDPOINT = "tcp/127.0.0.1:7449"
 """The endpoint :func:`with_zed_trackers` writes into ``[ros2]`` (never opened: the simulation has no sessions)."""
 
 
-def with_zed_trackers(config: CellConfig, uncertainty_m: float = 0.05) -> CellConfig:
+def with_zed_trackers(config: CellConfig, uncertainty_m: float = 0.05, body_fitting: bool = False) -> CellConfig:
     """``config`` with every tracker that has no ROS 2 input read as a ZED camera (``zed_objects``) at its position
     (axes of the world: the pose only moves the keypoints to the sensor's frame and back), ``[ros2]`` enabled.
 
     Args:
         config: the cell (a sweep case's, with its trackers).
         uncertainty_m: the stated keypoint uncertainty of the added inputs [m] (configs/cell_ros2_zed.toml's).
+        body_fitting: the cameras' ``enable_body_fitting`` (off, the ZED wrapper's default: BODY_38, a hidden
+            keypoint NaN; on: BODY_34, a hidden keypoint fitted; docs/ros2.md "ZED body fitting").
 
     Raises:
         ConfigError: (ValidationError) the changed cell does not validate.
@@ -54,6 +56,7 @@ def with_zed_trackers(config: CellConfig, uncertainty_m: float = 0.05) -> CellCo
                 "frame_id": f"{name}_left_camera_frame",
                 "sensor_pose_world": Pose(xyz=xyz).model_dump(),
                 "uncertainty_m": uncertainty_m,
+                "enable_body_fitting": body_fitting,
             }
     if not raw["ros2"]["enabled"]:
         raw["ros2"] |= {"enabled": True, "listen": [ROS2_ENDPOINT]}

@@ -205,6 +205,7 @@ class CellVariant:
             bridge, :mod:`hrc_tools.sim.bridged`), if not the cell's.
         zed_trackers: the cases' trackers are ZED cameras read through the gateway's ROS 2 adapter
             (:mod:`hrc_tools.sim.ros2_adapter`); a change of the cases, not of the cell.
+        zed_body_fitting: those cameras fit hidden keypoints (``enable_body_fitting``); off: hidden keypoints NaN.
     """
 
     unsafe_ignore_delay: bool = False
@@ -216,6 +217,7 @@ class CellVariant:
     unsafe_forget_lost: bool = False
     interface: str | None = None
     zed_trackers: bool = False
+    zed_body_fitting: bool = False
 
     def apply(self, config: CellConfig) -> CellConfig:
         """``config`` with these changes (validated)."""
@@ -262,6 +264,7 @@ def _init_worker(config_path: str | None, variant: CellVariant) -> None:
     _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     _WORKER["occlusion"] = variant.occlusion
     _WORKER["zed_trackers"] = variant.zed_trackers
+    _WORKER["zed_body_fitting"] = variant.zed_body_fitting
 
 
 def run_case(
@@ -273,11 +276,15 @@ def run_case(
     *,
     occlusion: bool = False,
     zed_trackers: bool = False,
+    zed_body_fitting: bool = False,
 ) -> CaseResult:
     """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``, read as
-    ZED cameras through the ROS 2 adapter if ``zed_trackers``) and simulate it."""
+    ZED cameras through the ROS 2 adapter if ``zed_trackers``, fitting hidden keypoints if ``zed_body_fitting``) and
+    simulate it."""
     case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion)
-    case_config = with_zed_trackers(case.config(config)) if zed_trackers else case.config(config)
+    case_config = case.config(config)
+    if zed_trackers:
+        case_config = with_zed_trackers(case_config, body_fitting=zed_body_fitting)
     result = simulate(case_config, robots, case.scenario, case.links, duration_s, case.seed)
     audit = result.audit
     approach_mps = fastest_approach_mps(case.scenario, robot_bases_xy_m(config))
@@ -325,6 +332,7 @@ def _run_in_worker(task: tuple[int, int, float]) -> CaseResult:
         duration_s,
         occlusion=_WORKER["occlusion"],
         zed_trackers=_WORKER["zed_trackers"],
+        zed_body_fitting=_WORKER["zed_body_fitting"],
     )
 
 
@@ -604,8 +612,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--zed-trackers",
         action="store_true",
-        help="the cases' trackers are ZED cameras: every frame goes capsules -> BODY_34 keypoints -> CDR -> the "
-        "gateway's ROS 2 adapter -> capsules (docs/ros2.md)",
+        help="the cases' trackers are ZED cameras: every frame goes capsules -> BODY_38 keypoints (NaN where the "
+        "sensor cannot see) -> CDR -> the gateway's ROS 2 adapter -> capsules (docs/ros2.md)",
+    )
+    parser.add_argument(
+        "--zed-body-fitting",
+        action="store_true",
+        help="with --zed-trackers: the cameras fit what they cannot see (the wrapper's enable_body_fitting, BODY_34: "
+        "a hidden keypoint is an estimate, not NaN)",
     )
     parser.add_argument(
         "--first-case",
@@ -654,7 +668,8 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
     if args.interface is not None:
         print(f"interface: {args.interface}")
     if args.zed_trackers:
-        print("ZED trackers: every frame went through the ROS 2 adapter (keypoints -> CDR -> skeleton capsules)")
+        fitting = "fitted BODY_34" if args.zed_body_fitting else "BODY_38, hidden keypoints NaN"
+        print(f"ZED trackers ({fitting}): every frame went through the ROS 2 adapter (keypoints -> CDR -> capsules)")
     if args.method is not None:
         print(f"method: {args.method}")
     if summary.interrupted:
@@ -725,6 +740,8 @@ def cli(argv: list[str] | None = None) -> None:
         _merge_cli(args.merge)
     if args.first_case < 0:
         parser.error("--first-case must be >= 0")
+    if args.zed_body_fitting and not args.zed_trackers:
+        parser.error("--zed-body-fitting needs --zed-trackers")
     problem = case_argument_problem(args)
     if problem is not None:
         parser.error(problem)
@@ -738,6 +755,7 @@ def cli(argv: list[str] | None = None) -> None:
         interface=args.interface,
         unsafe_forget_lost=args.unsafe_forget_lost,
         zed_trackers=args.zed_trackers,
+        zed_body_fitting=args.zed_body_fitting,
     )
     try:
         method = variant.apply(load_cell_config(args.config)).safety.method

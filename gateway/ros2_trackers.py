@@ -64,7 +64,7 @@ from hrc_runtime.rmw_zenoh import (
     typestore,
 )
 from hrc_runtime.robot_model import pose_to_rotation_translation
-from hrc_runtime.skeletons import BodyCapsules, PersonMemory
+from hrc_runtime.skeletons import BodyCapsules, PersonMemory, PersonUnplacedError
 from hrc_runtime.zenoh_session import SecurityError, SessionOptions
 
 log = logging.getLogger("hrc-gateway.ros2-trackers")
@@ -347,10 +347,13 @@ class Ros4hriAdapter:
             if not (self._fresh(joints.stamp_ns, list_stamp_ns) and self._fresh(pose.stamp_ns, list_stamp_ns)):
                 continue
             body_stamp_ns = min(joints.stamp_ns, pose.stamp_ns)
-            body, memories[body_id] = ros4hri_body.body_capsules_world(
-                self.human, joints, pose, self.placement,
-                stamp_ns=body_stamp_ns, uncertainty_m=self.source.uncertainty_m, memory=self.memories.get(body_id),
-            )  # fmt: skip
+            try:
+                body, memories[body_id] = ros4hri_body.body_capsules_world(
+                    self.human, joints, pose, self.placement,
+                    stamp_ns=body_stamp_ns, uncertainty_m=self.source.uncertainty_m, memory=self.memories.get(body_id),
+                )  # fmt: skip
+            except PersonUnplacedError:  # left out of the frame: lost at the gateway, its memory kept
+                continue
             people.append((body_id, body))
             stamp_ns = min(stamp_ns, body_stamp_ns)
         out = humans_payload(self.tracker, attachment.sequence_number, stamp_ns, tuple(people))

@@ -45,6 +45,7 @@ from hrc_runtime.skeletons import (
     BodyCapsules,
     CompiledFormat,
     PersonMemory,
+    PersonUnplacedError,
     body_capsules,
     whole_body_capsules,
 )
@@ -308,8 +309,9 @@ def people_capsules(
         memory_s, floor_z_m: see :func:`hrc_runtime.skeletons.body_capsules`.
 
     Returns:
-        ``(person id, capsules)`` per detection, and the memories to pass next time (detections and searching
-        people keep theirs; people the tracker no longer mentions lose it).
+        ``(person id, capsules)`` per detection (a detection placed recently whose torso is not seen now is left
+        out, :class:`hrc_runtime.skeletons.PersonUnplacedError`), and the memories to pass next time (detections and
+        searching people keep theirs; people the tracker no longer mentions lose it).
 
     Raises:
         SkeletonError: a keypoint beyond the bounds once in the world frame (see ``check_keypoints``).
@@ -323,16 +325,20 @@ def people_capsules(
             body = whole_body_capsules(keypoints, uncertainty, floor_z_m)
             memory = memories.get(person.person_id, PersonMemory())
         else:
-            body, memory = body_capsules(
-                person.format,
-                np.where(person.seen[:, None], keypoints, 0.0),
-                person.seen,
-                stamp_ns=frame.stamp_ns,
-                uncertainty_m=uncertainty,
-                memory=memories.get(person.person_id),
-                memory_s=memory_s,
-                floor_z_m=floor_z_m,
-            )
+            try:
+                body, memory = body_capsules(
+                    person.format,
+                    np.where(person.seen[:, None], keypoints, 0.0),
+                    person.seen,
+                    stamp_ns=frame.stamp_ns,
+                    uncertainty_m=uncertainty,
+                    memory=memories.get(person.person_id),
+                    memory_s=memory_s,
+                    floor_z_m=floor_z_m,
+                )
+            except PersonUnplacedError:  # left out: lost at the gateway, as a SEARCHING person
+                new_memories[person.person_id] = memories[person.person_id]
+                continue
         people.append((person.person_id, body))
         new_memories[person.person_id] = memory
     return tuple(people), new_memories

@@ -33,7 +33,9 @@ becomes a sphere around its nearest known joint reaching as far as a P95 body pa
 segments are no longer than those P95 lengths for a model up to :data:`MAX_HEIGHT_M` (checked when the model is
 built), so the sphere covers wherever the model's part can be. The hands and feet the model lacks are spheres of a P95
 hand and foot around the wrists and ankles (the skeleton formats without hands do the same). A missing ``waist``
-leaves the torso unplaced: the person is reported as a whole body (:func:`hrc_runtime.skeletons.whole_body_capsules`).
+leaves the torso unplaced: a body placed within the memory time is left out of the frame (lost at the gateway,
+:class:`hrc_runtime.skeletons.PersonUnplacedError`), else it is a whole body
+(:func:`hrc_runtime.skeletons.whole_body_capsules`).
 
 Hostile input raises :class:`~hrc_runtime.ros2_people.Ros2MessageError` (a
 :class:`~hrc_contract.messages.MessageError`, counted like any refused input) with a short ``reason``:

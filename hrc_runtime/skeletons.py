@@ -451,6 +451,12 @@ class SkeletonError(MessageError):
     ``no_keypoints`` (nothing seen of a person reported as detected)."""
 
 
+class PersonUnplacedError(Exception):
+    """A person placed in a recent frame whose torso (pelvis or neck) is not seen in this one: the frame does not
+    place them, so they are left out of it and the gateway's tracks keep them as lost (their last capsules, growing
+    at the reach speed), never a smaller volume. Not a fault of the tracker."""
+
+
 class BodyCapsules(NamedTuple):
     """The capsules of one person in the world frame.
 
@@ -584,8 +590,13 @@ def body_capsules(
     Returns:
         The capsules and the person's new memory.
 
+    Without a seen pelvis or neck the person cannot be placed: if they were placed within ``memory_s``,
+    :class:`PersonUnplacedError` (leave them out of the frame: lost, never a smaller volume); else a whole-body report
+    (:func:`whole_body_capsules`, a person never placed: nothing seen of them could have reached further).
+
     Raises:
         SkeletonError: see :func:`check_keypoints`.
+        PersonUnplacedError: see above.
         ValueError: ``uncertainty_m`` or ``memory_s`` negative or not finite (a programming error).
     """
     if not (np.isfinite(uncertainty_m) and uncertainty_m >= 0.0 and np.isfinite(memory_s) and memory_s >= 0.0):
@@ -593,6 +604,9 @@ def body_capsules(
     check_keypoints(fmt, keypoints_m, seen)
     memory = memory or PersonMemory()
     if _group_point(keypoints_m, seen, fmt.pelvis) is None or _group_point(keypoints_m, seen, fmt.neck) is None:
+        if any(0 <= stamp_ns - c.stamp_ns <= memory_s * 1e9 for c in memory.seen.values()):
+            # A whole-body column around what is seen would not cover an arm that reached out a frame ago.
+            raise PersonUnplacedError(f"pelvis or neck not seen; placed {len(memory.seen)} capsule(s) recently")
         return whole_body_capsules(keypoints_m[seen], uncertainty_m, floor_z_m), memory
     n = len(fmt.segments)
     a_out, b_out, r_out = np.empty((n, 3)), np.empty((n, 3)), np.empty(n)

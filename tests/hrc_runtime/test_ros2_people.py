@@ -297,3 +297,20 @@ def test_fuzzed_bytes_raise_only_message_errors() -> None:
         except MessageError as exc:
             reasons[exc.reason] = reasons.get(exc.reason, 0) + 1
     assert reasons.get("not_cdr", 0) > 1000
+
+
+def test_a_detection_whose_torso_goes_unseen_is_left_out_as_lost_with_its_memory() -> None:
+    """The ZED still reports the person (OK), but without a neck: not placed, so not in the frame (the gateway's
+    track keeps them as lost, growing), and placed again when the neck is back."""
+    kp = standing_keypoints(COMPILED["zed_body_34"])
+    first = decode_zed_objects(zed_payload([_zed_object(4, 1, 1, kp)]), STORE)
+    _, memories = people_capsules(first, {}, IDENTITY, uncertainty_m=0.0)
+    no_neck = kp.copy()
+    no_neck[list(COMPILED["zed_body_34"].neck)] = np.nan  # every keypoint that places the neck
+    frame = decode_zed_objects(zed_payload([_zed_object(4, 1, 1, no_neck)]), STORE)
+    assert len(frame.detections) == 1
+    people, memories2 = people_capsules(frame, memories, IDENTITY, uncertainty_m=0.0)
+    assert people == ()
+    assert memories2["4"] is memories["4"]
+    again, _ = people_capsules(first, memories2, IDENTITY, uncertainty_m=0.0)
+    assert [pid for pid, _ in again] == ["4"]

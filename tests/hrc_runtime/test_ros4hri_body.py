@@ -36,7 +36,7 @@ from hrc_runtime.ros4hri_body import (
     human_joints,
     rotation_of_quaternion,
 )
-from hrc_runtime.skeletons import BodyCapsules, covers
+from hrc_runtime.skeletons import BodyCapsules, PersonUnplacedError, covers
 
 STORE = typestore("jazzy")
 T = STORE.types
@@ -357,3 +357,19 @@ def test_fuzzed_bytes_never_raise_anything_but_a_refusal(human: HumanModel) -> N
                 decode_body_poses(bytes(data[:cut]), STORE, CAMERA)
         except MessageError:
             pass
+
+
+def test_a_body_placed_a_frame_ago_without_the_waist_now_is_left_out_not_a_whole_body(human: HumanModel) -> None:
+    """The arms may have reached out a frame ago: a whole-body column around the hips would not cover them, so the
+    body is unplaced (left out of the frame: lost at the gateway, its capsules growing from the last ones)."""
+    angles = standing(l_p_shoulder=1.5)
+    pose = on_floor(1.0, 1.0)
+    _, memory = body_capsules_world(
+        human, BodyJoints(STAMP_NS, angles), pose, IDENTITY, stamp_ns=STAMP_NS, uncertainty_m=0.0
+    )
+    del angles["waist"]
+    later_ns = STAMP_NS + 33_000_000
+    with pytest.raises(PersonUnplacedError):
+        body_capsules_world(
+            human, BodyJoints(later_ns, angles), pose, IDENTITY, stamp_ns=later_ns, uncertainty_m=0.0, memory=memory
+        )

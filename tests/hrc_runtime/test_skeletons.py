@@ -12,6 +12,7 @@ from hrc_runtime.skeletons import (
     SEGMENTS,
     WHOLE_BODY_NAMES,
     BodyCapsules,
+    PersonUnplacedError,
     SkeletonError,
     body_capsules,
     covers,
@@ -180,3 +181,28 @@ def test_capsules_become_a_contract_human() -> None:
     human = body.to_human("7")
     assert [c.name for c in human.capsules] == list(NAMES)
     assert human.capsules[0].radius == pytest.approx(body.radius_m[0])
+
+
+@pytest.mark.parametrize("hidden", ["neck", "pelvis"])
+def test_a_placed_person_whose_torso_is_hidden_is_unplaced_never_a_smaller_whole_body(hidden: str) -> None:
+    """An arm reaching out 1 m, then the neck (or pelvis) hidden: a whole-body column around what is seen would not
+    cover the arm of a frame ago; the person is left out of the frame instead (lost at the gateway), memory kept."""
+    fmt = COMPILED["zed_body_34"]
+    kp = standing_keypoints(fmt)
+    names = fmt.spec.keypoint_names
+    shoulder = kp[names.index("right_shoulder")]
+    for k, joint in enumerate(("right_elbow", "right_wrist", "right_hand", "right_handtip", "right_thumb")):
+        kp[names.index(joint)] = shoulder + np.array([0.25 * (k + 1), 0.0, 0.0])  # straight out along x
+    _, memory = body_capsules(fmt, kp, _all_seen(kp), stamp_ns=0, uncertainty_m=0.0)
+    seen = _all_seen(kp)
+    seen[list(getattr(fmt, hidden))] = False
+    seen[[names.index(j) for j in ("right_elbow", "right_wrist", "right_hand", "right_handtip", "right_thumb")]] = False
+    with pytest.raises(PersonUnplacedError):
+        body_capsules(fmt, kp, seen, stamp_ns=100_000_000, uncertainty_m=0.0, memory=memory)
+    # What it replaces: the column around what is seen leaves out the hand that reached out a frame ago.
+    column, _ = body_capsules(fmt, kp, seen, stamp_ns=100_000_000, uncertainty_m=0.0)
+    assert column.whole_body  # never placed before: the whole-body report stays (docs/ros2.md)
+    assert not covers(column, kp[[names.index("right_handtip")]]).any()
+    # Placed too long ago (beyond memory_s): a whole-body report again.
+    late, _ = body_capsules(fmt, kp, seen, stamp_ns=2_000_000_000, uncertainty_m=0.0, memory=memory, memory_s=1.0)
+    assert late.whole_body

@@ -450,6 +450,23 @@ def test_data_a_frame_used_does_not_stamp_the_next(config: CellConfig, ur5: Robo
     assert (frame.seq, frame.stamp_ns, frame.human_count) == (2, NOW - 30 * MS, 0)
 
 
+def test_a_placed_body_whose_waist_goes_missing_is_left_out_as_lost_not_a_fault(
+    config: CellConfig, ur5: RobotModel
+) -> None:
+    rig = HriRig(config, ur5)
+    rig.body(NOW - 60 * MS, straight(l_p_shoulder=1.5))
+    no_waist = straight(l_p_shoulder=1.5)
+    del no_waist["waist"]
+    rig.body(NOW - 30 * MS, no_waist)
+    assert rig.rejected() == {}
+    assert rig.fault() is None
+    frame = rig.store.snapshot(at()).humans["front"]
+    assert frame is not None
+    assert (frame.seq, frame.human_count) == (2, 0)  # not a whole-body column: lost at the gateway's tracks
+    rig.body(NOW - 10 * MS, straight())
+    assert set(rig.capsules().human_ids) == {f"front/{BODY}"}
+
+
 def _hri_hostile(rig: HriRig) -> dict[str, tuple[bytes, str, bytes | bool | None]]:
     stamp = NOW - 20 * MS
     js = joint_state_bytes(straight(), stamp)

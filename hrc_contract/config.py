@@ -785,7 +785,7 @@ class Ros2TrackerInput(_Frozen):
     the gateway's capsules (``hrc_runtime/skeletons.py``), then one ``hrc.humans/1`` frame through the same door.
 
     Plausibility: a part the tracker did not see becomes a sphere reaching as far as it can be (a foot unseen down
-    to the pelvis: 1.52 m, P95) plus the uncertainty, which the cell's ``max_capsule_radius_m`` (at most 1 m, sized
+    to the pelvis: 1.55 m, P95) plus the uncertainty, which the cell's ``max_capsule_radius_m`` (at most 1 m, sized
     for seen body parts) would refuse (δ = 0 whenever a hand is hidden). A large capsule only lowers δ; so the door
     judges this tracker's capsules against its own radius and length limits instead, within the cell's volume.
     """

@@ -61,32 +61,39 @@ class SegmentSize(NamedTuple):
 
 
 ANTHROPOMETRY: dict[str, SegmentSize] = {
-    "head": SegmentSize(0.14, 0.30),
+    "head": SegmentSize(0.145, 0.30),
     "torso": SegmentSize(0.19, 0.65),
     "shoulders": SegmentSize(0.09, 0.45),
     "pelvis": SegmentSize(0.15, 0.35),
-    "upper_arm": SegmentSize(0.065, 0.40),
-    "forearm": SegmentSize(0.055, 0.31),
+    "upper_arm": SegmentSize(0.070, 0.40),
+    "forearm": SegmentSize(0.060, 0.31),
     "hand": SegmentSize(0.05, 0.21),
-    "thigh": SegmentSize(0.115, 0.52),
-    "shin": SegmentSize(0.07, 0.52),
-    "foot": SegmentSize(0.06, 0.29),
+    "thigh": SegmentSize(0.120, 0.52),
+    "shin": SegmentSize(0.075, 0.52),
+    "foot": SegmentSize(0.06, 0.295),
 }
 """Radius and longest length per segment [m]: men's 95th percentile of the 2012 U.S. Army anthropometric survey
-(ANSUR II; Gordon et al., NATICK/TR-15/007, 2014), rounded up to the next 5 mm. Radii are half the breadth or
-``circumference / 2π`` (head: half the head height above and below the ear line; torso: half the chest breadth;
-upper arm: biceps circumference flexed; forearm: forearm circumference flexed; hand: half the hand breadth;
-thigh, shin: thigh and calf circumference; foot: half the foot breadth). Lengths: shoulder–elbow, forearm, hand and
-foot length, hip–knee and knee height, neck to vertex, biacromial breadth, bi-iliac breadth. Never below the
-tracker emulator's radii (``tracker_emu.body``). Values as quoted in the survey's summary tables; they stand for a
-large man, clothes excluded (the uncertainty parameter adds the tracker's error)."""
+(ANSUR II; Gordon et al., NATICK/TR-15/007, 2014), rounded up to the next 5 mm, computed (unweighted percentiles)
+from the survey's public per-person file ``ANSUR_II_MALE_Public.csv`` (n = 4,082; e.g. GitHub KhadijehValipour/ANSUR
+at d20788f), 2026-12-02. Radii are half the breadth or ``circumference / 2π``: head, tragion to top of head (P95
+141 mm); torso, half the chest breadth (320); upper arm, biceps circumference flexed (418); forearm, forearm
+circumference flexed (348); hand, half the hand breadth (96); thigh, thigh circumference (723); shin, calf
+circumference (443); foot, half the foot breadth (111); shoulders and pelvis: half the difference of the bideltoid
+and biacromial breadths (135) and half the buttock depth (291), rounded up generously. Lengths: neck to vertex
+(stature − cervicale height, 260), biacromial breadth (447), bi-iliac breadth (305), shoulder–elbow length (394),
+radiale–stylion (295; forearm + hand 0.52 m ≥ forearm–hand length 520), hand length (210), knee joint to hip joint
+(trochanterion − lateral femoral epicondyle height, 458) and ankle to knee joint (lateral femoral epicondyle −
+lateral malleolus height, 460), both taken as 0.52 m, foot length (293). The torso's 0.65 m (cervicale −
+trochanterion height, 667) only bounds a torso with no far end seen, which no format has. Never below the tracker
+emulator's radii (``tracker_emu.body``). They stand for a large man, clothes excluded (the uncertainty parameter adds
+the tracker's error)."""
 
 STATURE_M = 1.87
 """Stature, men's 95th percentile (ANSUR II, as above) [m]: the height of a whole-body report."""
 NECK_TO_SHOULDER_M = 0.25
-"""Neck keypoint to a shoulder joint, half the bideltoid breadth rounded up [m]."""
-PELVIS_TO_HIP_M = 0.13
-"""Pelvis keypoint to a hip joint, half the bi-iliac breadth rounded up [m]."""
+"""Neck keypoint to a shoulder joint: half the biacromial breadth (P95 447 mm), rounded up [m]."""
+PELVIS_TO_HIP_M = 0.155
+"""Pelvis keypoint to a hip joint: half the bi-iliac breadth (P95 305 mm), rounded up [m]."""
 WHOLE_BODY_RADIUS_M = 0.30
 """Radius of a whole-body report around the vertical through what is seen: half the bideltoid breadth (P95) [m]."""
 WHOLE_BODY_PIECE_M = 0.90

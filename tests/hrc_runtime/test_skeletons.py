@@ -9,7 +9,10 @@ from support.skeleton_poses import standing_keypoints
 from hrc_runtime.skeletons import (
     ANTHROPOMETRY,
     COMPILED,
+    NECK_TO_SHOULDER_M,
+    PELVIS_TO_HIP_M,
     SEGMENTS,
+    STATURE_M,
     WHOLE_BODY_NAMES,
     BodyCapsules,
     PersonUnplacedError,
@@ -206,3 +209,41 @@ def test_a_placed_person_whose_torso_is_hidden_is_unplaced_never_a_smaller_whole
     # Placed too long ago (beyond memory_s): a whole-body report again.
     late, _ = body_capsules(fmt, kp, seen, stamp_ns=2_000_000_000, uncertainty_m=0.0, memory=memory, memory_s=1.0)
     assert late.whole_body
+
+
+# Men's 95th percentiles [mm] computed from ANSUR II's public per-person file (ANSUR_II_MALE_Public.csv, n = 4,082,
+# unweighted), 2026-12-02: the table of hrc_runtime/skeletons.py must never be smaller.
+ANSUR_II_MEN_P95_MM = {
+    "tragion_top_of_head": 141, "chest_breadth": 320, "biceps_circumference_flexed": 418,
+    "forearm_circumference_flexed": 348, "hand_breadth": 96, "thigh_circumference": 723, "calf_circumference": 443,
+    "foot_breadth": 111, "neck_to_vertex": 260, "biacromial_breadth": 447, "bi_iliac_breadth": 305,
+    "shoulder_elbow_length": 394, "radiale_stylion_length": 295, "forearm_hand_length": 520, "hand_length": 210,
+    "hip_to_knee_joint": 458, "knee_to_ankle_joint": 460, "foot_length": 293, "stature": 1870,
+}  # fmt: skip
+
+
+def test_the_anthropometry_is_at_least_the_ansur_ii_mens_95th_percentile() -> None:
+    p95_m = {k: v / 1000 for k, v in ANSUR_II_MEN_P95_MM.items()}
+    size = ANTHROPOMETRY
+    tau = 2 * np.pi
+    assert size["head"].radius_m >= p95_m["tragion_top_of_head"]
+    assert size["torso"].radius_m >= p95_m["chest_breadth"] / 2
+    assert size["upper_arm"].radius_m >= p95_m["biceps_circumference_flexed"] / tau
+    assert size["forearm"].radius_m >= p95_m["forearm_circumference_flexed"] / tau
+    assert size["hand"].radius_m >= p95_m["hand_breadth"] / 2
+    assert size["thigh"].radius_m >= p95_m["thigh_circumference"] / tau
+    assert size["shin"].radius_m >= p95_m["calf_circumference"] / tau
+    assert size["foot"].radius_m >= p95_m["foot_breadth"] / 2
+    assert size["head"].length_m >= p95_m["neck_to_vertex"]
+    assert size["shoulders"].length_m >= p95_m["biacromial_breadth"]
+    assert size["pelvis"].length_m >= p95_m["bi_iliac_breadth"]
+    assert size["upper_arm"].length_m >= p95_m["shoulder_elbow_length"]
+    assert size["forearm"].length_m >= p95_m["radiale_stylion_length"]
+    assert size["forearm"].length_m + size["hand"].length_m >= p95_m["forearm_hand_length"]
+    assert size["hand"].length_m >= p95_m["hand_length"]
+    assert size["thigh"].length_m >= p95_m["hip_to_knee_joint"]
+    assert size["shin"].length_m >= p95_m["knee_to_ankle_joint"]
+    assert size["foot"].length_m >= p95_m["foot_length"]
+    assert p95_m["stature"] <= STATURE_M
+    assert p95_m["biacromial_breadth"] / 2 <= NECK_TO_SHOULDER_M
+    assert p95_m["bi_iliac_breadth"] / 2 <= PELVIS_TO_HIP_M

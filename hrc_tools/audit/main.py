@@ -64,6 +64,10 @@ MAX_STATUS_AGE_S = 0.25
 """A gateway status older than this (relative to the joint state) gives the zone label ``unknown`` [s]."""
 MAX_PLAUSIBLE_HUMAN_SPEED_MPS = 10.0
 """Capsule end point speeds above this (a person appearing elsewhere) are not used to grow the radii [m/s]."""
+TRUTH_CLOCK_TOLERANCE_S = 0.5
+"""Truth stamped farther than this from the auditor's own clock when it arrives is refused (``*/clock_off``): its
+publisher's clock is off (a stepped host clock), so pairing it by stamp would judge the robot against where people
+were seconds earlier; those cycles are not audited. Truth travels on the host or a LAN: milliseconds, not this [s]."""
 HUMAN_HISTORY = 256
 """True humans samples kept for matching (2.5 s at 100 Hz)."""
 PROCESS_EVERY_S = 0.02
@@ -145,12 +149,17 @@ class TruthAuditor:
 
     # -- callbacks: validate and store -----------------------------------------------------------
 
-    def on_truth_state(self, key: str, payload: bytes) -> None:
+    def on_truth_state(self, key: str, payload: bytes, received_wall_ns: int | None = None) -> None:
+        """A controller's true joint state; ``received_wall_ns``: when it arrived, on the auditor's wall clock
+        (None: not judged, as in the tests that replay truth)."""
         robot = keys.name_from_key(key.replace("/truth/", "/", 1), "robot")
         try:
             message = parse_message(payload, JointState)
         except MessageError as exc:
             self._count(f"truth_state/{exc.reason}")
+            return
+        if _clock_off(message.stamp_ns, received_wall_ns):
+            self._count("truth_state/clock_off")
             return
         if robot not in self._robots or message.robot != robot:
             self._count("truth_state/unknown_robot")
@@ -161,11 +170,15 @@ class TruthAuditor:
         with self._lock:
             self._states.append(message)
 
-    def on_truth_humans(self, payload: bytes) -> None:
+    def on_truth_humans(self, payload: bytes, received_wall_ns: int | None = None) -> None:
+        """The true humans; ``received_wall_ns`` as for :meth:`on_truth_state`."""
         try:
             message = parse_message(payload, Humans)
         except MessageError as exc:
             self._count(f"truth_humans/{exc.reason}")
+            return
+        if _clock_off(message.stamp_ns, received_wall_ns):
+            self._count("truth_humans/clock_off")
             return
         capsules = capsules_from_message(message.tracker, message)
         with self._lock:
@@ -424,6 +437,24 @@ def format_report(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _clock_off(stamp_ns: int, received_wall_ns: int | None) -> bool:
+    """Whether truth stamped ``stamp_ns`` arriving at ``received_wall_ns`` comes from a clock that is off."""
+    return received_wall_ns is not None and abs(stamp_ns - received_wall_ns) > TRUTH_CLOCK_TOLERANCE_S * 1e9
+
+
+def _truth_callback(handler: Callable[[str, bytes, int], None], what: str) -> Callable[[zenoh.Sample], None]:
+    """As :func:`_callback`, the arrival on the auditor's wall clock passed on."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        received_wall_ns = time.time_ns()
+        try:
+            handler(str(sample.key_expr), sample.payload.to_bytes(), received_wall_ns)
+        except Exception:  # a callback must never die
+            log.exception("error while handling %s", what)
+
+    return on_sample
+
+
 def _callback(handler: Callable[[str, bytes], None], what: str) -> Callable[[zenoh.Sample], None]:
     def on_sample(sample: zenoh.Sample) -> None:
         try:
@@ -455,10 +486,11 @@ def run_audit(
         auditor = TruthAuditor(config, robots, start_ns)
         subscribers = [
             session.declare_subscriber(
-                f"hrc/{cell}/truth/robot/*/state", _callback(auditor.on_truth_state, "a truth joint state")
+                f"hrc/{cell}/truth/robot/*/state", _truth_callback(auditor.on_truth_state, "a truth joint state")
             ),
             session.declare_subscriber(
-                keys.truth_humans(cell), _callback(lambda _k, p: auditor.on_truth_humans(p), "truth humans")
+                keys.truth_humans(cell),
+                _truth_callback(lambda _k, p, t: auditor.on_truth_humans(p, t), "truth humans"),
             ),
             session.declare_subscriber(
                 keys.gateway_status(cell), _callback(lambda _k, p: auditor.on_status(p), "a gateway status")

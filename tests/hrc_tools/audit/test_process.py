@@ -279,3 +279,30 @@ def test_nothing_to_audit_is_inconclusive(tmp_path: Path) -> None:
     proc, _, log_path = _start_audit(tmp_path, ["--duration-s", "0.3"])
     assert proc.wait(30) == EXIT_INCONCLUSIVE, log_path.read_text()
     assert "INCONCLUSIVE" in log_path.read_text()
+
+
+def test_truth_from_a_stepped_clock_is_refused_not_paired_with_the_robot_seconds_later(auditor: TruthAuditor) -> None:
+    """The soak's clock step on the tracker's host: truth captured while a person touched the tool, stamped 4 s
+    ahead, must not be paired with the robot's states 4 s later (the person had left; the robot ran again)."""
+    step_ns = 4_000_000_000
+    for k in range(10):  # the person at the tool, the truth publisher's clock 4 s ahead
+        stamp = START_NS + k * CYCLE_NS
+        auditor.on_truth_humans(humans(k + 1, stamp + step_ns, (0.45, -0.35, 1.15)), received_wall_ns=stamp)
+    for k in range(10):  # 4 s later: the robot moving, the (stale) truth's stamps would match these states
+        stamp = START_NS + step_ns + k * CYCLE_NS
+        auditor.on_truth_state(STATE_KEY, state(k, stamp), received_wall_ns=stamp)
+    auditor.process()
+    report = auditor.report(5.0)
+    assert report["rejected"].get("truth_humans/clock_off") == 10
+    r = report["robots"]["ur5"]
+    assert r["violations"] == 0
+    assert r["cycles"] == 0  # nothing judged: no truth of people at that time
+
+
+def test_truth_on_time_is_judged_as_before(auditor: TruthAuditor) -> None:
+    for k in range(10):
+        stamp = START_NS + k * CYCLE_NS
+        auditor.on_truth_humans(humans(k + 1, stamp, (0.45, -0.35, 1.15)), received_wall_ns=stamp + 3_000_000)
+        auditor.on_truth_state(STATE_KEY, state(k, stamp), received_wall_ns=stamp + 2_000_000)
+    auditor.process()
+    assert auditor.report(1.0)["robots"]["ur5"]["violations"] == 10

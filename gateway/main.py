@@ -631,7 +631,11 @@ def cli(argv: list[str] | None = None) -> None:
             ros2_options = ros2_session_options(args, config) if config.ros2.enabled else None
             check_ros2_inputs(config, ros2_options, plain_tcp_allowed(args))
             wake = stop.wake_event() if config.gateway.event_driven else None
-            recorder = None if args.record is None else GatewayRecorder(args.record, config)
+            recorder = (
+                None
+                if args.record is None
+                else GatewayRecorder(args.record, config, realtime_priority=config.gateway.io_realtime_priority)
+            )
             node = build_node(config, wake, recorder)
         except RecordingError as exc:
             print(f"hrc-gateway: {exc}", file=sys.stderr)

@@ -111,10 +111,14 @@ class QueuedWriter(abc.ABC, Generic[ItemT]):
         path: the recording (its summary names it).
         max_queued: items waiting beyond this are dropped and counted.
         thread_name: the writer thread's name.
+        on_start: called first on the writer thread (e.g. to set its scheduling); None: nothing.
     """
 
-    def __init__(self, path: Path, max_queued: int, thread_name: str) -> None:
+    def __init__(
+        self, path: Path, max_queued: int, thread_name: str, on_start: Callable[[], object] | None = None
+    ) -> None:
         self.path = path
+        self._on_start = on_start
         self._queue: queue.Queue[ItemT | None] = queue.Queue(max_queued)
         self._drop_lock = threading.Lock()
         self._dropped = 0
@@ -180,6 +184,8 @@ class QueuedWriter(abc.ABC, Generic[ItemT]):
     # -- the writer thread ----------------------------------------------------------------------------
 
     def _run(self) -> None:
+        if self._on_start is not None:
+            self._on_start()
         while True:
             item = self._queue.get()
             if item is None:
@@ -206,6 +212,7 @@ class McapSink(QueuedWriter[_Item]):
         path: the file to create (its folder too); an existing file is replaced.
         max_queued: messages waiting beyond this are dropped and counted.
         metadata: MCAP metadata records written at start (name → string map), e.g. the cell and its config hash.
+        on_start: called first on the writer thread (:class:`QueuedWriter`).
 
     Raises:
         RecordingError: the file cannot be created.
@@ -216,8 +223,9 @@ class McapSink(QueuedWriter[_Item]):
         path: Path,
         max_queued: int = DEFAULT_MAX_QUEUED,
         metadata: Mapping[str, Mapping[str, str]] | None = None,
+        on_start: Callable[[], object] | None = None,
     ) -> None:
-        super().__init__(path, max_queued, "mcap-writer")
+        super().__init__(path, max_queued, "mcap-writer", on_start)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._file: IO[bytes] = path.open("wb")

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
+import os
 import threading
 import time
 from pathlib import Path
@@ -22,6 +24,7 @@ import support.status_examples as ex
 from jsonschema import Draft202012Validator
 from mcap.reader import make_reader
 
+from gateway import recording
 from gateway.events import EventLog
 from gateway.main import build_node
 from gateway.node import GatewayNode
@@ -477,3 +480,24 @@ def test_a_file_that_is_not_mcap_is_refused(tmp_path: Path) -> None:
     junk.write_bytes(b"not an mcap file at all")
     with pytest.raises(RecordingError, match="not an MCAP file"):
         read_gateway_recording(junk)
+
+
+def test_the_recorders_writer_runs_under_fifo_at_the_io_priority(
+    tmp_path: Path, cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It takes the interpreter lock for every record: at normal scheduling another program could deschedule it while
+    it held the lock, and the loop waited (the 60-minute soak's 'blocked' stalls had the writer waiting for a CPU)."""
+    seen: list[tuple[str, int, int]] = []
+    real = recording.use_realtime_scheduling
+
+    def spy(priority: int, thread: str, logger: logging.Logger) -> bool:
+        ok = real(priority, thread, logger)
+        seen.append((threading.current_thread().name, os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+        return ok
+
+    monkeypatch.setattr(recording, "use_realtime_scheduling", spy)
+    recording.GatewayRecorder(tmp_path / "fifo.mcap", cell_config, realtime_priority=4).close()
+    assert seen == [("mcap-writer", os.SCHED_FIFO, 4)]
+    seen.clear()
+    recording.GatewayRecorder(tmp_path / "normal.mcap", cell_config).close()
+    assert seen == []  # priority 0: the writer keeps normal scheduling, nothing is asked

@@ -336,7 +336,8 @@ class GatewayConfig(_Frozen):
     io_realtime_priority: Annotated[int, Field(ge=0, le=98)] = Field(
         0,
         description="Linux SCHED_FIFO priority of the gateway's I/O threads (Zenoh's threads that receive inputs, "
-        "the thread that feeds the HTTP child, the status thread, the log writer), below loop_realtime_priority; "
+        "the thread that feeds the HTTP child, the status thread, the recorder, the log writer), below "
+        "loop_realtime_priority; "
         "0 = normal scheduling. They share Python's interpreter lock with the loop: at normal priority any other "
         "program can deschedule one while it holds the lock, and the loop waits (a priority inversion, seen with many "
         "robots).",

@@ -116,7 +116,10 @@ def test_only_the_trackers_own_certificate_reaches_the_door(tmp_path: Path, conf
             wait_or_fail(both_publish, 5.0, "the genuine tracker's frames at the door")
             genuine.close()
         forged.close()
-        counts = trackers.subscriptions["front"].counts()
+        subscription = trackers.subscriptions["front"]
+        # A sample still being converted when the publishers closed counts before it reaches the door: settle first.
+        wait_or_fail(lambda: subscription.counts().converted == len(door.frames), 5.0, "the last frames at the door")
+        counts = subscription.counts()
     xs = door.pelvis_xs()
     assert all(abs(x - GENUINE_X_M) < 0.5 for x in xs), xs
     assert counts.refused == {}  # the forged frames are counted nowhere

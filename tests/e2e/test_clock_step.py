@@ -10,6 +10,7 @@ alone would keep the robot moving, and the waits for δ = 0 with one of those fa
 
 from __future__ import annotations
 
+import signal
 from pathlib import Path
 from typing import Any
 
@@ -51,9 +52,9 @@ def test_a_clock_step_on_the_trackers_host_stops_the_robot_until_the_clock_is_se
     clock = HostClock(LIBFAKETIME, tmp_path / "tracker-clock.offset")
     clock.step(0.0)
     with running_cell(tmp_path, scenario="standing_inside") as cell:
-        # Started again under libfaketime, on this host's clock (+0 s). A tracker still starting up (models, the
-        # Zenoh session) can take longer than the default 10 s to act on SIGINT on a loaded machine (seen in CI).
-        stop_program(cell.tracker, timeout_s=READY_S)
+        # Started again under libfaketime, on this host's clock (+0 s). SIGTERM, as systemd stops it: a test run as
+        # a background job inherits SIGINT ignored (POSIX shells), and so do the programs it starts.
+        stop_program(cell.tracker, signal.SIGTERM, timeout_s=READY_S)
         cell.envs["tracker"] = clock.environment(program_env())
         cell.start("tracker")
         cell.wait_until(_healthy, READY_S, "a moving robot, the tracker under libfaketime at +0 s")

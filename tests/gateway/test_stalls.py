@@ -216,9 +216,10 @@ def test_another_thread_of_this_process_on_a_cpu_meanwhile_is_seen_with_its_pyth
     if not (Path("/proc/self/task") / str(threading.get_native_id()) / "schedstat").exists():
         others.close()
         pytest.skip("no /proc/self/task/<tid>/schedstat here")
-    burnt, release = threading.Event(), threading.Event()
+    go, burnt, release = threading.Event(), threading.Event(), threading.Event()
 
     def burn() -> None:
+        go.wait()  # only after ``before`` is read: a thread that ran at once would show nothing between the reads
         sum(range(3_000_000))  # some ms on a CPU, while this thread waits
         burnt.set()
         release.wait()
@@ -228,6 +229,7 @@ def test_another_thread_of_this_process_on_a_cpu_meanwhile_is_seen_with_its_pyth
     try:
         others.refresh()
         before = others.read()
+        go.set()
         burnt.wait()
         after = others.read()
     finally:

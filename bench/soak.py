@@ -430,6 +430,8 @@ class Soak:
         self.next_sample_s = time.monotonic() + SAMPLE_EVERY_S
         sample = self.sample_resources()
         self.resource_samples.append(sample)
+        with (self.work / "resources.jsonl").open("a") as f:  # the curves behind the growth figures
+            f.write(json.dumps({"wall_s": round(time.time(), 3), **sample}) + "\n")
         return sample
 
     # -- the status -----------------------------------------------------------------------------

@@ -146,6 +146,7 @@ class TruthAuditor:
         self.rejected: Counter[str] = Counter()
         self.human_truth_received = 0
         self.status_received = 0
+        self.backlog_max = 0  # the most true joint states waiting for process() at once (an auditor falling behind)
 
     # -- callbacks: validate and store -----------------------------------------------------------
 
@@ -234,6 +235,7 @@ class TruthAuditor:
         with self._lock:
             states = list(self._states)
             self._states.clear()
+            self.backlog_max = max(self.backlog_max, len(states))
             humans = list(self._humans)
             gateway = dict(self._gateway)
         stamps = [h.stamp_ns for h in humans]
@@ -357,6 +359,7 @@ class TruthAuditor:
             "verdict": "violation" if violations else ("pass" if audited else "inconclusive"),
             "human_truth_received": self.human_truth_received,
             "status_received": self.status_received,
+            "backlog_max": self.backlog_max,
             "rejected": rejected,
             "robots": robots,
         }

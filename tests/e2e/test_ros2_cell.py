@@ -21,7 +21,8 @@ NATIVE_ZONES = ["autonomous", "guarded_distance", "reduced_speed", "safety_excep
 """The default scenario's zones in the capsule cell (configs/cell.toml; tests/e2e/test_cell.py)."""
 UNFITTED_ZONES = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
 """Without body fitting (the ZED wrapper's default), the reduced-speed step on the way in lasts one or two status
-samples, or none (measured: 0.05 s, against 0.24 s in the capsule cell): the person's legs, hidden behind the table
+samples, or none (measured at 3d80349: 0.05 s, against 0.24 s in the capsule cell; 0.20-0.28 s in three runs at
+2c4fa55, after the radii check): the person's legs, hidden behind the table
 from the front sensor, are NaN, so reach spheres around the pelvis (a hidden foot can be anywhere a leg reaches:
 hrc_runtime/skeletons.py), which come within the protective distance of the pedestal as soon as the person is within
 the reduced-speed distance of the moving links: the robot stops almost from guarded distance, never faster than
@@ -42,7 +43,13 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(
         for name, proc in (("gateway", cell.gateway), ("controller", cell.controller), ("tracker", cell.tracker)):
             assert proc.poll() is None, f"{name} died during the run\n{cell.tail()}"
     zones = collapse([s["zone"] for s in trace])
-    assert is_subsequence(expected, zones), zones
+    assert is_subsequence(UNFITTED_ZONES, zones), zones
+    if expected == NATIVE_ZONES:
+        # The reduced-speed step on the way in (measured 0.20-0.36 s with fitting on) unless a stale frame made
+        # the gateway fail closed during it (a loaded machine's; the CI run of stop 18 saw the step go missing).
+        way_in = _way_in(trace)
+        if not [f for s in way_in for f in s["faults"]]:
+            assert "reduced_speed" in {s["zone"] for s in way_in}, collapse([s["zone"] for s in way_in])
     # Stale frames (tracker_stale: older than max_data_age_s) are a loaded machine's, failing closed; any other
     # tracker fault, or a frame the adapter refused, is the adapter's.
     tracker_faults = [f for s in trace for f in s["faults"] if f["code"].startswith("tracker_")]
@@ -60,3 +67,10 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(
     closest = min(present, key=lambda s: s["min_distance_m"])
     assert closest["zone"] == "safety_exception"
     assert closest["delta"] == 0.0
+
+
+def _way_in(trace: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The samples from the first guarded distance to the first safety exception after it (both included)."""
+    start = next(i for i, s in enumerate(trace) if s["zone"] == "guarded_distance")
+    end = next(i for i in range(start, len(trace)) if trace[i]["zone"] == "safety_exception")
+    return trace[start : end + 1]

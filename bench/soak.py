@@ -266,7 +266,14 @@ def resources(pid: int) -> dict[str, int] | None:
         return None
     fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
     age_s = int(uptime_s - started_ticks / os.sysconf("SC_CLK_TCK"))
-    return {"rss_kb": int(fields["VmRSS"].split()[0]), "fds": fds, "threads": int(fields["Threads"]), "age_s": age_s}
+    return {
+        "rss_kb": int(fields["VmRSS"].split()[0]),
+        "rss_anon_kb": int(fields["RssAnon"].split()[0]),  # the heaps and stacks (what a leak grows)
+        "rss_file_kb": int(fields["RssFile"].split()[0]),  # mapped files: code of the libraries paged in as it runs
+        "fds": fds,
+        "threads": int(fields["Threads"]),
+        "age_s": age_s,
+    }
 
 
 @dataclass(frozen=True)
@@ -282,6 +289,14 @@ class Lifetime:
     def rss_growth_percent(self) -> float:
         """RSS growth from the first sample to the last [%]."""
         return 100.0 * (self.last["rss_kb"] / self.first["rss_kb"] - 1.0)
+
+    def growth_percent(self, field: str) -> float | None:
+        """Growth of ``field`` (a sample's figure, e.g. ``rss_anon_kb``) from the first sample to the last [%]; None
+        if a sample lacks it."""
+        first, last = self.first.get(field), self.last.get(field)
+        if not first or last is None:
+            return None
+        return 100.0 * (last / first - 1.0)
 
 
 def lifetimes(samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S) -> dict[str, list[Lifetime]]:
@@ -305,15 +320,18 @@ def lifetimes(samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S)
     return out
 
 
-def rss_growth_percent(samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S) -> dict[str, float]:
-    """Per program, the largest RSS growth of any one of its processes over its own lifetime [%].
+def rss_growth_percent(
+    samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S, field: str = "rss_kb"
+) -> dict[str, float]:
+    """Per program, the largest growth of ``field`` (default the RSS) of any one of its processes over its own
+    lifetime [%].
 
     Only processes sampled at least twice after their warm-up (``warmup_s`` [s], see :func:`lifetimes`) count:
     a growth needs two samples of the same process.
     """
     growth: dict[str, float] = {}
     for name, spans in lifetimes(samples, warmup_s).items():
-        measured = [span.rss_growth_percent for span in spans if span.samples >= 2]
+        measured = [g for span in spans if span.samples >= 2 and (g := span.growth_percent(field)) is not None]
         if measured:
             growth[name] = round(max(measured), 2)
     return growth
@@ -830,6 +848,8 @@ def build_report(
         "resources_start": started,
         "resources_end": ended,
         "rss_growth_percent": growth,
+        "rss_anon_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_anon_kb"),
+        "rss_file_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_file_kb"),
         "rss_growth_note": "per program, the largest growth of one process between its first sample after its "
         f"warm-up ({PROCESS_WARMUP_S:g} s old) and its last (sampled every {SAMPLE_EVERY_S:g} s)",
         "processes_sampled": {name: len(s) for name, s in spans.items()},
@@ -852,6 +872,8 @@ def format_report(report: dict[str, Any]) -> str:
         f"  events: {report['events']['in_file']} in the file, seq gaps {report['events']['seq_gaps'] or 'none'}, "
         f"API vs file: {[c.get('differing_seqs') for c in report['events']['api_vs_file']]}",
         f"  RSS growth [%], the largest of one process over its lifetime: {report['rss_growth_percent']}",
+        f"    of it anonymous (heaps, stacks): {report['rss_anon_growth_percent']}; mapped files (library code paged "
+        f"in): {report['rss_file_growth_percent']}",
     ]
     for name, start in report["resources_start"].items():
         end = report["resources_end"].get(name, {})

@@ -87,6 +87,13 @@ def test_far_human_moving_robot_passes(auditor: TruthAuditor) -> None:
     assert r["duration_s"] == pytest.approx(50 * 0.004)
     assert exit_code(report) == EXIT_OK
     assert report["verdict"] == "pass"
+    assert report["backlog_max"] == 50  # feed() processes once, after all 50 states
+
+
+def test_the_largest_backlog_is_reported_not_the_last(auditor: TruthAuditor) -> None:
+    feed(auditor, 30, (4.0, 0.0, 1.0))
+    feed(auditor, 5, (4.0, 0.0, 1.0))
+    assert auditor.report(1.0)["backlog_max"] == 30
 
 
 def test_human_at_the_moving_tool_is_a_violation_and_contact(auditor: TruthAuditor) -> None:

@@ -31,6 +31,7 @@ import argparse
 import contextlib
 import itertools
 import json
+import math
 import os
 import random
 import re
@@ -84,7 +85,8 @@ PROCESS_WARMUP_S = 15.0
 """A process's RSS counts from when it is this old (a restarted one's start-up is no growth) [s]."""
 FLOOD_RATE_HZ = 2000.0
 """Frames per second of the flooding tracker."""
-PROGRAMS = ("gateway", "controller", "tracker", "relay-controller", "relay-tracker", "audit")
+PROGRAMS = ("gateway", "relay-controller", "relay-tracker", "controller", "tracker", "audit", "zenoh-bystander")
+"""What the soak runs, in the order it starts them (it stops them in the reverse order)."""
 FAULT_KINDS = (
     "kill:gateway",
     "kill:controller",
@@ -337,6 +339,33 @@ def rss_growth_percent(
     return growth
 
 
+FLOOR_WINDOW_SAMPLES = 12
+"""Samples (one minute) whose smallest RSS is a process's floor at the start and at the end of its life."""
+
+
+def rss_floor_growth_percent(
+    samples: list[dict[str, Any]], warmup_s: float = PROCESS_WARMUP_S, window: int = FLOOR_WINDOW_SAMPLES
+) -> dict[str, float]:
+    """Per program, the largest growth of one process's RSS *floor*: the smallest RSS of its last ``window``
+    samples against the smallest of its first ``window`` (after its warm-up) [%].
+
+    Under faults a program's RSS swings by megabytes (a queue while a link is cut, freed after): the last sample
+    against the first (:func:`rss_growth_percent`) counts a swing caught in the last sample as growth; the floor
+    counts what stayed.
+    """
+    series: dict[tuple[str, int], list[int]] = {}
+    for sample in samples:
+        for name, res in sample.items():
+            if res.get("rss_kb") and res.get("age_s", warmup_s) >= warmup_s:
+                series.setdefault((name, res["pid"]), []).append(res["rss_kb"])
+    growth: dict[str, float] = {}
+    for (name, _pid), rss in series.items():
+        if len(rss) >= 2:
+            floor_growth = 100.0 * (min(rss[-window:]) / min(rss[:window]) - 1.0)
+            growth[name] = max(growth.get(name, -math.inf), round(floor_growth, 2))
+    return growth
+
+
 def _children(pid: int) -> list[int]:
     try:
         return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
@@ -416,6 +445,9 @@ class Soak:
         if name == "audit":
             connect = [arg for n in ("gateway", "controller", "tracker") for arg in ("--zenoh-connect", self.ep(n))]
             return "hrc_tools.audit", [*common, *connect, "--json", str(self.work / "audit.json")]
+        if name == "zenoh-bystander":  # joins like the auditor, does nothing: Zenoh's own growth under the churn
+            connect = [arg for n in ("gateway", "controller", "tracker") for arg in ("--zenoh-connect", self.ep(n))]
+            return "bench.zenoh_bystander", [*common, *connect]
         raise KeyError(name)
 
     def start(self, name: str) -> None:
@@ -768,7 +800,7 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
     started: dict[str, Any] = {}
     end_s = soak.start_s + minutes * 60.0
     try:
-        for name in ("gateway", "relay-controller", "relay-tracker", "controller", "tracker", "audit"):
+        for name in PROGRAMS:
             soak.start(name)
         print(f"soak: cell up in {work} (mutual TLS); warming up {WARMUP_S:.0f} s", flush=True)
         soak.sleep(min(WARMUP_S, minutes * 60.0 / 4))
@@ -787,7 +819,7 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
         ended = soak.sample_now(force=True) or {}
         soak._before_gateway_stop()
     finally:
-        for name in ("audit", "tracker", "controller", "relay-tracker", "relay-controller", "gateway"):
+        for name in reversed(PROGRAMS):
             if name in soak.procs:
                 with contextlib.suppress(Exception):
                     stop_program(soak.procs[name])
@@ -848,10 +880,12 @@ def build_report(
         "resources_start": started,
         "resources_end": ended,
         "rss_growth_percent": growth,
+        "rss_floor_growth_percent": rss_floor_growth_percent(soak.resource_samples),
         "rss_anon_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_anon_kb"),
         "rss_file_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_file_kb"),
         "rss_growth_note": "per program, the largest growth of one process between its first sample after its "
-        f"warm-up ({PROCESS_WARMUP_S:g} s old) and its last (sampled every {SAMPLE_EVERY_S:g} s)",
+        f"warm-up ({PROCESS_WARMUP_S:g} s old) and its last (sampled every {SAMPLE_EVERY_S:g} s); zenoh-bystander: "
+        "a Zenoh session joined like the auditor that does nothing (Zenoh's own growth while the peers restart)",
         "processes_sampled": {name: len(s) for name, s in spans.items()},
         "recordings_after_sigkill": recordings,
         "faults": [asdict(f) for f in faults],
@@ -872,6 +906,7 @@ def format_report(report: dict[str, Any]) -> str:
         f"  events: {report['events']['in_file']} in the file, seq gaps {report['events']['seq_gaps'] or 'none'}, "
         f"API vs file: {[c.get('differing_seqs') for c in report['events']['api_vs_file']]}",
         f"  RSS growth [%], the largest of one process over its lifetime: {report['rss_growth_percent']}",
+        f"    its floor (the smallest of the first and of the last minute): {report['rss_floor_growth_percent']}",
         f"    of it anonymous (heaps, stacks): {report['rss_anon_growth_percent']}; mapped files (library code paged "
         f"in): {report['rss_file_growth_percent']}",
     ]

@@ -70,6 +70,20 @@ def test_rss_growth_is_measured_over_each_process_lifetime_never_across_a_restar
     assert soak.rss_growth_percent(samples[:1]) == {}  # one sample shows no growth
 
 
+def test_the_rss_floor_leaves_out_a_swing_caught_in_the_last_sample() -> None:
+    """A controller's queue while its link was cut, caught by the last sample: +6 % last against first, no growth of
+    its floor; a growth that stays shows in both."""
+    swinging = [130_000, 131_000, 130_500, 131_000, 130_200, 138_000]
+    growing = [100_000, 100_500, 101_000, 102_000, 103_000, 104_000]
+    samples = [
+        {"controller": {"pid": 7, "rss_kb": a, "age_s": 20 + 5 * k}, "audit": {"pid": 9, "rss_kb": b, "age_s": 20}}
+        for k, (a, b) in enumerate(zip(swinging, growing, strict=True))
+    ]
+    assert soak.rss_growth_percent(samples) == {"controller": 6.15, "audit": 4.0}
+    assert soak.rss_floor_growth_percent(samples, window=2) == {"controller": 0.15, "audit": 3.0}
+    assert soak.rss_floor_growth_percent(samples[:1]) == {}  # one sample shows no growth
+
+
 def test_a_process_still_starting_is_not_compared() -> None:
     """A restarted gateway is small while it starts (models, kernels): its own warm-up is no growth."""
     samples = [
@@ -193,6 +207,7 @@ def test_a_short_soak_runs_the_cell_under_faults_and_reports(tmp_path: Path) -> 
     assert report["faults"], "no fault was played"
     for fault in report["faults"]:
         assert fault["injected"] or fault["note"], fault
-    assert set(report["resources_start"]) >= {"gateway", "controller", "tracker", "audit"}
+    assert set(report["resources_start"]) >= {"gateway", "controller", "tracker", "audit", "zenoh-bystander"}
+    assert report["resources_end"]["zenoh-bystander"].get("rss_kb"), "the bystander did not run to the end"
     assert all(c["differing_seqs"] == [] for c in report["events"]["api_vs_file"] if c["checked"])
     assert code == 0

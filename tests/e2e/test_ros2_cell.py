@@ -43,13 +43,13 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(
         for name, proc in (("gateway", cell.gateway), ("controller", cell.controller), ("tracker", cell.tracker)):
             assert proc.poll() is None, f"{name} died during the run\n{cell.tail()}"
     zones = collapse([s["zone"] for s in trace])
-    assert is_subsequence(UNFITTED_ZONES, zones), zones
+    assert is_subsequence(UNFITTED_ZONES, zones), collapse([_zone_and_faults(s) for s in trace])
     if expected == NATIVE_ZONES:
         # The reduced-speed step on the way in (measured 0.20-0.36 s with fitting on) unless a stale frame made
         # the gateway fail closed during it (a loaded machine's; the CI run of stop 18 saw the step go missing).
         way_in = _way_in(trace)
         if not [f for s in way_in for f in s["faults"]]:
-            assert "reduced_speed" in {s["zone"] for s in way_in}, collapse([s["zone"] for s in way_in])
+            assert "reduced_speed" in {s["zone"] for s in way_in}, collapse([_zone_and_faults(s) for s in way_in])
     # Stale frames (tracker_stale: older than max_data_age_s) are a loaded machine's, failing closed; any other
     # tracker fault, or a frame the adapter refused, is the adapter's.
     tracker_faults = [f for s in trace for f in s["faults"] if f["code"].startswith("tracker_")]
@@ -74,3 +74,9 @@ def _way_in(trace: list[dict[str, Any]]) -> list[dict[str, Any]]:
     start = next(i for i, s in enumerate(trace) if s["zone"] == "guarded_distance")
     end = next(i for i in range(start, len(trace)) if trace[i]["zone"] == "safety_exception")
     return trace[start : end + 1]
+
+
+def _zone_and_faults(status: dict[str, Any]) -> str:
+    """A status sample as its zone and fault codes (for the failure messages)."""
+    codes = sorted({f["code"] for f in status["faults"]})
+    return status["zone"] + (f" {codes}" if codes else "")

@@ -1,11 +1,10 @@
 """The C heap of a long-running program: at most :data:`MALLOC_ARENAS` glibc malloc arenas.
 
-glibc gives threads that allocate at once arenas of their own, up to eight per core. Zenoh's threads and the
-subscriber callbacks allocate (payload copies, parsed messages) and the loop frees, so memory freed in one arena
-is reused only by the threads of that arena: each arena keeps its own high-water mark, and a program's resident
-memory creeps up for an hour as new threads (a peer reconnecting) land in new arenas. Measured with the soak
-(``python -m bench.soak --minutes 10 --seed 5``, same schedule, one run each): the auditor grew 4.42 % with glibc's
-default and 2.42 % with two arenas; every other program grew less too (docs/benchmarks.md, "The soak").
+glibc gives threads that allocate at once arenas of their own, up to eight per core; each arena keeps its own
+high-water mark. Zenoh's threads and the subscriber callbacks allocate while the loop frees. One pair of 10-minute
+soaks (``python -m bench.soak --minutes 10 --seed 5``, same schedule, one run each, noise not measured): the
+auditor grew 4.42 % with glibc's default and 2.42 % with two arenas. What still grows over an hour of faults is
+Zenoh's session while peers restart (docs/benchmarks.md, "Soak"), which this does not change.
 
 A program calls :func:`limit_malloc_arenas` first thing in its entry point (the arenas of threads started later
 are limited). ``MALLOC_ARENA_MAX`` in the environment, if set, wins: glibc reads it at start and this function

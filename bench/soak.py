@@ -17,7 +17,9 @@ meanwhile (the reason).
 
 The report (printed and ``DIR/soak.json``): violations within K (the auditor), missed ticks by cause (the
 ``loop_stall`` events, every gateway run), budget overruns, memory, descriptors and threads per program at start
-and end, events lost (each gateway run's seqs contiguous in the JSON Lines file, and the file agreeing with
+and end (and at the end once more after each program handed its free heap back to the kernel, ``SIGUSR1``:
+what grew is then what the programs hold, not what malloc keeps for reuse), events lost (each gateway run's seqs
+contiguous in the JSON Lines file, and the file agreeing with
 ``GET /api/v1/events``), the gateway recordings after a SIGKILL (readable, how many messages), every fault with
 its reason and recovery. A fault that cannot be injected is listed as such. Ctrl-C ends it with the report of
 what ran.
@@ -81,6 +83,9 @@ POLL_S = 0.1
 """The status is polled this often [s]."""
 SAMPLE_EVERY_S = 5.0
 """After the warm-up, every program's memory, descriptors and threads are sampled this often [s]."""
+HEAP_REPORT_SETTLE_S = 2.0
+"""After asking every program for its heap report (``SIGUSR1``) at the end, the resources are sampled again this
+much later [s]."""
 PROCESS_WARMUP_S = 15.0
 """A process's RSS counts from when it is this old (a restarted one's start-up is no growth) [s]."""
 FLOOD_RATE_HZ = 2000.0
@@ -363,6 +368,23 @@ def rss_floor_growth_percent(
         if len(rss) >= 2:
             floor_growth = 100.0 * (min(rss[-window:]) / min(rss[:window]) - 1.0)
             growth[name] = max(growth.get(name, -math.inf), round(floor_growth, 2))
+    return growth
+
+
+def rss_after_trim_growth_percent(
+    samples: list[dict[str, Any]], trimmed: dict[str, Any], warmup_s: float = PROCESS_WARMUP_S
+) -> dict[str, float]:
+    """Per program alive at the end, the growth of its RSS after ``malloc_trim`` at the end (``trimmed``: a
+    :meth:`Soak.sample_resources` taken after :meth:`Soak.release_free_heaps`) against the same process's first
+    sample after its warm-up [%]: the growth without the freed memory malloc held. The first sample is not
+    trimmed, so this can only understate a growth by the free heap at the start (small: a start-up frees little).
+    """
+    growth: dict[str, float] = {}
+    for name, spans in lifetimes(samples, warmup_s).items():
+        after = trimmed.get(name, {})
+        for span in spans:
+            if span.pid == after.get("pid") and after.get("rss_kb") and span.samples >= 2:
+                growth[name] = round(100.0 * (after["rss_kb"] / span.first["rss_kb"] - 1.0), 2)
     return growth
 
 
@@ -762,6 +784,16 @@ class Soak:
         differing = [e["seq"] for e in api if current.get(e["seq"]) != {k: v for k, v in e.items() if v is not None}]
         return {"checked": True, "api_events": len(api), "file_events": len(current), "differing_seqs": differing}
 
+    def release_free_heaps(self, settle_s: float = HEAP_REPORT_SETTLE_S) -> dict[str, Any]:
+        """Ask every program for its heap report (``SIGUSR1``: the free heap handed back to the kernel,
+        ``hrc_runtime/memory.py``), then sample the resources again: what the resident set is without the freed
+        memory malloc held."""
+        for res in self.sample_resources().values():
+            with contextlib.suppress(OSError):
+                os.kill(res["pid"], signal.SIGUSR1)
+        self.sleep(settle_s)
+        return self.sample_resources()
+
     def sample_resources(self) -> dict[str, Any]:
         out = {}
         for name, proc in self.procs.items():
@@ -798,6 +830,8 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
     soak = Soak(work, seed, stop)
     faults: list[FaultResult] = []
     started: dict[str, Any] = {}
+    ended: dict[str, Any] = {}
+    trimmed: dict[str, Any] = {}
     end_s = soak.start_s + minutes * 60.0
     try:
         for name in PROGRAMS:
@@ -817,6 +851,7 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
             soak.sleep(SETTLE_S)
         soak.sleep(max(0.0, min(5.0, end_s - time.monotonic())))
         ended = soak.sample_now(force=True) or {}
+        trimmed = soak.release_free_heaps()
         soak._before_gateway_stop()
     finally:
         for name in reversed(PROGRAMS):
@@ -827,7 +862,8 @@ def run_soak(minutes: float, seed: int, work: Path, stop: threading.Event) -> di
     if not started:
         started = {}
         ended = {}
-    return build_report(soak, faults, started, ended, minutes, seed)
+        trimmed = {}
+    return build_report(soak, faults, started, ended, minutes, seed, trimmed)
 
 
 def build_report(
@@ -837,7 +873,9 @@ def build_report(
     ended: dict[str, Any],
     minutes: float,
     seed: int,
+    trimmed: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
+    trimmed = trimmed or {}
     try:
         audit = json.loads((soak.work / "audit.json").read_text())
     except (OSError, ValueError):
@@ -883,6 +921,8 @@ def build_report(
         "rss_floor_growth_percent": rss_floor_growth_percent(soak.resource_samples),
         "rss_anon_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_anon_kb"),
         "rss_file_growth_percent": rss_growth_percent(soak.resource_samples, field="rss_file_kb"),
+        "resources_after_trim": trimmed,
+        "rss_after_trim_growth_percent": rss_after_trim_growth_percent(soak.resource_samples, trimmed),
         "rss_growth_note": "per program, the largest growth of one process between its first sample after its "
         f"warm-up ({PROCESS_WARMUP_S:g} s old) and its last (sampled every {SAMPLE_EVERY_S:g} s); zenoh-bystander: "
         "a Zenoh session joined like the auditor that does nothing (Zenoh's own growth while the peers restart)",
@@ -909,6 +949,8 @@ def format_report(report: dict[str, Any]) -> str:
         f"    its floor (the smallest of the first and of the last minute): {report['rss_floor_growth_percent']}",
         f"    of it anonymous (heaps, stacks): {report['rss_anon_growth_percent']}; mapped files (library code paged "
         f"in): {report['rss_file_growth_percent']}",
+        f"    after each program handed its free heap back (malloc_trim on SIGUSR1, at the end): "
+        f"{report.get('rss_after_trim_growth_percent', {})}",
     ]
     for name, start in report["resources_start"].items():
         end = report["resources_end"].get(name, {})

@@ -19,7 +19,7 @@ from hrc_contract.config import ConfigError
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, options_from_args, session_config
 
@@ -36,7 +36,7 @@ def cli(argv: list[str] | None = None) -> None:
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # as every program of the cell does (hrc_runtime/memory.py)
+    configure_heap(log)  # as every program of the cell does (hrc_runtime/memory.py)
     connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
     with stop_on_signals() as stop:
         try:

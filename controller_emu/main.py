@@ -39,7 +39,7 @@ from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import freeze_startup_heap
 from hrc_runtime.robot_model import load_robot_model
@@ -385,7 +385,7 @@ def cli(argv: list[str] | None = None) -> None:
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)

@@ -50,7 +50,7 @@ from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging, logging_through_a_queue
 from hrc_runtime.mcap_sink import RecordingError
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_realtime_scheduling
 from hrc_runtime.robot_model import RobotModel, load_robot_model
@@ -625,7 +625,7 @@ def cli(argv: list[str] | None = None) -> None:
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)

@@ -32,8 +32,13 @@ What is measured between two wake-ups of the loop thread (the interval a late ti
 the lateness), ``runqueue`` (the thread waited on a run queue at least half of it: another thread or program ran),
 ``stolen`` (at least half of it on none of the thread's clocks, and the thread did not block again: the CPU did not
 run, see above), ``phase:<name>`` (our own work ran past the due time, in that phase), ``blocked`` (the wake-up was
-late and the thread was blocked at least half of it), ``unknown``. A stall with ``missed`` ticks counts them all for
-its cause, so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
+late and the thread was blocked at least half of it), ``kernel`` (the wake-up was late and the thread's CPU clock
+ran at least half of it during its ``sleep`` phase, whose own code takes microseconds: time in the kernel charged to
+the thread. On the development VM a kernel trace (``bench/stall_trace.py``) shows it is the host's: timer interrupts
+of 0.3–1.5 ms instead of ~10 µs, the loop's CPU recording nothing for milliseconds after the loop was woken, a wait
+for the interpreter lock that stays on the CPU; on bare metal it would be interrupts and softirqs, which a kernel
+without ``CONFIG_IRQ_TIME_ACCOUNTING`` charges to the running thread), ``unknown``. A stall with ``missed`` ticks
+counts them all for its cause, so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
 """
 
 from __future__ import annotations
@@ -88,7 +93,15 @@ class Phase(IntEnum):
 
 
 PHASE_NAMES = tuple(p.name.lower() for p in Phase)
-CAUSES = ("gc", "runqueue", "stolen", "blocked", "unknown", *(f"phase:{name}" for name in PHASE_NAMES[1:]))
+CAUSES = (
+    "gc",
+    "runqueue",
+    "stolen",
+    "blocked",
+    "kernel",
+    "unknown",
+    *(f"phase:{name}" for name in PHASE_NAMES[1:]),
+)
 """Every cause :func:`attribute` can give (the metrics export each, 0 before the first)."""
 
 
@@ -109,6 +122,8 @@ class StallSample(NamedTuple):
             without schedstat.
         others: the process's other Python threads that were on a CPU or waited on a run queue within the interval,
             the most first (:meth:`OtherThreads.between`); empty without schedstat.
+        sleep_cpu_ns: of the loop thread's time on a CPU, what fell in its last ``sleep`` phase (its CPU clock at the
+            ``sleep`` mark and at the wake-up) [ns]; None if it did not sleep in the interval.
     """
 
     late_ns: int
@@ -121,6 +136,7 @@ class StallSample(NamedTuple):
     runqueue_ns: int | None
     timeslices: int | None = None
     others: tuple[ThreadTime, ...] = ()
+    sleep_cpu_ns: int | None = None
 
     @property
     def blocked_ns(self) -> int | None:
@@ -180,7 +196,8 @@ class StallRecord(NamedTuple):
         return (
             f"loop stall: tick {ms(s.late_ns)} late ({self.missed} missed), cause {self.cause}: in phase {s.phase} "
             f"at the due time; gc {ms(s.gc_ns)}, run-queue wait {ms(s.runqueue_ns)}, blocked {ms(s.blocked_ns)}, "
-            f"on CPU {ms(s.cpu_ns)} of {ms(s.interval_ns)} since the previous wake-up, put on a CPU "
+            f"on CPU {ms(s.cpu_ns)} of {ms(s.interval_ns)} since the previous wake-up ({ms(s.sleep_cpu_ns)} of it in "
+            f"its sleep), put on a CPU "
             f"{'n/a' if s.timeslices is None else s.timeslices} time(s)"
             + (f"; meanwhile{others[1:]}" if others else "")
         )
@@ -190,7 +207,7 @@ def attribute(sample: StallSample) -> str:
     """The one cause of a late tick (the order is the module docstring's).
 
     Returns:
-        ``gc``, ``runqueue``, ``stolen``, ``phase:<name>``, ``blocked`` or ``unknown``.
+        ``gc``, ``runqueue``, ``stolen``, ``phase:<name>``, ``blocked``, ``kernel`` or ``unknown``.
     """
     half_late_ns = sample.late_ns / 2
     if sample.gc_ns >= half_late_ns:
@@ -205,6 +222,8 @@ def attribute(sample: StallSample) -> str:
         return f"phase:{sample.phase}"
     if unaccounted:
         return "blocked"
+    if sample.sleep_cpu_ns is not None and sample.sleep_cpu_ns >= half_late_ns:
+        return "kernel"
     return "unknown"
 
 
@@ -459,6 +478,7 @@ class StallMonitor:
         self._stat: tuple[int, int, int] | None = self._schedstat.read()
         self._others_stat = self.others.read()
         self._missed_cycles = 0
+        self._sleep_cpu_ns: int | None = time.thread_time_ns()  # the loop's CPU clock at its last sleep mark
         self.stalls: dict[str, int] = {}
         """Stalls by cause since the start."""
         self.missed: dict[str, int] = {}
@@ -481,6 +501,7 @@ class StallMonitor:
         """
         stat = self._schedstat.read()
         others_stat = self.others.read()
+        slept_from_cpu_ns, self._sleep_cpu_ns = self._sleep_cpu_ns, None
         record = None
         missed, self._missed_cycles = max(0, missed_cycles - self._missed_cycles), missed_cycles
         late_ns = round(late_s * NS_PER_S)
@@ -500,6 +521,7 @@ class StallMonitor:
                 runqueue_ns=runq_ns,
                 timeslices=timeslices,
                 others=self.others.between(self._others_stat, others_stat),
+                sleep_cpu_ns=None if slept_from_cpu_ns is None else time.thread_time_ns() - slept_from_cpu_ns,
             )
             record = StallRecord(attribute(sample), missed, sample)
             self.stalls[record.cause] = self.stalls.get(record.cause, 0) + 1
@@ -513,8 +535,10 @@ class StallMonitor:
         return record
 
     def enter(self, phase: Phase) -> None:
-        """The loop thread enters ``phase`` now."""
+        """The loop thread enters ``phase`` now (at ``sleep``, its CPU clock is read too: 0.3 µs)."""
         self.trace.enter(phase, time.monotonic_ns())
+        if phase is Phase.SLEEP:
+            self._sleep_cpu_ns = time.thread_time_ns()
 
     def close(self) -> None:
         if self._own_gc:

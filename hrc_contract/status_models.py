@@ -275,7 +275,9 @@ class LoopStatus(_Strict):
         "``gc``, ``runqueue`` (runnable, another thread or program ran), ``stolen`` (on none of the thread's clocks "
         "while blocked on nothing but its sleep: the CPU did not run, e.g. the hypervisor's steal), ``phase:<name>`` "
         "(the loop's own work ran past the due time), ``blocked`` (woke late without being runnable: the interpreter "
-        "lock or the process stopped), ``unknown``. Each is logged as an event ``loop_stall`` with its figures.",
+        "lock or the process stopped), ``kernel`` (woke late, the thread's CPU clock running during its sleep: "
+        "kernel time charged to it, e.g. a virtual machine's host), ``unknown``. Each is logged as an event "
+        "``loop_stall`` with its figures.",
     )
     missed_by_cause: dict[str, Count] = Field(
         default_factory=dict,

@@ -30,7 +30,7 @@ from hrc_contract.messages import to_payload
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.realtime import freeze_startup_heap
 from hrc_runtime.robot_model import load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
@@ -325,7 +325,7 @@ def cli(argv: list[str] | None = None) -> None:
         )
         sys.exit(2)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     try:
         config = load_cell_config(args.config)
         scenario_name, scenario = select_scenario(config, args.scenario)

@@ -29,7 +29,7 @@ from gateway.events import EventFile
 from gateway.http.api import StatusBoard, create_app
 from hrc_contract.status_models import EffectiveConfig, Event
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.realtime import use_realtime_scheduling
 
 log = logging.getLogger("hrc-gateway.http")
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--events-log", type=Path, default=None, help="JSON Lines file of the events (rotated)")
     args = parser.parse_args(argv)
     configure_logging("INFO")  # journal lines under systemd, timestamps otherwise
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     try:
         os.nice(NICENESS_INCREMENT)
     except OSError as exc:  # never a reason not to serve

@@ -47,7 +47,7 @@ from hrc_contract.status_models import GatewayStatus
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
@@ -589,7 +589,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", default=None, metavar="PATH", help="write the summary as JSON to PATH")
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     if args.duration_s is not None and not 0.0 < args.duration_s < 1e7:
         sys.stderr.write(f"{PROG}: invalid configuration: --duration-s {args.duration_s}; allowed: > 0 s\n")
         sys.exit(EXIT_CONFIG)

@@ -42,7 +42,7 @@ from hrc_contract.errors import HrcError
 from hrc_runtime.cli import add_security_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, SessionOptions, options_from_args, session_config
 from hrc_tools.faultinject.delay_line import DelayLine
@@ -526,7 +526,7 @@ def main(config: RelayConfig, stop: threading.Event, stats_json: Path | None = N
 def cli(argv: list[str] | None = None) -> None:
     args = _parser().parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     with stop_on_signals() as stop:
         try:
             code = main(config_from_args(args), stop, Path(args.stats_json) if args.stats_json else None)

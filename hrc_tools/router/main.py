@@ -25,7 +25,7 @@ from hrc_runtime.access_control import CellPolicy
 from hrc_runtime.cli import add_config_argument, add_security_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import limit_malloc_arenas
+from hrc_runtime.memory import configure_heap
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
@@ -76,7 +76,7 @@ def cli(argv: list[str] | None = None) -> None:
     parser.set_defaults(zenoh_mode="router")
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
-    limit_malloc_arenas()  # before the program's threads start (hrc_runtime/memory.py)
+    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
     with stop_on_signals() as stop:
         try:

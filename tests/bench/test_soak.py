@@ -84,6 +84,24 @@ def test_the_rss_floor_leaves_out_a_swing_caught_in_the_last_sample() -> None:
     assert soak.rss_floor_growth_percent(samples[:1]) == {}  # one sample shows no growth
 
 
+def test_the_growth_after_trim_compares_each_living_process_with_its_own_first_sample() -> None:
+    """The auditor held 7 MB of freed heap at the end: trimmed, it is 1 % above its first sample; a gateway that
+    restarted meanwhile is compared with the new process's first sample, a program gone at the end not at all."""
+    samples = []
+    for k in range(7):
+        gateway_pid, gateway_k = (5, k) if k < 3 else (6, k - 3)  # restarted after the third sample
+        samples.append(
+            {
+                "audit": {"pid": 9, "rss_kb": 130_000 + 1_000 * k, "age_s": 20 + 5 * k},
+                "gateway": {"pid": gateway_pid, "rss_kb": 260_000 + 100 * k, "age_s": 20 + 5 * gateway_k},
+                "relay-tracker": {"pid": 4, "rss_kb": 60_000, "age_s": 20 + 5 * k},
+            }
+        )
+    trimmed = {"audit": {"pid": 9, "rss_kb": 131_300}, "gateway": {"pid": 6, "rss_kb": 260_300}}
+    assert soak.rss_growth_percent(samples)["audit"] == 4.62
+    assert soak.rss_after_trim_growth_percent(samples, trimmed) == {"audit": 1.0, "gateway": 0.0}
+
+
 def test_a_process_still_starting_is_not_compared() -> None:
     """A restarted gateway is small while it starts (models, kernels): its own warm-up is no growth."""
     samples = [

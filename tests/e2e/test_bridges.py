@@ -157,8 +157,8 @@ def test_the_default_scenario_through_the_bridge(kind: str, tmp_path: Path) -> N
         _assert_alive(cell)
     zones = collapse([s["zone"] for s in trace])
     assert is_subsequence(ZONE_SEQUENCE, zones), zones
-    faults = {code for s in trace for code in _codes(s)}
-    assert not faults, f"faults on the way: {faults}"
+    faults = {f"{f['code']}: {f['reason']}" for s in trace for f in s["faults"]}
+    assert not faults, f"faults on the way: {sorted(faults)}"
     bridge = trace[-1]["bridge"]
     assert bridge is not None
     assert bridge["interface"] == kind, bridge

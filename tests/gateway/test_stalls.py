@@ -67,6 +67,9 @@ def _sample(**fields: object) -> StallSample:
         ({"phase": "decide", "cpu_ns": 1 * MS, "timeslices": 0}, "stolen"),  # at work, never blocked: not ours
         ({"phase": "publish", "cpu_ns": 1 * MS, "timeslices": 1}, "phase:publish"),  # at work, blocked in a put
         ({"cpu_ns": 9 * MS, "timeslices": 1}, "unknown"),  # on a CPU all along: not stolen either
+        ({"cpu_ns": 9 * MS, "sleep_cpu_ns": 6 * MS, "timeslices": 1}, "kernel"),  # and most of it in its sleep
+        ({"cpu_ns": 9 * MS, "sleep_cpu_ns": 4 * MS}, "unknown"),  # in its sleep less than half the lateness
+        ({"phase": "decide", "cpu_ns": 9 * MS, "sleep_cpu_ns": 9 * MS, "timeslices": 1}, "phase:decide"),
         ({"cpu_ns": 9 * MS}, "unknown"),  # woke late, on a CPU all along (nothing explains it)
         ({"cpu_ns": None, "runqueue_ns": None}, "unknown"),  # no schedstat
         ({"cpu_ns": None, "runqueue_ns": None, "phase": "status"}, "phase:status"),
@@ -306,6 +309,25 @@ def test_the_monitor_records_late_ticks_only_and_counts_every_missed_tick_by_cau
     assert monitor.stalls == {"phase:decide": 1, "runqueue": 1}
     assert monitor.missed == {"phase:decide": 4, "runqueue": 3}
     assert sum(monitor.missed.values()) == 7  # the loop's missed_cycles
+
+
+def test_the_monitor_reads_the_loops_cpu_clock_in_its_sleep_and_names_time_there_kernel() -> None:
+    """The loop thread is on a CPU for 12 ms after its sleep mark (here: it spins; in a cell: kernel time charged to
+    it), the tick comes 10 ms late: its own clock says so, whatever schedstat lags."""
+    schedstat = _Schedstat([(0, 0, 0), (0, 0, 0), (13 * MS, 0, 1)])
+    others = _OtherThreads([b"0 0 0"] * 6)
+    with StallMonitor(0.004, schedstat=schedstat, gc_windows=GcWindows(), others=others) as monitor:
+        assert monitor.woke(time.monotonic_ns(), tick=True, late_s=0.0, missed_cycles=0) is None
+        monitor.enter(Phase.SLEEP)
+        spin_until_ns = time.thread_time_ns() + 12 * MS  # on its own CPU clock: a loaded machine only makes it longer
+        while time.thread_time_ns() < spin_until_ns:
+            pass
+        record = monitor.woke(time.monotonic_ns(), tick=True, late_s=0.010, missed_cycles=2)
+    assert record is not None
+    assert record.sample.sleep_cpu_ns is not None
+    assert record.sample.sleep_cpu_ns >= 12 * MS
+    assert record.cause == "kernel"
+    assert "of it in its sleep" in record.message()
 
 
 def test_the_monitor_refuses_a_period_or_threshold_that_is_not_positive() -> None:

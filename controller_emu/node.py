@@ -11,9 +11,11 @@ and sends over simulated links. Both clocks come with every call: the wall clock
 the gateway's stamps, the monotonic clock runs the watchdog and measures the step.
 
 An override is checked when it arrives (:func:`controller_emu.controller.check_override`), and the newest
-accepted one is applied at the next cycle, so each is applied at most once; its arrival is when the
-watchdog starts counting. ``on_override`` may run on a subscriber's thread while ``cycle`` runs on the
-loop's: the little they share is guarded by a lock.
+accepted one is applied at the next cycle whose time is not before its arrival, so each is applied at most once
+and never in a state stamped before it arrived (a cycle's thread held off the CPU between reading its clock and
+taking the override would otherwise report, in a state stamped then, an override the gateway decided later: its
+``echo_before_send`` check, seen in the soak); its arrival is when the watchdog starts counting. ``on_override``
+may run on a subscriber's thread while ``cycle`` runs on the loop's: the little they share is guarded by a lock.
 """
 
 from __future__ import annotations
@@ -170,7 +172,11 @@ class ControllerNode:
         """
         now_mono_ns = now.mono_ns
         with self._lock:
-            pending, self._pending = self._pending, None
+            pending = self._pending
+            if pending is not None and pending.accepted_mono_ns <= now_mono_ns:
+                self._pending = None
+            else:
+                pending = None  # arrived after this cycle's time: the next cycle applies it
         before = self._state
         state = before if pending is None else apply_override(before, pending.message, pending.accepted_mono_ns)
         dt_s = self.config.cycle_s if self._last_mono_ns is None else (now_mono_ns - self._last_mono_ns) / 1e9

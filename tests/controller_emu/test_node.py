@@ -82,6 +82,19 @@ def test_the_newest_stamp_wins_whatever_the_arrival_order(node: ControllerNode) 
     assert out.state.override_accepted_mono_ns == 1 * MS_NS, "accepted when it arrived, not at the cycle"
 
 
+def test_an_override_that_arrived_after_the_cycles_time_waits_for_the_next_cycle(node: ControllerNode) -> None:
+    """The cycle's thread read its clock at 4 ms and was held off the CPU; an override the gateway decided at 6 ms
+    arrived at 7 ms, before the cycle took it. Reported in the state stamped 4 ms, it would be an echo from before
+    its own send (the gateway's ``echo_before_send``): the next cycle applies it."""
+    assert node.on_override(_payload(0.5, T0_NS + 6 * MS_NS, seq=3), _at(7 * MS_NS)) is None
+    held = node.cycle(_at(4 * MS_NS))
+    assert held.joint_state.override_seq == -1
+    assert held.joint_state.stamp_ns == T0_NS + 4 * MS_NS
+    applied = node.cycle(_at(8 * MS_NS))
+    assert (applied.joint_state.override_seq, applied.state.delta_commanded) == (3, 0.5)
+    assert applied.joint_state.stamp_ns >= T0_NS + 6 * MS_NS  # never stamped before the gateway sent it
+
+
 def test_the_watchdog_counts_from_arrival(node: ControllerNode, config: ControllerConfig) -> None:
     arrival_ns = 1 * MS_NS
     assert node.on_override(_payload(1.0, T0_NS), Clocks(wall_ns=T0_NS, mono_ns=arrival_ns)) is None

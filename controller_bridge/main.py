@@ -265,7 +265,10 @@ class _Reader:
         while not self.stop.is_set():
             if self.poll_interval_s > 0.0:  # a polled controller: q is differentiated over this interval, not less
                 self.stop.wait(max(0.0, next_read_s - time.monotonic()))
-                next_read_s = max(next_read_s + self.poll_interval_s, time.monotonic())
+                # From this read's start, never from the schedule: after a late read (this thread held off the CPU)
+                # a catch-up read a few milliseconds later would difference q over less than the controller's cycle
+                # and the request's jitter, and the velocity could come out above the joint's limit.
+                next_read_s = time.monotonic() + self.poll_interval_s
             try:
                 state = self.bridge.on_reading(self.interface.read(self.read_timeout_s))
             except VendorError as exc:

@@ -15,8 +15,9 @@ import zenoh
 from support.cell_files import CONFIGS, replace_once, write_cell
 from support.paths import REPO_ROOT
 
-from controller_bridge.bridge import STAMP_MAX_LAG_S
-from controller_bridge.main import make_interface, select_robot
+from controller_bridge.bridge import SPEED_INPUTS, STAMP_MAX_LAG_S, Bridge, BridgeSettings
+from controller_bridge.main import _Reader, make_interface, select_robot
+from controller_bridge.vendor import VendorError
 from hrc_contract import keys
 from hrc_contract.config import AbbRwsInterfaceConfig, ConfigError
 from hrc_contract.messages import JointState, Override, parse_message, to_payload
@@ -136,3 +137,52 @@ def test_the_bridge_confirms_an_override_only_once_the_rtde_read_back_shows_it(t
     finally:
         stop_all(procs)
     assert bridge.returncode == 0
+
+
+class _SlowOnce:
+    """A polled interface whose second read is held 35 ms (its thread off the CPU); records when each read starts.
+    Every read fails with a reason that does not reconnect, so nothing else happens."""
+
+    kind = "abb_rws"
+
+    def __init__(self, stop: threading.Event, reads: int) -> None:
+        self.starts_s: list[float] = []
+        self._stop, self._reads = stop, reads
+
+    def connect(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def read(self, timeout_s: float) -> object:
+        self.starts_s.append(time.monotonic())
+        if len(self.starts_s) == 2:
+            time.sleep(0.035)
+        if len(self.starts_s) >= self._reads:
+            self._stop.set()
+        raise VendorError("timeout", "scripted")
+
+
+def test_a_polled_reader_never_reads_sooner_than_its_interval_after_a_late_read() -> None:
+    """At 50 Hz, a read held 35 ms must not be followed by a catch-up read a few milliseconds later: q would be
+    differenced over less than the controller's cycle plus the request's jitter (qd above the joint's limit)."""
+    settings = BridgeSettings(
+        robot="ur5",
+        speed_input=SPEED_INPUTS["abb_rws"],
+        velocity_limit_radps=(3.15,) * 6,
+        braking_time_s=0.24,
+        watchdog_s=0.1,
+        heartbeat_s=0.04,
+        max_diff_gap_s=5.0,
+    )
+    stop = threading.Event()
+    interface = _SlowOnce(stop, reads=6)
+    reader = _Reader(Bridge(settings), interface, lambda state: None, stop, poll_interval_s=0.02)  # type: ignore[arg-type]
+    reader.thread.start()
+    reader.thread.join(timeout=10.0)
+    assert not reader.thread.is_alive()
+    gaps_s = [b - a for a, b in zip(interface.starts_s, interface.starts_s[1:], strict=False)]
+    assert len(gaps_s) == 5
+    assert gaps_s[1] >= 0.035  # the held read
+    assert min(gaps_s) >= 0.0195, gaps_s  # the old schedule read again ~5 ms after the held one

@@ -71,9 +71,6 @@ _LATE = re.compile(r"tick ([\d.]+) ms late")
 _TIME = re.compile(r"\s(\d+\.\d+):\s")
 _RECORD = re.compile(r"^\s*(.+?)-(\d+)\s+\(\s*[-\d]+\)\s+\[(\d+)\]\s+(\S+)\s+(\d+\.\d+):\s+(\w+):\s*(.*)$")
 _NEXT_PID = re.compile(r"next_pid=(\d+)")
-TICK_S = 0.004
-"""The kernel's scheduler tick here (``CONFIG_HZ_250``): a CPU running a task records a ``local_timer`` event at
-least this often; one silent longer while busy did not run (its virtual CPU was not scheduled by the host) [s]."""
 
 
 def trace_line_time_s(line: str) -> float | None:
@@ -104,6 +101,52 @@ def lines_within(lines: Iterator[str], start_s: float, end_s: float) -> list[str
     return kept
 
 
+class Record(NamedTuple):
+    """One line of ftrace's text output (with ``record-tgid``)."""
+
+    t_s: float
+    cpu: int
+    tid: int
+    """The task current on the CPU when it was recorded (0: the idle task)."""
+    flags: str
+    """irqs-off, need-resched (``N``), hard/soft interrupt, preempt depth."""
+    event: str
+    rest: str
+
+
+def parse_records(lines: list[str]) -> list[Record]:
+    """The records of ftrace's text lines, in their order; header, comment and unparsable lines left out."""
+    records = []
+    for line in lines:
+        match = _RECORD.match(line)
+        if match is not None:
+            _comm, tid, cpu, flags, t_s, event, rest = match.groups()
+            records.append(Record(float(t_s), int(cpu), int(tid), flags, event, rest))
+    return records
+
+
+def _current_after(record: Record) -> int:
+    """The task current on the record's CPU after it: a switch's next task, else the one recorded."""
+    next_pid = _NEXT_PID.search(record.rest) if record.event == "sched_switch" else None
+    return int(next_pid.group(1)) if next_pid else record.tid
+
+
+def _loop_wakeup(records: list[Record], loop_tid: int, due_s: float, end_s: float) -> int | None:
+    """The index of the loop thread's first wake-up in [due_s − 1 ms, end_s], None if there is none.
+
+    ``due_s`` is estimated from the stall's lateness (up to ~0.5 ms late: the loop reads its clock after the
+    wake-up), hence the tolerance.
+    """
+    return next(
+        (
+            i
+            for i, r in enumerate(records)
+            if r.event == "sched_wakeup" and f" pid={loop_tid} " in f" {r.rest} " and due_s - 1e-3 <= r.t_s <= end_s
+        ),
+        None,
+    )
+
+
 class Silence(NamedTuple):
     """The longest time one CPU recorded nothing while it had work (a task, or one woken for it), within a stall's
     interval."""
@@ -114,75 +157,51 @@ class Silence(NamedTuple):
     start_s: float
 
 
-def busy_cpu_silence(lines: list[str], start_s: float, end_s: float) -> Silence | None:
+def busy_cpu_silence(records: list[Record], start_s: float, end_s: float) -> Silence | None:
     """The longest silence of a busy CPU in [start_s, end_s] (:class:`Silence`), None if no CPU was seen busy.
 
     A CPU's task is followed from its ``sched_switch`` events (or, before the first, the task its records name). A
     CPU is busy while it runs a task, or while idle with a task woken for it (the need-resched flag ``N`` in its last
-    record: it must switch to that task at once). A busy CPU takes a scheduler tick every :data:`TICK_S` and records
-    it, and a woken task is switched in within microseconds, so a silence much longer means the CPU itself did not
-    run: the host did not schedule the virtual CPU (steal), or paused the whole machine. The kernel charges such time
-    to the task that was current, as time on a CPU.
+    record: it must switch to that task at once). A busy CPU takes a scheduler tick every 4 ms here
+    (``CONFIG_HZ_250``) and records it, and a woken task is switched in within microseconds, so a silence much
+    longer means the CPU itself did not run: the host did not schedule the virtual CPU (steal), or paused the whole
+    machine. The kernel charges such time to the task that was current, as time on a CPU.
     """
     current: dict[int, int] = {}
-    last_s: dict[int, float] = {}
-    owed: dict[int, bool] = {}
+    last: dict[int, Record] = {}
     best: Silence | None = None
-    for line in lines:
-        match = _RECORD.match(line)
-        if match is None:
-            continue
-        _comm, tid, cpu_text, flags, t_text, event, rest = match.groups()
-        cpu, t_s = int(cpu_text), float(t_text)
-        running = current.get(cpu, int(tid))
-        busy = running != 0 or owed.get(cpu, False)
-        if cpu in last_s and busy and min(t_s, end_s) > max(last_s[cpu], start_s):
-            gap_s = min(t_s, end_s) - max(last_s[cpu], start_s)
-            if best is None or gap_s > best.duration_s:
-                best = Silence(gap_s, cpu, running, max(last_s[cpu], start_s))
-        last_s[cpu] = t_s
-        owed[cpu] = "N" in flags
-        if event == "sched_switch" and (next_pid := _NEXT_PID.search(rest)):
-            current[cpu] = int(next_pid.group(1))
-        else:
-            current.setdefault(cpu, int(tid))
+    for r in records:
+        previous = last.get(r.cpu)
+        running = current.get(r.cpu, r.tid)
+        if previous is not None and (running != 0 or "N" in previous.flags):
+            gap_start_s, gap_end_s = max(previous.t_s, start_s), min(r.t_s, end_s)
+            if gap_end_s > gap_start_s and (best is None or gap_end_s - gap_start_s > best.duration_s):
+                best = Silence(gap_end_s - gap_start_s, r.cpu, running, gap_start_s)
+        last[r.cpu] = r
+        current[r.cpu] = _current_after(r)
     return best
 
 
-def idle_timer_delay_s(lines: list[str], loop_tid: int, due_s: float, end_s: float) -> float | None:
+def idle_timer_delay_s(records: list[Record], loop_tid: int, due_s: float, end_s: float) -> float | None:
     """How long the CPU that woke the loop thread stayed silent after the loop's tick fell due, while idle [s];
     None if the loop was not woken in [due_s − 1 ms, end_s] or its CPU was running a task at ``due_s``.
 
     An idle virtual CPU waits in the host for its next timer; the loop's timer is due at ``due_s``, so the CPU
     must record that interrupt then. A CPU silent long after is the host's delay (it did not run the virtual CPU
-    in time). ``due_s`` is estimated from the stall's lateness (up to ~0.5 ms late: the loop reads its clock after
-    the wake-up), hence the tolerance.
+    in time).
     """
-    records = []
-    for line in lines:
-        match = _RECORD.match(line)
-        if match is not None:
-            _comm, tid, cpu_text, _flags, t_text, event, rest = match.groups()
-            records.append((float(t_text), int(cpu_text), int(tid), event, rest))
-    wake_cpu = next(
-        (
-            cpu
-            for t_s, cpu, _tid, event, rest in records
-            if event == "sched_wakeup" and f" pid={loop_tid} " in f" {rest} " and due_s - 1e-3 <= t_s <= end_s
-        ),
-        None,
-    )
-    if wake_cpu is None:
+    wake = _loop_wakeup(records, loop_tid, due_s, end_s)
+    if wake is None:
         return None
+    cpu = records[wake].cpu
     running: int | None = None
-    for t_s, cpu, tid, event, rest in records:
-        if cpu != wake_cpu:
+    for r in records:
+        if r.cpu != cpu:
             continue
-        if t_s >= due_s:
-            idle = (running if running is not None else tid) == 0
-            return t_s - due_s if idle else None
-        next_pid = _NEXT_PID.search(rest) if event == "sched_switch" else None
-        running = int(next_pid.group(1)) if next_pid else tid
+        if r.t_s >= due_s:
+            idle = (r.tid if running is None else running) == 0
+            return r.t_s - due_s if idle else None
+        running = _current_after(r)
     return None
 
 
@@ -202,50 +221,38 @@ SILENT_GAP_S = 1e-4
 """A gap between two records of a CPU that owes a woken task its switch longer than this is silence [s]."""
 
 
-def wake_to_run(lines: list[str], loop_tid: int, due_s: float, end_s: float) -> WakeToRun | None:
+def wake_to_run(records: list[Record], loop_tid: int, due_s: float, end_s: float) -> WakeToRun | None:
     """:class:`WakeToRun` for the loop's first wake-up in [due_s − 1 ms, end_s], None if there is none (or it
     never ran on that CPU within the window)."""
-    records = []
-    for line in lines:
-        match = _RECORD.match(line)
-        if match is not None:
-            _comm, tid, cpu_text, _flags, t_text, event, rest = match.groups()
-            records.append((float(t_text), int(cpu_text), int(tid), event, rest))
-    start = next(
-        (
-            i
-            for i, (t_s, _cpu, _tid, event, rest) in enumerate(records)
-            if event == "sched_wakeup" and f" pid={loop_tid} " in f" {rest} " and due_s - 1e-3 <= t_s <= end_s
-        ),
-        None,
-    )
-    if start is None:
+    wake = _loop_wakeup(records, loop_tid, due_s, end_s)
+    if wake is None:
         return None
-    wake_s, cpu, waker = records[start][0], records[start][1], records[start][2]
-    idle = waker == 0  # woken on an idle CPU: it owes the loop its switch at once; a busy one runs its task on
+    woken = records[wake]
+    idle = woken.tid == 0  # woken on an idle CPU: it owes the loop its switch at once; a busy one runs its task on
     in_handler_since: float | None = None
     in_interrupts_s = silent_s = 0.0
-    previous_s = wake_s
-    for t_s, record_cpu, tid, event, _rest in records[start + 1 :]:
-        if record_cpu != cpu:
+    previous_s = woken.t_s
+    for r in records[wake + 1 :]:
+        if r.cpu != woken.cpu:
             continue
-        if idle and in_handler_since is None and t_s - previous_s > SILENT_GAP_S:
-            silent_s += t_s - previous_s
-        if event.endswith("_entry") and not event.startswith("softirq"):
-            in_handler_since = t_s
-        elif event.endswith("_exit") and not event.startswith("softirq") and in_handler_since is not None:
-            in_interrupts_s += t_s - in_handler_since
+        if idle and in_handler_since is None and r.t_s - previous_s > SILENT_GAP_S:
+            silent_s += r.t_s - previous_s
+        hard_interrupt = not r.event.startswith("softirq")
+        if r.event.endswith("_entry") and hard_interrupt:
+            in_handler_since = r.t_s
+        elif r.event.endswith("_exit") and hard_interrupt and in_handler_since is not None:
+            in_interrupts_s += r.t_s - in_handler_since
             in_handler_since = None
-        previous_s = t_s
-        if tid == loop_tid:
-            return WakeToRun(t_s - wake_s, in_interrupts_s, silent_s)
+        previous_s = r.t_s
+        if r.tid == loop_tid:
+            return WakeToRun(r.t_s - woken.t_s, in_interrupts_s, silent_s)
     return None
 
 
-def _loop_tid(lines: list[str]) -> int | None:
+def _loop_tid(records: list[Record]) -> int | None:
     """The loop thread: the task woken at the loop's real-time priority (SCHED_FIFO 10: ftrace's prio 89)."""
-    for line in lines:
-        if "sched_wakeup" in line and "prio=89 " in line and (pid := re.search(r" pid=(\d+) ", line)):
+    for r in records:
+        if r.event == "sched_wakeup" and "prio=89 " in r.rest and (pid := re.search(r" pid=(\d+) ", f" {r.rest}")):
             return int(pid.group(1))
     return None
 
@@ -260,12 +267,12 @@ def summarize_capture(path: Path) -> dict[str, Any]:
     interval = _INTERVAL.search(message)
     late = _LATE.search(message)
     interval_s = float(interval.group(1)) / 1e3 if interval else 0.05
-    lines = [line for line in text[2:] if not line.startswith("#")]
-    silence = busy_cpu_silence(lines, event_s - interval_s, event_s)
-    loop_tid = _loop_tid(lines)
+    records = parse_records(text[2:])
+    silence = busy_cpu_silence(records, event_s - interval_s, event_s)
+    loop_tid = _loop_tid(records)
     late_s = float(late.group(1)) / 1e3 if late else 0.0
-    timer_delay_s = None if loop_tid is None else idle_timer_delay_s(lines, loop_tid, event_s - late_s, event_s)
-    to_run = None if loop_tid is None else wake_to_run(lines, loop_tid, event_s - late_s, event_s)
+    timer_delay_s = None if loop_tid is None else idle_timer_delay_s(records, loop_tid, event_s - late_s, event_s)
+    to_run = None if loop_tid is None else wake_to_run(records, loop_tid, event_s - late_s, event_s)
     return {
         "file": path.name,
         "cause": event.get("cause"),

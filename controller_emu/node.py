@@ -21,7 +21,7 @@ may run on a subscriber's thread while ``cycle`` runs on the loop's: the little 
 from __future__ import annotations
 
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -100,6 +100,10 @@ class _Accepted:
     accepted_mono_ns: int
 
 
+PENDING_KEPT = 8
+"""Accepted overrides kept until a cycle takes them (one a gateway period arrives per cycle; the oldest goes)."""
+
+
 class ControllerNode:
     """One emulated controller: its program, its override watchdog and the joint state it reports.
 
@@ -123,7 +127,8 @@ class ControllerNode:
         self._last_mono_ns: int | None = None
         self._seq = 0
         self._lock = threading.Lock()
-        self._pending: _Accepted | None = None
+        self._pending: deque[_Accepted] = deque(maxlen=PENDING_KEPT)
+        """Accepted overrides not applied yet, in order of arrival (each newer than the one before)."""
         self._newest_stamp_ns = -1
         self._rejected: Counter[str] = Counter()
 
@@ -152,7 +157,7 @@ class ControllerNode:
         with self._lock:
             reason = check_override(message, self.robot, self._newest_stamp_ns, now.wall_ns, self.config.watchdog_s)
             if reason is None:
-                self._pending = _Accepted(message, now.mono_ns)
+                self._pending.append(_Accepted(message, now.mono_ns))
                 self._newest_stamp_ns = message.stamp_ns
             else:
                 self._rejected[reason] += 1
@@ -172,11 +177,9 @@ class ControllerNode:
         """
         now_mono_ns = now.mono_ns
         with self._lock:
-            pending = self._pending
-            if pending is not None and pending.accepted_mono_ns <= now_mono_ns:
-                self._pending = None
-            else:
-                pending = None  # arrived after this cycle's time: the next cycle applies it
+            pending = None  # the newest that arrived by this cycle's time; later ones wait for the next cycle
+            while self._pending and self._pending[0].accepted_mono_ns <= now_mono_ns:
+                pending = self._pending.popleft()
         before = self._state
         state = before if pending is None else apply_override(before, pending.message, pending.accepted_mono_ns)
         dt_s = self.config.cycle_s if self._last_mono_ns is None else (now_mono_ns - self._last_mono_ns) / 1e9

@@ -98,18 +98,20 @@ def test_a_busy_cpu_that_records_nothing_for_longer_than_a_tick_is_the_longest_s
         _rec(10.019, 0, "python", 50, "local_timer_entry", "vector=236"),
         _rec(10.020, 1, "<idle>", 0, "local_timer_entry", "vector=236"),
     ]
-    silence = stall_trace.busy_cpu_silence(lines, 9.99, 10.03)
+    records = stall_trace.parse_records(["# tracer: nop", *lines])
+    assert len(records) == len(lines)
+    silence = stall_trace.busy_cpu_silence(records, 9.99, 10.03)
     assert silence is not None
     assert silence.cpu == 0
     assert silence.tid == 50
     assert silence.duration_s == pytest.approx(0.014)
-    assert stall_trace.busy_cpu_silence(lines, 10.006, 10.010).duration_s == pytest.approx(0.004)  # clipped
+    assert stall_trace.busy_cpu_silence(records, 10.006, 10.010).duration_s == pytest.approx(0.004)  # clipped
 
 
 def test_an_idle_cpu_that_takes_the_loops_timer_late_is_the_hosts_delay() -> None:
     """The loop (tid 42, woken at the loop's real-time priority) is due at 10.010 on idle CPU 0, which records its
     timer only at 10.0145; woken on a busy CPU instead, there is no idle delay to tell."""
-    idle_then_late = [
+    idle_then_late_lines = [
         _rec(
             10.000,
             0,
@@ -121,9 +123,10 @@ def test_an_idle_cpu_that_takes_the_loops_timer_late_is_the_hosts_delay() -> Non
         _rec(10.0145, 0, "<idle>", 0, "local_timer_entry", "vector=236"),
         _rec(10.0146, 0, "<idle>", 0, "sched_wakeup", "comm=python pid=42 prio=89 target_cpu=000"),
     ]
+    idle_then_late = stall_trace.parse_records(idle_then_late_lines)
     assert stall_trace._loop_tid(idle_then_late) == 42
     assert stall_trace.idle_timer_delay_s(idle_then_late, 42, 10.010, 10.02) == pytest.approx(0.0045)
-    busy = [
+    busy_lines = [
         _rec(
             10.000,
             0,
@@ -134,5 +137,26 @@ def test_an_idle_cpu_that_takes_the_loops_timer_late_is_the_hosts_delay() -> Non
         ),
         _rec(10.0145, 0, "python", 50, "sched_wakeup", "comm=python pid=42 prio=89 target_cpu=000"),
     ]
+    busy = stall_trace.parse_records(busy_lines)
     assert stall_trace.idle_timer_delay_s(busy, 42, 10.010, 10.02) is None
     assert stall_trace.idle_timer_delay_s(idle_then_late, 42, 10.016, 10.02) is None  # woken before it was due
+
+
+def test_from_the_loops_wake_up_to_its_running_the_idle_cpus_interrupts_and_silence_are_the_hosts() -> None:
+    """Woken on idle CPU 0 at 10.0146, the CPU spends 0.5 ms in a timer interrupt and records nothing for 0.4 and
+    1.5 ms around it; the loop's first record comes at 10.0170. A record of another CPU meanwhile changes nothing."""
+    records = stall_trace.parse_records(
+        [
+            _rec(10.0146, 0, "<idle>", 0, "sched_wakeup", "comm=python pid=42 prio=89 target_cpu=000"),
+            _rec(10.0150, 0, "<idle>", 0, "local_timer_entry", "vector=236"),
+            _rec(10.0152, 1, "python", 50, "sched_wakeup", "comm=python pid=60 prio=120 target_cpu=001"),
+            _rec(10.0155, 0, "<idle>", 0, "local_timer_exit", "vector=236"),
+            _rec(10.0170, 0, "python", 42, "sys_exit", "NR 202 = 0"),
+        ]
+    )
+    run = stall_trace.wake_to_run(records, 42, 10.014, 10.02)
+    assert run is not None
+    assert run.total_s == pytest.approx(0.0024)
+    assert run.in_interrupts_s == pytest.approx(0.0005)
+    assert run.silent_s == pytest.approx(0.0019)
+    assert stall_trace.wake_to_run(records, 42, 10.017, 10.02) is None  # woken before it was due

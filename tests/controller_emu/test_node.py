@@ -95,6 +95,17 @@ def test_an_override_that_arrived_after_the_cycles_time_waits_for_the_next_cycle
     assert applied.joint_state.stamp_ns >= T0_NS + 6 * MS_NS  # never stamped before the gateway sent it
 
 
+def test_an_override_that_arrived_in_time_is_applied_though_a_newer_one_came_after_the_cycles_time(
+    node: ControllerNode,
+) -> None:
+    """Seq 4 arrived at 3 ms, seq 5 at 9 ms; the cycle at 8 ms applies seq 4 (not nothing: the newer one must not
+    push out the one that was there), the cycle at 12 ms seq 5."""
+    assert node.on_override(_payload(0.4, T0_NS + 2 * MS_NS, seq=4), _at(3 * MS_NS)) is None
+    assert node.on_override(_payload(0.7, T0_NS + 8 * MS_NS, seq=5), _at(9 * MS_NS)) is None
+    assert node.cycle(_at(8 * MS_NS)).joint_state.override_seq == 4
+    assert node.cycle(_at(12 * MS_NS)).joint_state.override_seq == 5
+
+
 def test_the_watchdog_counts_from_arrival(node: ControllerNode, config: ControllerConfig) -> None:
     arrival_ns = 1 * MS_NS
     assert node.on_override(_payload(1.0, T0_NS), Clocks(wall_ns=T0_NS, mono_ns=arrival_ns)) is None

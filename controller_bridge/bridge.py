@@ -494,31 +494,52 @@ def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns:
     return None
 
 
-STAMP_CATCH_UP = 1e-3
-"""A stamp advances by the controller's own time step times (1 + this), so that it catches up with the receive time
-after a late reading and follows a controller clock a little slower than the bridge's."""
+STAMP_WINDOW_S = 1.0
+"""The controller time over which :class:`StampClock` takes its smallest offset [s]: long enough that a late reading
+(the bridge's thread descheduled, packages bunched) is never the smallest, short enough that a controller clock
+slower than the bridge's by r drags the stamps at most r × this into the past (1 ms at r = 1e-3, an NTP slew is at
+most 5e-4)."""
 
 
-STAMP_MAX_LAG_S = 0.002
-"""A stamp is at most this much before the arrival: a controller clock that runs slow (an emulator's ticks slipping
-under load) never drags the stamps far into the past, and an echo's stamp stays within the gateway's clock
-tolerance of the send it confirms (``streams.max_future_stamp_s``, 5 ms by default)."""
+class StampClock:
+    """The joint states' stamps [ns, the bridge's wall clock] from the controller's own time, where the vendor gives
+    one (RTDE ``timestamp``).
 
+    Each reading's offset is its arrival minus its controller time; the stamp is its controller time plus the
+    smallest offset of the readings of the last :data:`STAMP_WINDOW_S` of controller time (a sliding minimum). A
+    reading's arrival is never before it was taken, so the smallest offset is the one nearest the true one: a reading
+    received late keeps the time it was taken (two readings taken 2 ms apart and received 0.5 ms apart stay 2 ms
+    apart: the gateway's ``q_jump`` check; a late one does not look fresher than it is: its age counts in the
+    gateway's delay), and no stamp is after its reading's arrival. Without the controller's time, or when it does
+    not advance by (0, 1] s (a restarted controller, a gap): the arrival, and the window starts again.
 
-def joint_state_stamp_ns(received_wall_ns: int, previous_stamp_ns: int | None, controller_dt_s: float | None) -> int:
-    """The joint state's stamp [ns, the bridge's wall clock].
-
-    Where the vendor gives the controller's own time (RTDE ``timestamp``), a stamp advances by the controller's time
-    step since the previous reading, but never past the receive time: a reading the bridge received late (its
-    thread descheduled, packages bunched) keeps the time it was taken, so two readings received 0.5 ms apart but
-    taken 2 ms apart do not look like a joint moving four times faster (the gateway's ``q_jump`` check). Never after
-    the receive time: a joint state is never younger than it is. Without the controller's time, or after a gap:
-    the receive time. At most :data:`STAMP_MAX_LAG_S` before the receive time.
+    Clamping a late reading's stamp to its arrival instead (what this replaced) made it look younger by its lateness
+    and the interval to the next reading shorter than the motion between them (``q_jump`` under load).
     """
-    if previous_stamp_ns is None or controller_dt_s is None or not 0.0 < controller_dt_s <= 1.0:
-        return received_wall_ns
-    predicted_ns = previous_stamp_ns + round(controller_dt_s * (1.0 + STAMP_CATCH_UP) * NS_PER_S)
-    return min(received_wall_ns, max(predicted_ns, received_wall_ns - round(STAMP_MAX_LAG_S * NS_PER_S)))
+
+    def __init__(self, window_s: float = STAMP_WINDOW_S) -> None:
+        self._window_ns = round(window_s * NS_PER_S)
+        self._offsets: deque[tuple[int, int]] = deque()  # (controller ns, offset ns), offsets increasing
+        self._last_controller_ns: int | None = None
+
+    def stamp_ns(self, received_wall_ns: int, controller_time_s: float | None) -> int:
+        """The stamp of a reading received at ``received_wall_ns`` [ns] taken at ``controller_time_s`` [s]."""
+        if controller_time_s is None:
+            self._offsets.clear()
+            self._last_controller_ns = None
+            return received_wall_ns
+        controller_ns = round(controller_time_s * NS_PER_S)
+        last = self._last_controller_ns
+        if last is None or not 0 < controller_ns - last <= NS_PER_S:
+            self._offsets.clear()
+        self._last_controller_ns = controller_ns
+        offset_ns = received_wall_ns - controller_ns
+        while self._offsets and self._offsets[-1][1] >= offset_ns:
+            self._offsets.pop()
+        self._offsets.append((controller_ns, offset_ns))
+        while self._offsets[0][0] < controller_ns - self._window_ns:
+            self._offsets.popleft()
+        return controller_ns + self._offsets[0][1]
 
 
 def _time_s(reading: ControllerReading) -> float:
@@ -545,7 +566,7 @@ class Bridge:
         self._lock = threading.Lock()
         self._newest: _Accepted | None = None
         self._newest_stamp_ns = -1
-        self._stamp_ns: int | None = None  # the last joint state's stamp
+        self._stamp_clock = StampClock()
         self._overrides_rejected: Counter[str] = Counter()
         # writes
         self._handed: _Handed | None = None
@@ -726,16 +747,11 @@ class Bridge:
                 mode = "protective_stop"
             elif applied == 0.0 and nominal.override == 0.0:
                 mode = "stopped"  # the controller holds its input at 0 and the robot stands
-            controller_dt_s = (
-                None
-                if previous is None or reading.controller_time_s is None or previous.controller_time_s is None
-                else reading.controller_time_s - previous.controller_time_s
-            )
-            self._stamp_ns = joint_state_stamp_ns(reading.received_wall_ns, self._stamp_ns, controller_dt_s)
+            stamp_ns = self._stamp_clock.stamp_ns(reading.received_wall_ns, reading.controller_time_s)
             state = JointState(
                 robot=self.settings.robot,
                 seq=self._seq,
-                stamp_ns=self._stamp_ns,
+                stamp_ns=stamp_ns,
                 q=q.tolist(),
                 qd=qd.tolist(),
                 qd_nominal=nominal.qd_nominal_radps.tolist(),

@@ -63,11 +63,13 @@ class ControllerOutput:
         state: the controller's state after the cycle (the true state: the auditor checks it).
         joint_state: the contract's message to publish (state and ground-truth keys).
         mode_change: set when the mode changed in this cycle, else None.
+        cycle_mono_ns: the cycle's time, the state's sample time [ns, the controller's monotonic clock].
     """
 
     state: ControllerState
     joint_state: JointState
     mode_change: ModeChange | None
+    cycle_mono_ns: int = 0
 
 
 @dataclass(frozen=True)
@@ -193,7 +195,7 @@ class ControllerNode:
             accepted_ns = state.override_accepted_mono_ns
             silent_s = None if accepted_ns is None else (now_mono_ns - accepted_ns) / 1e9
             change = ModeChange(before=before.mode, after=state.mode, silent_s=silent_s)
-        return ControllerOutput(state=state, joint_state=message, mode_change=change)
+        return ControllerOutput(state=state, joint_state=message, mode_change=change, cycle_mono_ns=now_mono_ns)
 
     def stats(self) -> ControllerStats:
         """The current figures (safe to call from any thread)."""

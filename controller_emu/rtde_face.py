@@ -25,10 +25,16 @@ slider writes stop arriving for ``watchdog_s``: this emulates URScript
 real robot (the README says so). A non-finite or out-of-range fraction is not applied (counted ``slider_value``):
 the robot keeps its last value until the watchdog stops it, never a value the client did not mean.
 
-Outputs, built at each output period from the latest controller state (:meth:`RtdeFace.on_cycle`):
+Outputs, at each output period, of the latest controller cycle (:meth:`RtdeFace.on_cycle`) that this client has not
+had yet: every package is one cycle's data stamped with that cycle's time, as on the real controller, whose
+packages each carry one control cycle. The emulator's cycle is its own (``cycle_s``, 4 ms by default): at 500 Hz an
+output tick without a new cycle sends nothing, so a client gets one package per cycle; a cycle that came late is
+stamped late, never with the tick's time (a package stamped with its tick but carrying an older cycle made a joint
+look as if it moved a late cycle's distance in one period: the gateway's ``q_jump``).
 
-- ``target_speed_fraction``: the slider value last accepted, immediately (the next package after the write
-  carries it, as ``setSpeedSlider(x)`` → ``getTargetSpeedFraction()`` on the real controller);
+- ``target_speed_fraction``: the slider value in force at that cycle: a write is in the first package of the first
+  cycle after it (``setSpeedSlider(x)`` → ``getTargetSpeedFraction()`` on the real controller), never in the data
+  of a cycle before it;
 - ``speed_scaling``: while the program plays, the controller's ramp toward a raised slider: ``applied δ / slider``
   while the applied override is still below the slider (accelerating), else 1.0; 0.0 while the watchdog holds it
   stopped. So ``speed_scaling × target_speed_fraction`` (what drivers, and ur-rtde's ``getSpeedScalingCombined``,
@@ -37,8 +43,8 @@ Outputs, built at each output period from the latest controller state (:meth:`Rt
   time while the combined value already shows the new slider (a scaling is at most 1): the bridge covers that
   with its braking envelope (``controller_bridge/bridge.py``);
 - ``target_qd`` = applied δ × programmed velocity, and ``actual_qd`` the same (the emulated drive follows exactly);
-- ``actual_q``/``target_q``: the program's q; ``timestamp``: controller time [s] since the face started, in steps
-  of the 2 ms control period (an output at 125 Hz steps by 8 ms);
+- ``actual_q``/``target_q``: the program's q; ``timestamp``: the cycle's controller time [s] since the face was
+  made (its monotonic clock; cycles 4 ms apart on time, more after a late one; at 125 Hz every other cycle);
 - ``runtime_state`` 2 playing; in the watchdog's stop 3 pausing while δ still falls, then 4 paused;
   ``safety_mode`` 1 normal, 3 protective stop (the emulator's ``protective_stop``); ``robot_mode`` 7 running;
   ``robot_status_bits`` power on (+ program running); ``safety_status_bits`` normal or protective stopped.
@@ -50,7 +56,7 @@ answered "refused" and the connection stays, as the protocol means. Every error 
 (:meth:`RtdeFace.stats`); the server keeps serving the other clients.
 
 One thread serves every connection with a selector: before each output tick it reads every socket that has data,
-so a slider write that has arrived is in the next package built, at every client's frequency.
+so a slider write that has arrived is in the node before its next cycle.
 """
 
 from __future__ import annotations
@@ -63,10 +69,11 @@ import selectors
 import socket
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import NamedTuple
 
 from controller_emu.node import ControllerNode, ControllerOutput
 from hrc_contract.config import ConfigError
@@ -188,6 +195,14 @@ class _ProtocolError(Exception):
         self.message = message
 
 
+class _Cycle(NamedTuple):
+    """One controller cycle as the outputs show it."""
+
+    output: ControllerOutput
+    slider_fraction: float  # in force at the cycle
+    controller_time_s: float  # the cycle's time since the face was made
+
+
 @dataclass
 class _Client:
     sock: socket.socket
@@ -205,6 +220,7 @@ class _Client:
     next_input_id: int = 1
     owned: set[str] = field(default_factory=set)
     closing: bool = False
+    last_cycle: _Cycle | None = None  # the cycle its last package carried
 
 
 class RtdeFace:
@@ -240,8 +256,10 @@ class RtdeFace:
         self.port = port
         self._paced = paced
         self._clock = clock
-        self._latest: ControllerOutput | None = None
-        self._slider_fraction = 0.0
+        self._latest: _Cycle | None = None
+        self._t0_mono_ns = clock().mono_ns  # controller time 0
+        self._writes: deque[tuple[int, float]] = deque()  # accepted slider writes no cycle has taken: (mono ns, value)
+        self._slider_fraction = 0.0  # in force at the latest cycle
         self._override_seq = 0
         self._last_stamp_ns = -1
         self._owners: dict[str, _Client] = {}
@@ -286,8 +304,12 @@ class RtdeFace:
         log.info("RTDE face of %s on %s:%d", self.node.robot, self.host, self.port)
 
     def on_cycle(self, output: ControllerOutput) -> None:
-        """Store the latest controller state (the emulator's loop, every cycle; never blocks)."""
-        self._latest = output
+        """Store the latest controller cycle, with the slider in force at its time (the emulator's loop, every
+        cycle; waits only for the face's short critical sections)."""
+        with self._lock:
+            while self._writes and self._writes[0][0] <= output.cycle_mono_ns:
+                self._slider_fraction = self._writes.popleft()[1]
+            self._latest = _Cycle(output, self._slider_fraction, (output.cycle_mono_ns - self._t0_mono_ns) / 1e9)
 
     def tick(self, count: int = 1) -> None:
         """Send ``count`` control ticks of outputs now (only for ``paced=False``)."""
@@ -562,15 +584,16 @@ class RtdeFace:
             return
         self._override_seq += 1
         self._last_stamp_ns = stamp_ns
-        self._slider_fraction = fraction
         with self._lock:
+            self._writes.append((now.mono_ns, fraction))  # the node applies it at its first cycle at or after now
             self._slider_writes += 1
 
     # -- outputs -------------------------------------------------------------------------------------------------------
 
     def _send_outputs(self, tick: int) -> None:
         self._tick = tick
-        latest = self._latest
+        with self._lock:
+            latest = self._latest
         if latest is None:
             return
         values: Mapping[str, object] | None = None
@@ -579,15 +602,18 @@ class RtdeFace:
             recipe = client.output
             if not client.started or recipe is None or tick < client.next_tick:
                 continue
+            if client.last_cycle is latest:
+                continue  # no new cycle since its last package: the next tick sends it
             # The next package is due a whole number of periods later (ticks missed while late are skipped).
             client.next_tick += ((tick - client.next_tick) // client.divisor + 1) * client.divisor
             if client.outbuf:  # the last package is still queued: skip, as the real controller does
                 skipped += 1
                 continue
             if values is None:
-                values = output_values(latest, self._slider_fraction, tick * CONTROL_PERIOD_S)
+                values = output_values(latest.output, latest.slider_fraction, latest.controller_time_s)
             payload = rtde.encode_data(recipe, tuple(values[name] for name in recipe.names))
             self._queue(client, rtde.pack_message(MessageType.DATA_PACKAGE, payload))
+            client.last_cycle = latest
             sent += 1
         with self._lock:
             self._sent += sent

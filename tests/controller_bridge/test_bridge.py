@@ -916,21 +916,44 @@ def test_a_differenced_velocity_is_bounded_with_the_sampling_jitter() -> None:
 
 
 def test_a_late_reading_keeps_the_time_it_was_taken_and_no_stamp_is_younger_than_its_arrival() -> None:
-    from controller_bridge.bridge import joint_state_stamp_ns
+    from controller_bridge.bridge import StampClock
 
     ms = 1_000_000
-    first = joint_state_stamp_ns(100 * ms, None, None)
-    assert first == 100 * ms
-    # taken 2 ms later, received 3.5 ms late (the bridge was descheduled): at most 2 ms before its arrival
-    late = joint_state_stamp_ns(105_500_000, first, 0.002)
-    assert late == pytest.approx(103_500_000, abs=10_000)
-    # the next one, taken 2 ms after it, arrived 0.5 ms after the late one: 2 ms apart, not 0.5 ms
-    after = joint_state_stamp_ns(106 * ms, late, 0.002)
-    assert after - late == pytest.approx(2 * ms, abs=10_000)
-    # a controller clock that runs slow never drags the stamps more than 2 ms into the past
-    slow = joint_state_stamp_ns(150 * ms, after, 0.002)
-    assert slow == 148 * ms
-    # never younger than its arrival; without the controller's time, or after a gap: the arrival
-    assert joint_state_stamp_ns(101 * ms, first, 0.002) == 101 * ms
-    assert joint_state_stamp_ns(107 * ms, after, None) == 107 * ms
-    assert joint_state_stamp_ns(107 * ms, after, 5.0) == 107 * ms
+    clock = StampClock()
+    assert clock.stamp_ns(100 * ms, 10.000) == 100 * ms  # the first: its arrival
+    assert clock.stamp_ns(102_300_000, 10.002) == 102 * ms  # 0.3 ms slower than the first: the first's offset
+    # taken 2 ms later, received 9 ms late (the bridge was descheduled): the time it was taken, not near its arrival
+    late = clock.stamp_ns(113 * ms, 10.004)
+    assert late == 104 * ms
+    # the next ones, taken 2 ms apart, arrived bunched right after: 2 ms apart, as taken (the gateway's q_jump)
+    after = clock.stamp_ns(113_200_000, 10.006)
+    assert after - late == 2 * ms
+    assert clock.stamp_ns(113_400_000, 10.008) - after == 2 * ms
+    # one that arrives faster than every earlier one: its arrival (never younger than it is), later than the last
+    fast = clock.stamp_ns(109_900_000, 10.010)
+    assert fast == 109_900_000
+    # without the controller's time, after a gap, or when it goes back (a restarted controller): the arrival
+    assert clock.stamp_ns(120 * ms, None) == 120 * ms
+    assert clock.stamp_ns(125 * ms, 10.012) == 125 * ms
+    assert clock.stamp_ns(126 * ms, 11.5) == 126 * ms
+    assert clock.stamp_ns(127 * ms, 0.002) == 127 * ms
+
+
+def test_stamps_follow_a_slow_controller_clock_within_the_window_and_never_go_back() -> None:
+    """A controller clock 1e-3 slower than the bridge's: stamps lag the arrivals by at most 1e-3 × the window."""
+    from controller_bridge.bridge import STAMP_WINDOW_S, StampClock
+
+    clock = StampClock()
+    rng = np.random.default_rng(1)
+    previous = None
+    worst_lag_ns = 0
+    for k in range(5000):  # 10 s at 500 Hz
+        controller_s = 3.0 + k * 0.002
+        taken_ns = 1_000_000_000 + round(k * 0.002 * 1.001 * 1e9)  # the bridge's clock runs 1e-3 faster
+        received_ns = taken_ns + 50_000 + int(rng.exponential(300_000))  # 50 µs and a queue
+        stamp = clock.stamp_ns(received_ns, controller_s)
+        assert stamp <= received_ns
+        assert previous is None or stamp > previous
+        previous = stamp
+        worst_lag_ns = max(worst_lag_ns, taken_ns + 50_000 - stamp)
+    assert worst_lag_ns <= 1e-3 * STAMP_WINDOW_S * 1e9 + 100_000

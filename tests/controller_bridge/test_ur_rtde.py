@@ -107,11 +107,14 @@ def test_writes_stopping_is_a_protective_stop(face: RtdeFace, node: ControllerNo
 def test_read_returns_the_newest_package(face: RtdeFace, node: ControllerNode, clock: FakeClock) -> None:
     interface = UrRtdeInterface(face.host, frequency_hz=500.0)
     interface.connect()
-    face.tick(3)
-    _wait(lambda: face.stats().packages_sent == 3)
+    for k in range(3):  # three cycles, three packages
+        face.on_cycle(node.cycle(clock.advance(0.004)))
+        face.tick(2)
+        _wait(lambda n=k + 1: face.stats().packages_sent == n)
     interface.write_speed_fraction(0.25)
     _wait(lambda: face.stats().slider_writes == 1)
-    face.tick()
+    face.on_cycle(node.cycle(clock.advance(0.004)))
+    face.tick(2)
     _wait(lambda: face.stats().packages_sent == 4)
     assert interface.read(timeout_s=5.0).speed_fraction == 0.25
     with pytest.raises(VendorError) as caught:

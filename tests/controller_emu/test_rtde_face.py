@@ -42,6 +42,8 @@ OUTPUTS = [
     "robot_mode",
 ]
 ROOT = Path(__file__).resolve().parents[2]
+CYCLE_S = ControllerConfig().cycle_s
+"""The emulated controller's cycle [s] (the child below runs at it)."""
 
 _SERVER = r"""
 import json, sys, threading
@@ -135,7 +137,8 @@ def test_ur_rtde_reads_back_the_slider_within_two_output_periods(
     _wait_for(lambda: receive.getSpeedScalingCombined() == pytest.approx(fraction), "the ramp reaching the slider")
     assert receive.getSafetyMode() == rtde.SAFETY_NORMAL
     assert receive.getRobotMode() == rtde.ROBOT_MODE_RUNNING
-    assert statistics.median(periods) <= 2, periods
+    # the write is in the first cycle after it (the emulator's 4 ms), then in that cycle's package (one period)
+    assert statistics.median(periods) <= 2 + CYCLE_S * frequency_hz, periods
     io.disconnect()
     receive.disconnect()
     assert process.stdin is not None
@@ -237,11 +240,11 @@ def _slider_recipe(client: RawClient) -> Recipe:
     return Recipe(recipe_id, names, types)
 
 
-@pytest.mark.parametrize(("frequency_hz", "ticks_per_package"), [(500.0, 1), (125.0, 4)])
-def test_a_slider_write_is_in_the_next_package_at_every_frequency(
+@pytest.mark.parametrize(("frequency_hz", "ticks_per_package"), [(500.0, 2), (125.0, 4)])
+def test_a_slider_write_is_in_the_first_package_of_the_next_cycle_at_every_frequency(
     node: ControllerNode, frequency_hz: float, ticks_per_package: int
 ) -> None:
-    """Write, then one output period of control ticks: the package it brings carries the new slider value."""
+    """Write (the face has it), then one controller cycle and one package's ticks: that package shows it."""
     clock = FakeClock()
     host = "127.0.41.21" if frequency_hz == 500.0 else "127.0.41.22"
     with _face(node, host, clock) as face:
@@ -253,29 +256,60 @@ def test_a_slider_write_is_in_the_next_package_at_every_frequency(
         for i in range(20):
             fraction = 0.1 + 0.04 * i
             writer.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 1, fraction)))
-            packages = 0
-            while True:
-                face.tick(ticks_per_package)
-                message = reader.receive()
-                packages += 1
-                values = dict(zip(OUTPUTS, rtde.decode_data(outputs, message.payload), strict=True))
-                if values["target_speed_fraction"] == fraction or packages > 5:
-                    break
-            assert packages <= 2  # 1 unless the kernel delivered the write after the tick request
+            _wait_for(lambda n=i + 1: face.stats().slider_writes == n, "the slider write")
+            face.on_cycle(node.cycle(clock.advance(0.004)))
+            face.tick(ticks_per_package)
+            values = dict(zip(OUTPUTS, rtde.decode_data(outputs, reader.receive().payload), strict=True))
+            assert values["target_speed_fraction"] == fraction
         assert face.stats().slider_writes == 20
         reader.close()
         writer.close()
 
 
-def test_output_timestamps_step_by_the_output_period(node: ControllerNode) -> None:
+def test_a_write_is_never_in_the_data_of_a_cycle_before_it(node: ControllerNode) -> None:
+    """The cycle before the write is sent after it: it shows the old slider; the next cycle the new one."""
+    clock = FakeClock()
+    with _face(node, "127.0.41.31", clock) as face:
+        reader, writer = RawClient("127.0.41.31"), RawClient("127.0.41.31")
+        outputs = reader.handshake(500.0)
+        assert rtde.decode_accepted(reader.request(MessageType.CONTROL_PACKAGE_START))
+        writer.handshake()
+        slider = _slider_recipe(writer)
+        face.on_cycle(node.cycle(clock.advance(0.004)))  # taken before the write
+        clock.advance(0.001)
+        writer.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 1, 0.45)))
+        _wait_for(lambda: face.stats().slider_writes == 1, "the slider write")
+        face.tick(2)
+        before = dict(zip(OUTPUTS, rtde.decode_data(outputs, reader.receive().payload), strict=True))
+        assert before["target_speed_fraction"] == 0.0
+        face.on_cycle(node.cycle(clock.advance(0.003)))
+        face.tick(2)
+        after = dict(zip(OUTPUTS, rtde.decode_data(outputs, reader.receive().payload), strict=True))
+        assert after["target_speed_fraction"] == 0.45
+        assert after["timestamp"] - before["timestamp"] == pytest.approx(0.004)
+        reader.close()
+        writer.close()
+
+
+def test_output_timestamps_are_the_times_of_the_cycles_they_carry(node: ControllerNode) -> None:
+    """One package per new cycle, stamped with the cycle's time (a late cycle late); a tick without a new cycle
+    sends nothing."""
     clock = FakeClock()
     with _face(node, "127.0.41.23", clock) as face:
         client = RawClient("127.0.41.23")
-        outputs = client.handshake(125.0)
+        outputs = client.handshake(500.0)
         assert rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
-        face.tick(12)
-        stamps = [rtde.decode_data(outputs, client.receive().payload)[0] for _ in range(3)]
-        assert stamps == pytest.approx([0.002, 0.010, 0.018])
+        stamps = []
+        for step_s in (0.004, 0.004, 0.011, 0.004):  # the third cycle 7 ms late
+            face.on_cycle(node.cycle(clock.advance(step_s)))
+            face.tick(3)  # three output periods: one package, the cycle's
+            stamps.append(rtde.decode_data(outputs, client.receive().payload)[0])
+        assert stamps == pytest.approx([0.004, 0.008, 0.019, 0.023])
+        face.tick(3)  # no new cycle: nothing; the next package is the next cycle's
+        face.on_cycle(node.cycle(clock.advance(0.004)))
+        face.tick(1)
+        assert rtde.decode_data(outputs, client.receive().payload)[0] == pytest.approx(0.027)
+        assert face.stats().packages_sent == 5
         client.close()
 
 
@@ -403,7 +437,7 @@ def test_hostile_bytes_disconnect_that_client_only(node: ControllerNode, raw: by
         assert hostile.closed()
         assert face.stats().errors[reason] == 1
         face.tick()
-        assert rtde.decode_data(outputs, good.receive().payload)[0] == pytest.approx(0.002)
+        assert rtde.decode_data(outputs, good.receive().payload)[0] == 0.0  # the good client still served: the cycle
         good.close()
         hostile.close()
 

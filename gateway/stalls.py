@@ -37,7 +37,10 @@ ran at least half of it during its ``sleep`` phase, whose own code takes microse
 the thread. On the development VM a kernel trace (``bench/stall_trace.py``) shows it is the host's: timer interrupts
 of 0.3–1.5 ms instead of ~10 µs, the loop's CPU recording nothing for milliseconds after the loop was woken, a wait
 for the interpreter lock that stays on the CPU; on bare metal it would be interrupts and softirqs, which a kernel
-without ``CONFIG_IRQ_TIME_ACCOUNTING`` charges to the running thread), ``unknown``. A stall with ``missed`` ticks
+without ``CONFIG_IRQ_TIME_ACCOUNTING`` charges to the running thread); a late wake-up that none of these explains
+alone goes to the largest of its run-queue wait (``runqueue``), blocked time (``blocked``, or ``stolen`` if it did not
+block again) and CPU time in its sleep (``kernel``) if the three together cover at least half the lateness (a stall
+of several parts: its message gives each); else ``unknown``. A stall with ``missed`` ticks
 counts them all for its cause, so the missed ticks by cause add up to the status's ``loop.missed_cycles``.
 """
 
@@ -224,6 +227,15 @@ def attribute(sample: StallSample) -> str:
         return "blocked"
     if sample.sleep_cpu_ns is not None and sample.sleep_cpu_ns >= half_late_ns:
         return "kernel"
+    # Several parts, none half: the largest, if the parts (disjoint: on a run queue, blocked, on a CPU in its sleep)
+    # together cover half the lateness. A collection overlaps the blocked time it causes: it is not one of the parts.
+    parts = {
+        "runqueue": sample.runqueue_ns or 0,
+        "stolen" if sample.blocked_again is False else "blocked": blocked_ns or 0,
+        "kernel": sample.sleep_cpu_ns or 0,
+    }
+    if sum(parts.values()) >= half_late_ns:
+        return max(parts, key=lambda cause: parts[cause])
     return "unknown"
 
 

@@ -276,7 +276,9 @@ class LoopStatus(_Strict):
         "while blocked on nothing but its sleep: the CPU did not run, e.g. the hypervisor's steal), ``phase:<name>`` "
         "(the loop's own work ran past the due time), ``blocked`` (woke late without being runnable: the interpreter "
         "lock or the process stopped), ``kernel`` (woke late, the thread's CPU clock running during its sleep: "
-        "kernel time charged to it, e.g. a virtual machine's host), ``unknown``. Each is logged as an event "
+        "kernel time charged to it, e.g. a virtual machine's host); a late wake-up that none of these explains "
+        "alone goes to the largest of its run-queue wait, blocked time and CPU time in its sleep if together they "
+        "cover half the lateness; else ``unknown``. Each is logged as an event "
         "``loop_stall`` with its figures.",
     )
     missed_by_cause: dict[str, Count] = Field(

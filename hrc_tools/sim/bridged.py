@@ -12,12 +12,13 @@ What is real code and what is modelled:
   rate, woken at once by every override; a reader per output package or per poll);
 - the readings: built from the emulated controller's state by the faces' own functions and checked by the bridge's
   own parsers. UR (:func:`controller_emu.rtde_face.output_values`, then
-  :func:`controller_bridge.ur_rtde.reading_from_values`): one package every output period (2 ms at 500 Hz, 8 ms at
-  125 Hz) on the face's 2 ms control ticks, built from the controller's latest cycle, so ``target_speed_fraction``
-  shows a slider write in the first package after it and ``speed_scaling × target_speed_fraction`` the applied
-  override while it ramps up. ABB (the RWS documents of :mod:`controller_emu.rws_face` parsed by
-  :mod:`controller_bridge.abb_rws`): a poll every ``poll_rate_hz`` of three requests in sequence (speed ratio,
-  execution state, joint target: q printed ``.7g`` in degrees), no velocities (the bridge differentiates q);
+  :func:`controller_bridge.ur_rtde.reading_from_values`): on the face's 2 ms control ticks, every output period
+  (2 ms at 500 Hz, 8 ms at 125 Hz), a package of the controller's latest cycle if it is new (one per cycle), stamped
+  with the cycle's time, so ``target_speed_fraction`` shows a slider write in the first package of the first cycle
+  after it and ``speed_scaling × target_speed_fraction`` the applied override while it ramps up. ABB (the RWS
+  documents of :mod:`controller_emu.rws_face` parsed by :mod:`controller_bridge.abb_rws`): a poll every
+  ``poll_rate_hz`` of three requests in sequence (speed ratio, execution state, joint target: q printed ``.7g`` in
+  degrees), no velocities (the bridge differentiates q);
 - the writes: UR's slider is a double written as given (one package, no answer); ABB's speed ratio an integer
   percent rounded down (:func:`controller_bridge.abb_rws.speed_ratio_pct`), a POST whose 204 returns after a round
   trip. Reads and writes of ABB share one keep-alive HTTP connection (the interface holds a lock), so a write waits
@@ -220,6 +221,8 @@ class SimBridge:
             reader_first_ns = phase_ns[1]
             self._face = _Face(1.0)
         self._latest: ControllerOutput | None = None
+        self._latest_slider = self._face.value  # UR: the slider in force at the latest cycle
+        self._sent_cycle: ControllerOutput | None = None  # UR: the cycle the last package carried
         self._queue: list[_Event] = []
         self._order = 0
         self._writer_busy = False  # ABB: the writer waits for its POST's answer
@@ -235,8 +238,9 @@ class SimBridge:
     # -- the cell's side ------------------------------------------------------------------------------------------
 
     def on_cycle(self, output: ControllerOutput) -> None:
-        """The controller's latest cycle (the face serves it until the next one)."""
+        """The controller's latest cycle (the face serves it until the next one), with the slider then in force."""
         self._latest = output
+        self._latest_slider = self._face.value
 
     def next_event_ns(self) -> int:
         """When something happens next: an override arrives, or a write, reading or tick is due [ns]."""
@@ -323,11 +327,12 @@ class SimBridge:
     # -- UR: output packages --------------------------------------------------------------------------------------
 
     def _output(self, t_ns: int) -> None:
-        """An output tick: the package of the latest controller cycle, on its way to the bridge."""
+        """An output tick: the package of the latest controller cycle, if new, on its way to the bridge."""
         latest = self._latest
-        if latest is None:
+        if latest is None or latest is self._sent_cycle:
             return
-        values = dict(output_values(latest, self._face.value, t_ns / NS_PER_S))
+        self._sent_cycle = latest
+        values = dict(output_values(latest, self._latest_slider, latest.cycle_mono_ns / NS_PER_S))
         truth = self.node.trajectory.sample(latest.state.tau_s)[1]
         self._push(t_ns + self._latency_ns, "package", (values, truth))
 

@@ -75,7 +75,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import NamedTuple
 
-from controller_emu.node import ControllerNode, ControllerOutput
+from controller_emu.node import PENDING_KEPT, ControllerNode, ControllerOutput
 from hrc_contract.config import ConfigError
 from hrc_contract.messages import Override, to_payload
 from hrc_runtime import rtde
@@ -258,7 +258,8 @@ class RtdeFace:
         self._clock = clock
         self._latest: _Cycle | None = None
         self._t0_mono_ns = clock().mono_ns  # controller time 0
-        self._writes: deque[tuple[int, float]] = deque()  # accepted slider writes no cycle has taken: (mono ns, value)
+        # accepted slider writes no cycle has taken yet: (mono ns, value), as many as the node keeps of its overrides
+        self._writes: deque[tuple[int, float]] = deque(maxlen=PENDING_KEPT)
         self._slider_fraction = 0.0  # in force at the latest cycle
         self._override_seq = 0
         self._last_stamp_ns = -1

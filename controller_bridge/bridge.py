@@ -514,31 +514,37 @@ class StampClock:
     not advance by (0, 1] s (a restarted controller, a gap): the arrival, and the window starts again.
 
     Clamping a late reading's stamp to its arrival instead (what this replaced) made it look younger by its lateness
-    and the interval to the next reading shorter than the motion between them (``q_jump`` under load).
+    and the interval to the next reading shorter than the motion between them (``q_jump`` under load). Whatever the
+    controller's clock does, a stamp is at most :data:`STAMP_WINDOW_S` before its arrival (the gateway then finds
+    the joint state stale: the robot stops).
     """
 
     def __init__(self, window_s: float = STAMP_WINDOW_S) -> None:
         self._window_ns = round(window_s * NS_PER_S)
-        self._offsets: deque[tuple[int, int]] = deque()  # (controller ns, offset ns), offsets increasing
-        self._last_controller_ns: int | None = None
+        self._offsets: deque[tuple[int, int]] = deque()  # (controller ns, offset ns), offsets increasing; newest last
 
     def stamp_ns(self, received_wall_ns: int, controller_time_s: float | None) -> int:
         """The stamp of a reading received at ``received_wall_ns`` [ns] taken at ``controller_time_s`` [s]."""
         if controller_time_s is None:
             self._offsets.clear()
-            self._last_controller_ns = None
             return received_wall_ns
         controller_ns = round(controller_time_s * NS_PER_S)
-        last = self._last_controller_ns
-        if last is None or not 0 < controller_ns - last <= NS_PER_S:
+        if self._offsets and not 0 < controller_ns - self._offsets[-1][0] <= NS_PER_S:
             self._offsets.clear()
-        self._last_controller_ns = controller_ns
         offset_ns = received_wall_ns - controller_ns
         while self._offsets and self._offsets[-1][1] >= offset_ns:
             self._offsets.pop()
         self._offsets.append((controller_ns, offset_ns))
-        while self._offsets[0][0] < controller_ns - self._window_ns:
-            self._offsets.popleft()
+        # out of the window on either clock: a controller clock that nearly stops cannot keep an old offset, so a
+        # stamp is never more than the window before its arrival
+        while True:
+            oldest_controller_ns, oldest_offset_ns = self._offsets[0]
+            oldest_arrival_ns = oldest_controller_ns + oldest_offset_ns
+            if oldest_controller_ns >= controller_ns - self._window_ns and (
+                oldest_arrival_ns >= received_wall_ns - self._window_ns
+            ):
+                break
+            self._offsets.popleft()  # never the newest: its times are this reading's
         return controller_ns + self._offsets[0][1]
 
 

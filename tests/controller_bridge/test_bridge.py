@@ -939,6 +939,20 @@ def test_a_late_reading_keeps_the_time_it_was_taken_and_no_stamp_is_younger_than
     assert clock.stamp_ns(127 * ms, 0.002) == 127 * ms
 
 
+def test_a_controller_clock_that_nearly_stops_lags_the_stamps_at_most_the_window() -> None:
+    """A hostile or broken controller whose time advances 1 µs per 2 ms package: stamps at most the window before
+    their arrival (the gateway then finds the joint state stale), never after it."""
+    from controller_bridge.bridge import STAMP_WINDOW_S, StampClock
+
+    clock = StampClock()
+    window_ns = round(STAMP_WINDOW_S * 1e9)
+    for k in range(2000):  # 4 s of arrivals, 2 ms of controller time
+        received_ns = 1_000_000_000 + k * 2_000_000
+        stamp = clock.stamp_ns(received_ns, 5.0 + k * 1e-6)
+        assert received_ns - window_ns <= stamp <= received_ns
+    assert received_ns - stamp >= window_ns - 2_000_000  # it does lag: the clock tells nothing
+
+
 def test_stamps_follow_a_slow_controller_clock_within_the_window_and_never_go_back() -> None:
     """A controller clock 1e-3 slower than the bridge's: stamps lag the arrivals by at most 1e-3 × the window."""
     from controller_bridge.bridge import STAMP_WINDOW_S, StampClock

@@ -34,9 +34,11 @@ the lateness), ``runqueue`` (the thread waited on a run queue at least half of i
 run, see above), ``phase:<name>`` (our own work ran past the due time, in that phase), ``blocked`` (the wake-up was
 late and the thread was blocked at least half of it), ``kernel`` (the wake-up was late and the thread's CPU clock
 ran at least half of it during its ``sleep`` phase, whose own code takes microseconds: time in the kernel charged to
-the thread. On the development VM a kernel trace (``bench/stall_trace.py``) shows it is the host's: timer interrupts
-of 0.3–1.5 ms instead of ~10 µs, the loop's CPU recording nothing for milliseconds after the loop was woken, a wait
-for the interpreter lock that stays on the CPU; on bare metal it would be interrupts and softirqs, which a kernel
+the thread; CPU time its clock shows before the sleep mark beyond the wall time before the mark counts there too: it
+ran between the mark's two clock reads, a microsecond of our code. On the development VM a kernel trace
+(``bench/stall_trace.py``) shows it is the host's: timer interrupts of 0.3–1.5 ms instead of ~10 µs, the loop's CPU
+recording nothing for milliseconds after the loop was woken, a wait for the interpreter lock that stays on the CPU;
+on bare metal it would be interrupts and softirqs, which a kernel
 without ``CONFIG_IRQ_TIME_ACCOUNTING`` charges to the running thread); a late wake-up that none of these explains
 alone goes to the largest of its run-queue wait (``runqueue``), blocked time (``blocked``, or ``stolen`` if it did not
 block again) and CPU time in its sleep (``kernel``) if the three together cover at least half the lateness (a stall
@@ -461,6 +463,8 @@ class StallMonitor:
         schedstat: the loop thread's schedstat (default: the calling thread's).
         gc_windows: the collections (default: new ones, installed in ``gc.callbacks`` until closed).
         others: the process's other Python threads (default: all but the calling one; read at each wake-up).
+        clock_ns: the monotonic clock of the phase marks [ns] (tests give their own).
+        cpu_clock_ns: the loop thread's CPU clock [ns] (tests give their own).
 
     Raises:
         ValueError: ``period_s`` or ``threshold_periods`` not > 0.
@@ -473,6 +477,8 @@ class StallMonitor:
         schedstat: ThreadSchedstat | None = None,
         gc_windows: GcWindows | None = None,
         others: OtherThreads | None = None,
+        clock_ns: Callable[[], int] = time.monotonic_ns,
+        cpu_clock_ns: Callable[[], int] = time.thread_time_ns,
     ) -> None:
         if not (period_s > 0.0 and threshold_periods > 0.0):
             raise ValueError(f"period_s = {period_s}, threshold_periods = {threshold_periods}; allowed: > 0")
@@ -485,12 +491,16 @@ class StallMonitor:
             self.gc_windows.install()
         self.trace = PhaseTrace()
         self.others = OtherThreads() if others is None else others
-        self._woke_ns = time.monotonic_ns()  # the first interval starts here
+        self._clock_ns = clock_ns
+        self._cpu_clock_ns = cpu_clock_ns
+        self._woke_ns = clock_ns()  # the first interval starts here
+        self._woke_cpu_ns = cpu_clock_ns()  # the loop's CPU clock then
         self._refreshed_ns = self._woke_ns
         self._stat: tuple[int, int, int] | None = self._schedstat.read()
         self._others_stat = self.others.read()
         self._missed_cycles = 0
-        self._sleep_cpu_ns: int | None = time.thread_time_ns()  # the loop's CPU clock at its last sleep mark
+        self._sleep_mark: tuple[int, int] | None = (self._woke_ns, self._woke_cpu_ns)
+        """The last sleep mark: its monotonic stamp and the loop's CPU clock read right after it [ns]."""
         self.stalls: dict[str, int] = {}
         """Stalls by cause since the start."""
         self.missed: dict[str, int] = {}
@@ -512,8 +522,9 @@ class StallMonitor:
             Either way the next iteration's trace begins (phase ``read``).
         """
         stat = self._schedstat.read()
+        cpu_now_ns = self._cpu_clock_ns()
         others_stat = self.others.read()
-        slept_from_cpu_ns, self._sleep_cpu_ns = self._sleep_cpu_ns, None
+        sleep_cpu_ns = self._sleep_cpu_ns(cpu_now_ns)
         record = None
         missed, self._missed_cycles = max(0, missed_cycles - self._missed_cycles), missed_cycles
         late_ns = round(late_s * NS_PER_S)
@@ -533,7 +544,7 @@ class StallMonitor:
                 runqueue_ns=runq_ns,
                 timeslices=timeslices,
                 others=self.others.between(self._others_stat, others_stat),
-                sleep_cpu_ns=None if slept_from_cpu_ns is None else time.thread_time_ns() - slept_from_cpu_ns,
+                sleep_cpu_ns=sleep_cpu_ns,
             )
             record = StallRecord(attribute(sample), missed, sample)
             self.stalls[record.cause] = self.stalls.get(record.cause, 0) + 1
@@ -542,15 +553,29 @@ class StallMonitor:
             self.others.refresh()
             others_stat = self.others.read()
             self._refreshed_ns = now_ns
-        self._woke_ns, self._stat, self._others_stat = now_ns, stat, others_stat
+        self._woke_ns, self._woke_cpu_ns, self._stat, self._others_stat = now_ns, cpu_now_ns, stat, others_stat
+        self._sleep_mark = None
         self.trace.restart(Phase.READ, now_ns)
         return record
 
     def enter(self, phase: Phase) -> None:
         """The loop thread enters ``phase`` now (at ``sleep``, its CPU clock is read too: 0.3 µs)."""
-        self.trace.enter(phase, time.monotonic_ns())
+        mark_ns = self._clock_ns()
+        self.trace.enter(phase, mark_ns)
         if phase is Phase.SLEEP:
-            self._sleep_cpu_ns = time.thread_time_ns()
+            self._sleep_mark = (mark_ns, self._cpu_clock_ns())
+
+    def _sleep_cpu_ns(self, cpu_now_ns: int) -> int | None:
+        """The loop thread's time on a CPU in its last ``sleep`` phase [ns], None if it did not sleep since the
+        previous wake-up: its CPU clock from the sleep mark to now, and the CPU time its clock shows before the mark
+        beyond the wall time there was before it (a thread is on a CPU at most as long as the time that passes: the
+        excess ran between the mark's two clock reads, where our code takes a microsecond: the thread was held on its
+        CPU there, by the kernel or a host that paused the machine, as in its sleep)."""
+        if self._sleep_mark is None:
+            return None
+        mark_ns, mark_cpu_ns = self._sleep_mark
+        before_mark_excess_ns = max(0, (mark_cpu_ns - self._woke_cpu_ns) - (mark_ns - self._woke_ns))
+        return cpu_now_ns - mark_cpu_ns + before_mark_excess_ns
 
     def close(self) -> None:
         if self._own_gc:

@@ -309,12 +309,10 @@ class TruthAuditor:
     # -- results -------------------------------------------------------------------------------------
 
     def n_items_stored(self) -> int:
-        """Figures the auditor holds that a long run could make grow (its memory bound, in items, not bytes)."""
+        """Figures the auditor holds that a long run could make grow (its memory bound, in items, not bytes; the
+        delay histograms are fixed arrays, allocated at the start)."""
         with self._lock:
-            per_robot = sum(
-                run.accumulator.n_items_stored + run.t_delay_s.n_buckets_stored + len(run.faults_seen)
-                for run in self._robots.values()
-            )
+            per_robot = sum(run.accumulator.n_items_stored + len(run.faults_seen) for run in self._robots.values())
             return per_robot + len(self._states) + len(self._humans) + len(self._gateway) + len(self.rejected)
 
     def summaries(self) -> dict[str, AuditSummary]:

@@ -196,7 +196,7 @@ def test_100k_status_documents_keep_the_auditor_bounded_with_the_same_figures(au
         auditor.on_status(template.replace(repr(marker), repr(delay_s)).encode())
     gateway = auditor.report(1.0)["robots"]["ur5"]["gateway"]
     assert auditor.status_received == 100_000
-    assert auditor.n_items_stored() <= 10_100  # 1 s / 0.1 ms buckets at most; a list held 100,000
+    assert auditor.n_items_stored() <= 100  # the histogram is a fixed array; a list held 100,000
     assert gateway["status_documents"] == 100_000
     assert gateway["t_delay_s_max"] == round(max(delays_s), 4)
     assert gateway["t_delay_s_median"] == pytest.approx(statistics.median(delays_s), abs=1e-4)

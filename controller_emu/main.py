@@ -40,6 +40,7 @@ from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
 from hrc_runtime.memory import configure_heap
+from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import freeze_startup_heap
 from hrc_runtime.robot_model import load_robot_model
@@ -285,7 +286,9 @@ def run_controller(
     override_key = keys.robot_override(cell, robot)
     vendor = rtde_host is not None or rws_address is not None
     with _open_session(listen, connect, zenoh_options) as session:
-        subscriber = None if vendor else session.declare_subscriber(override_key, _callback(node))
+        subscriber = (  # the newest overrides only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
+            None if vendor else declare_newest_wins(session, override_key, _callback(node), name="overrides")
+        )
         publishers = _declare_publishers(session, cell, robot, state=not vendor)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
         faces = _start_faces(node, rtde_host, rws_address)

@@ -1,0 +1,96 @@
+"""A newest-wins subscriber (hrc_runtime/newest_wins.py) between two real sessions over loopback: a burst keeps the
+newest samples only, a steady stream arrives whole and in order, a failing handler does not stop it, and the intake
+thread ends with the session."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+import zenoh
+
+from hrc_runtime.newest_wins import declare_newest_wins
+from hrc_runtime.zenoh_session import session_config
+from hrc_tools.cell.procs import free_port
+
+KEY = "test/newest_wins"
+
+
+def _wait_for(predicate, timeout_s: float = 5.0) -> bool:  # type: ignore[no-untyped-def]
+    end_s = time.monotonic() + timeout_s
+    while time.monotonic() < end_s:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return predicate()
+
+
+def _intake_threads(name: str) -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == name]
+
+
+def test_a_burst_behind_a_held_handler_keeps_only_the_newest_samples() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    held = threading.Event()
+    release = threading.Event()
+    received: list[int] = []
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        received.append(int(sample.payload.to_bytes()))
+        if len(received) == 1:  # the first sample holds the intake thread, as a frozen process would
+            held.set()
+            release.wait(10.0)
+
+    with (
+        zenoh.open(session_config(listen=[endpoint])) as receiver,
+        zenoh.open(session_config(connect=[endpoint])) as sender,
+    ):
+        subscriber = declare_newest_wins(receiver, KEY, on_sample, capacity=8, name="test-burst")
+        publisher = sender.declare_publisher(KEY, express=True)
+        assert _wait_for(lambda: publisher.matching_status.matching)
+        publisher.put(b"0")
+        assert held.wait(5.0)
+        for k in range(1, 501):
+            publisher.put(str(k).encode())
+        time.sleep(0.3)  # all of it arrived meanwhile, into the ring
+        release.set()
+        assert _wait_for(lambda: received and received[-1] == 500)
+        time.sleep(0.1)
+        del subscriber
+    assert received[0] == 0
+    assert 2 <= len(received) <= 1 + 8 + 1  # the held one, the ring, at most one more taken as the ring filled
+    assert received[1:] == sorted(received[1:])
+    assert received[1] > 400  # the oldest of the burst were dropped, not delivered late
+
+
+def test_a_steady_stream_arrives_whole_in_order_and_a_failing_handler_does_not_stop_it() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    received: list[int] = []
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        value = int(sample.payload.to_bytes())
+        received.append(value)
+        if value == 3:
+            raise RuntimeError("a handler that fails once")
+
+    with (
+        zenoh.open(session_config(listen=[endpoint])) as receiver,
+        zenoh.open(session_config(connect=[endpoint])) as sender,
+    ):
+        subscriber = declare_newest_wins(receiver, KEY, on_sample, name="test-steady")
+        publisher = sender.declare_publisher(KEY, express=True)
+        assert _wait_for(lambda: publisher.matching_status.matching)
+        for k in range(200):
+            publisher.put(str(k).encode())
+            time.sleep(0.002)  # 500 Hz: the intake keeps up
+        assert _wait_for(lambda: len(received) == 200)
+        assert _intake_threads("test-steady")
+        del subscriber
+    assert received == list(range(200))
+    assert _wait_for(lambda: not _intake_threads("test-steady"))  # ended with the session
+
+
+def test_a_ring_without_room_is_refused() -> None:
+    with zenoh.open(session_config()) as session, pytest.raises(ValueError, match="allowed: >= 1"):
+        declare_newest_wins(session, KEY, lambda sample: None, capacity=0)

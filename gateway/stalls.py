@@ -464,7 +464,8 @@ class StallMonitor:
         gc_windows: the collections (default: new ones, installed in ``gc.callbacks`` until closed).
         others: the process's other Python threads (default: all but the calling one; read at each wake-up).
         clock_ns: the monotonic clock of the phase marks [ns] (tests give their own).
-        cpu_clock_ns: the loop thread's CPU clock [ns] (tests give their own).
+        cpu_clock_ns: the loop thread's CPU clock at the sleep mark and without schedstat [ns] (tests give their own;
+            with schedstat, :meth:`ThreadSchedstat.read` reads it at each wake-up).
 
     Raises:
         ValueError: ``period_s`` or ``threshold_periods`` not > 0.
@@ -494,9 +495,9 @@ class StallMonitor:
         self._clock_ns = clock_ns
         self._cpu_clock_ns = cpu_clock_ns
         self._woke_ns = clock_ns()  # the first interval starts here
-        self._woke_cpu_ns = cpu_clock_ns()  # the loop's CPU clock then
         self._refreshed_ns = self._woke_ns
         self._stat: tuple[int, int, int] | None = self._schedstat.read()
+        self._woke_cpu_ns = self._cpu_now_ns(self._stat)  # the loop's CPU clock then
         self._others_stat = self.others.read()
         self._missed_cycles = 0
         self._sleep_mark: tuple[int, int] | None = (self._woke_ns, self._woke_cpu_ns)
@@ -522,7 +523,7 @@ class StallMonitor:
             Either way the next iteration's trace begins (phase ``read``).
         """
         stat = self._schedstat.read()
-        cpu_now_ns = self._cpu_clock_ns()
+        cpu_now_ns = self._cpu_now_ns(stat)
         others_stat = self.others.read()
         sleep_cpu_ns = self._sleep_cpu_ns(cpu_now_ns)
         record = None
@@ -564,6 +565,11 @@ class StallMonitor:
         self.trace.enter(phase, mark_ns)
         if phase is Phase.SLEEP:
             self._sleep_mark = (mark_ns, self._cpu_clock_ns())
+
+    def _cpu_now_ns(self, stat: tuple[int, int, int] | None) -> int:
+        """The loop thread's CPU clock now: the schedstat reading's, read a moment ago (one clock read per wake-up),
+        else a read of its own."""
+        return self._cpu_clock_ns() if stat is None else stat[0]
 
     def _sleep_cpu_ns(self, cpu_now_ns: int) -> int | None:
         """The loop thread's time on a CPU in its last ``sleep`` phase [ns], None if it did not sleep since the

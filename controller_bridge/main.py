@@ -1,6 +1,6 @@
 """The controller bridge process: Zenoh, clocks, threads and logging around :class:`controller_bridge.bridge.Bridge`.
 
-    override payload → bridge.on_override(payload, read_clocks())        (the subscriber's thread; wakes the writer)
+    override payload → bridge.on_override(payload, read_clocks())    (the override intake thread; wakes the writer)
     writer loop (write_rate_hz, and at once on an override): bridge.next_write(now) → interface.write_speed_fraction
     reader thread: interface.read(timeout) → bridge.on_reading(reading) → publish the joint state
 
@@ -13,6 +13,9 @@ The vendor interface is the cell file's ``interface`` of ``--robot NAME`` (``ur_
 interface is ``zenoh`` needs no bridge). The reader connects, and reconnects with a doubling backoff
 (:data:`BACKOFF_MIN_S` … :data:`BACKOFF_MAX_S`) when the connection fails or no valid reading came for
 ``read_timeout_s``; meanwhile nothing is published, and the gateway's staleness check stops the robot.
+
+Overrides arrive through a ring of the newest 16 (:mod:`hrc_runtime.newest_wins`): after a freeze the bridge hands on
+the newest, not 256 queued ones, and its memory stays bounded.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
+from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
@@ -377,7 +381,8 @@ def run_bridge(
             else:
                 log.debug("override rejected: %s", reason)
 
-        subscriber = session.declare_subscriber(keys.robot_override(cell, robot), on_sample)
+        # the newest overrides only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
+        subscriber = declare_newest_wins(session, keys.robot_override(cell, robot), on_sample, name="overrides")
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
         reader = _Reader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop, poll_interval_s)
         service = LoopNotifier.from_environment()

@@ -7,7 +7,7 @@ a process that was frozen or starved of the interpreter lock, and then reads wha
 burst, memory malloc kept afterwards. Here the samples go to a ring of :data:`RING_CAPACITY`: when it is full the
 oldest is dropped (and its buffer freed) as the next arrives, and a thread of our own hands each sample still in the
 ring to ``on_sample``, as a callback subscriber would. Fewer than ``capacity`` samples arriving at once are all
-delivered, in order.
+delivered, in order. The controller emulator and the controller bridge take their overrides this way.
 
 The thread ends when the session closes (the ring is deleted: ``recv`` raises). It is not a daemon: the interpreter
 waits for it at exit, as for Zenoh's own callback threads (close the session first: ``with zenoh.open(...)``); a

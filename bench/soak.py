@@ -903,6 +903,8 @@ def build_report(
             k: audit.get(k) for k in ("violations", "verdict", "cycles_audited", "human_speed_mps", "wall_duration_s")
         },
         "audit_unaudited_cycles": {n: r.get("unaudited_cycles") for n, r in audit.get("robots", {}).items()},
+        "audit_truth_gap_cycles": {n: r.get("truth_gap_cycles") for n, r in audit.get("robots", {}).items()},
+        "audit_longest_truth_gap_s": {n: r.get("longest_truth_gap_s") for n, r in audit.get("robots", {}).items()},
         "gateway_runs": len(runs),
         "missed_ticks": sum(loop.get("missed_cycles", 0) for loop in loops),
         "stalls_by_cause": stalls,
@@ -939,7 +941,9 @@ def format_report(report: dict[str, Any]) -> str:
         f"soak: {report['wall_s']:.0f} s, seed {report['seed']}, {len(report['faults'])} faults, "
         f"{report['gateway_runs']} gateway runs",
         f"  violations within K: {report['audit']['violations']} ({report['audit']['verdict']}, "
-        f"{report['audit']['cycles_audited']} cycles audited)",
+        f"{report['audit']['cycles_audited']} cycles audited; of them across a gap in the human truth "
+        f"{report['audit_truth_gap_cycles']}, the longest gap {report['audit_longest_truth_gap_s']} s; "
+        f"not audited {report['audit_unaudited_cycles']})",
         f"  missed ticks: {report['missed_ticks']} (status, summed over gateway runs); by cause (events): "
         f"{report['missed_ticks_by_cause']}; stalls {report['stalls_by_cause']}",
         f"  budget overruns: {report['budget_overruns']}; worst last lateness {report['worst_last_lateness_s']}",

@@ -11,7 +11,12 @@ the same instant, so the humans are made conservatively bigger: every capsule ra
 ``v_h · |age|``, with ``v_h`` the larger of the configured human speed and the speed the true capsule
 end points were seen to move at around that sample. That is the same as subtracting ``v_h · |age|``
 from every surface distance; with truth at 100 Hz, ``|age|`` is at most a few milliseconds. A joint
-state with no true humans within :data:`MAX_HUMAN_TRUTH_GAP_S` is not audited; it is counted as
+state with no true humans within :data:`MAX_HUMAN_TRUTH_GAP_S` (the tracker that plays them was killed, frozen, or
+its clock stepped) is judged against the last sample before it, grown the same way by its age: a person no longer
+seen is somewhere within ``v_h · age`` of where they were, not gone. Those cycles are counted as
+``truth_gap_cycles`` (a person who enters the cell during the gap is not in that sample: across a gap the people
+last seen are judged). A joint state waits up to :data:`TRUTH_SETTLE_S` for the true humans of its time (late on
+their way is not a gap). A joint state older than every true humans sample is not audited and counted as
 ``unaudited_cycles`` (never silently passed).
 
 Exit code: 0 when no cycle violated, 1 when any did, 2 on an invalid configuration, 3 when nothing
@@ -60,7 +65,8 @@ log = logging.getLogger(PROG)
 EXIT_OK, EXIT_VIOLATION, EXIT_CONFIG, EXIT_INCONCLUSIVE = 0, 1, 2, 3
 
 MAX_HUMAN_TRUTH_GAP_S = 0.1
-"""A joint state farther than this in time from every true humans sample is not audited [s]."""
+"""A joint state farther than this in time from every true humans sample is judged against the last one before it,
+grown by its age (``truth_gap_cycles``) [s]."""
 MAX_STATUS_AGE_S = 0.25
 """A gateway status older than this (relative to the joint state) gives the zone label ``unknown`` [s]."""
 MAX_PLAUSIBLE_HUMAN_SPEED_MPS = 10.0
@@ -68,7 +74,11 @@ MAX_PLAUSIBLE_HUMAN_SPEED_MPS = 10.0
 TRUTH_CLOCK_TOLERANCE_S = 0.5
 """Truth stamped farther than this from the auditor's own clock when it arrives is refused (``*/clock_off``): its
 publisher's clock is off (a stepped host clock), so pairing it by stamp would judge the robot against where people
-were seconds earlier; those cycles are not audited. Truth travels on the host or a LAN: milliseconds, not this [s]."""
+were seconds earlier; those cycles are judged across the gap. Truth travels on the host or a LAN: milliseconds, not
+this [s]."""
+TRUTH_SETTLE_S = 0.25
+"""A joint state with no true humans sample at or after its stamp yet waits up to this long for one (truth that is
+late on its way, not missing) before it is judged against the last sample before it, grown by its age [s]."""
 HUMAN_HISTORY = 256
 """True humans samples kept for matching (2.5 s at 100 Hz)."""
 PROCESS_EVERY_S = 0.02
@@ -102,6 +112,8 @@ class _RobotRun:
     truth_gaps: int = 0
     unaudited_cycles: int = 0
     max_human_age_s: float = 0.0
+    truth_gap_cycles: int = 0
+    longest_truth_gap_s: float = 0.0
     program_cycles: int | None = None
     t_delay_s: DelayHistogram = field(default_factory=DelayHistogram)
     faults_seen: Counter[str] = field(default_factory=Counter)
@@ -141,7 +153,7 @@ class TruthAuditor:
             )
             for name, model in robots.items()
         }
-        self._states: deque[JointState] = deque()
+        self._states: deque[tuple[JointState, float]] = deque()  # with its arrival on the monotonic clock [s]
         self._humans: deque[_HumanTruth] = deque(maxlen=HUMAN_HISTORY)
         self._gateway: dict[str, _GatewayView] = {}
         self.rejected: Counter[str] = Counter()
@@ -170,7 +182,7 @@ class TruthAuditor:
             self._count("truth_state/wrong_length")
             return
         with self._lock:
-            self._states.append(message)
+            self._states.append((message, time.monotonic()))
 
     def on_truth_humans(self, payload: bytes, received_wall_ns: int | None = None) -> None:
         """The true humans; ``received_wall_ns`` as for :meth:`on_truth_state`."""
@@ -231,11 +243,20 @@ class TruthAuditor:
 
     # -- the loop's work ---------------------------------------------------------------------------
 
-    def process(self) -> int:
-        """Audit the joint states received so far. Returns how many were taken."""
+    def process(self, settle_s: float = 0.0) -> int:
+        """Audit the joint states received so far, in arrival order, up to the first that has no true humans sample
+        at or after its stamp yet and arrived less than ``settle_s`` ago (it waits for the truth of its time, which
+        may be late on its way; 0: audit them all). Returns how many were taken."""
+        now_s = time.monotonic()
         with self._lock:
-            states = list(self._states)
-            self._states.clear()
+            newest_truth_ns = self._humans[-1].stamp_ns if self._humans else None
+            states = []
+            while self._states:
+                state, arrived_s = self._states[0]
+                covered = newest_truth_ns is not None and newest_truth_ns >= state.stamp_ns
+                if not covered and now_s - arrived_s < settle_s:
+                    break
+                states.append(self._states.popleft()[0])
             self.backlog_max = max(self.backlog_max, len(states))
             humans = list(self._humans)
             gateway = dict(self._gateway)
@@ -261,12 +282,19 @@ class TruthAuditor:
             run.unaudited_cycles += 1
             return
         age_s = abs(state.stamp_ns - humans[nearest].stamp_ns) * 1e-9
-        if age_s > MAX_HUMAN_TRUTH_GAP_S:
-            run.unaudited_cycles += 1
-            return
-        run.max_human_age_s = max(run.max_human_age_s, age_s)
-        neighbour_speed = humans[nearest + 1].speed_mps if nearest + 1 < len(humans) else 0.0
-        speed_mps = max(self.human_speed_mps, humans[nearest].speed_mps, neighbour_speed)
+        if age_s <= MAX_HUMAN_TRUTH_GAP_S:
+            run.max_human_age_s = max(run.max_human_age_s, age_s)
+            neighbour_speed = humans[nearest + 1].speed_mps if nearest + 1 < len(humans) else 0.0
+            speed_mps = max(self.human_speed_mps, humans[nearest].speed_mps, neighbour_speed)
+        else:  # a gap in the truth: the people are somewhere within v_h · age of where they were last
+            nearest = bisect.bisect_right(stamps, state.stamp_ns) - 1
+            if nearest < 0:  # older than all truth kept: nothing to judge it against
+                run.unaudited_cycles += 1
+                return
+            age_s = (state.stamp_ns - stamps[nearest]) * 1e-9
+            run.truth_gap_cycles += 1
+            run.longest_truth_gap_s = max(run.longest_truth_gap_s, age_s)
+            speed_mps = max(self.human_speed_mps, humans[nearest].speed_mps)  # the next sample is across the gap
         capsules = _grown(humans[nearest].capsules, speed_mps * age_s)
         verdict = audit_cycle(
             run.model,
@@ -336,6 +364,8 @@ class TruthAuditor:
                     "truth_gaps": run.truth_gaps,
                     "unaudited_cycles": run.unaudited_cycles,
                     "max_human_truth_age_s": round(run.max_human_age_s, 6),
+                    "truth_gap_cycles": run.truth_gap_cycles,
+                    "longest_truth_gap_s": round(run.longest_truth_gap_s, 6),
                     "controller_braking_time_s": run.braking_time_s,
                     "gateway": {
                         "status_documents": run.t_delay_s.count,
@@ -431,6 +461,8 @@ def format_report(report: dict[str, Any]) -> str:
             f"    time in zone: {zones}; stopped {r['time_stopped_s']:.1f} s; mean δ {r['mean_delta_applied']:.2f}",
             f"    program cycles completed: {r['program_cycles_completed']}; truth gaps {r['truth_gaps']}, "
             f"unaudited cycles {r['unaudited_cycles']}, human truth age ≤ {r['max_human_truth_age_s'] * 1e3:.1f} ms",
+            f"    judged across a gap in the human truth (grown by its age): {r['truth_gap_cycles']} cycles, "
+            f"the longest gap {r['longest_truth_gap_s']:.2f} s",
             f"    gateway: t_delay median {gateway['t_delay_s_median']} s, max {gateway['t_delay_s_max']} s; "
             f"faults seen {gateway['faults_seen'] or 'none'}",
         ]
@@ -514,7 +546,7 @@ def run_audit(
         end_s = math.inf if duration_s is None else start_s + duration_s
         next_progress_s = start_s + PROGRESS_EVERY_S
         while not stop.wait(max(0.0, min(PROCESS_EVERY_S, end_s - time.monotonic()))):
-            auditor.process()
+            auditor.process(TRUTH_SETTLE_S)
             now_s = time.monotonic()
             if now_s >= end_s:
                 break
@@ -530,7 +562,7 @@ def run_audit(
                     )
         for subscriber in subscribers:
             subscriber.undeclare()  # type: ignore[no-untyped-call]  # zenoh stub
-        auditor.process()
+        auditor.process()  # all that is left
         return auditor.report(time.monotonic() - start_s)
 
 

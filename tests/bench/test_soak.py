@@ -221,6 +221,9 @@ def test_a_short_soak_runs_the_cell_under_faults_and_reports(tmp_path: Path) -> 
     report = json.loads((tmp_path / "soak.json").read_text())
     assert report["audit"]["violations"] == 0, report["audit"]
     assert report["audit"]["cycles_audited"] > 0
+    gap_cycles = report["audit_truth_gap_cycles"]
+    assert set(gap_cycles) == {"ur5"}, gap_cycles
+    assert isinstance(gap_cycles["ur5"], int), gap_cycles
     assert report["events"]["seq_gaps"] == {}
     assert report["faults"], "no fault was played"
     for fault in report["faults"]:

@@ -132,17 +132,81 @@ def test_the_age_of_the_human_truth_shrinks_the_margin_conservatively(cell_confi
     assert margins[0] - margins[2] == pytest.approx(k * 0.02, abs=1e-9)
 
 
-def test_the_nearest_truth_sample_is_used_and_a_gap_is_not_audited(auditor: TruthAuditor) -> None:
+def test_the_nearest_truth_sample_is_used(auditor: TruthAuditor) -> None:
     auditor.on_truth_humans(humans(1, START_NS, (0.45, -0.35, 1.15)))  # touching
     auditor.on_truth_humans(humans(2, START_NS + 50_000_000, (4.0, 0.0, 1.0)))  # far, 50 ms later
     auditor.on_truth_state(STATE_KEY, state(0, START_NS + 10_000_000))  # nearest: the touching one
     auditor.on_truth_state(STATE_KEY, state(1, START_NS + 45_000_000))  # nearest: the far one
-    gap_ns = int((MAX_HUMAN_TRUTH_GAP_S + 0.05) * 1e9)
-    auditor.on_truth_state(STATE_KEY, state(2, START_NS + 50_000_000 + gap_ns))  # no truth near: not judged
     auditor.process()
     r = auditor.report(1.0)["robots"]["ur5"]
     assert r["cycles"] == 2
     assert r["violations"] == 1
+    assert r["truth_gap_cycles"] == 0
+
+
+def test_across_a_gap_in_the_truth_the_people_last_seen_grow_by_k_times_the_gap(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    """A person no longer seen is somewhere within K · age of where they were last, not gone: the margin shrinks by
+    exactly that, and a gap long enough turns a pass into a violation."""
+    k = cell_config.safety.human_speed_mps
+    gap_s = MAX_HUMAN_TRUTH_GAP_S + 0.05
+    margins, violations = [], []
+    for age_s in (0.0, gap_s, 2.0):
+        auditor = TruthAuditor(cell_config, {"ur5": ur5}, START_NS)
+        auditor.on_truth_humans(humans(1, START_NS, (1.6, -0.35, 1.1)))
+        auditor.on_truth_state(STATE_KEY, state(0, START_NS + int(age_s * 1e9)))
+        auditor.process()
+        r = auditor.report(1.0)["robots"]["ur5"]
+        assert r["cycles"] == 1
+        assert r["unaudited_cycles"] == 0
+        assert r["truth_gap_cycles"] == (1 if age_s > MAX_HUMAN_TRUTH_GAP_S else 0)
+        margins.append(r["smallest_margin_m"])
+        violations.append(r["violations"])
+    assert margins[0] - margins[1] == pytest.approx(k * gap_s, abs=1e-9)
+    assert violations == [0, 0, 1]  # 2 s at K: the person may be at the tool
+    assert margins[0] > 0.0 > margins[2]
+
+
+def test_across_a_gap_the_sample_before_is_used_not_the_one_after(auditor: TruthAuditor) -> None:
+    """The sample after a gap can be a world that started over (a restarted tracker plays its scenario from the
+    beginning): the cycles in the gap are judged against where the people were last, grown."""
+    auditor.on_truth_humans(humans(1, START_NS, (0.45, -0.35, 1.15)))  # touching the tool
+    auditor.on_truth_humans(humans(2, START_NS + 450_000_000, (4.0, 0.0, 1.0)))  # far, after a 0.45 s gap
+    auditor.on_truth_state(STATE_KEY, state(0, START_NS + 300_000_000))  # nearer to the far one, in the gap
+    auditor.process()
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert r["truth_gap_cycles"] == 1
+    assert r["longest_truth_gap_s"] == pytest.approx(0.3)
+    assert r["violations"] == 1
+    assert "judged across a gap in the human truth" in format_report(auditor.report(1.0))
+
+
+def test_a_state_waits_for_the_truth_of_its_time_before_it_is_judged_across_a_gap(auditor: TruthAuditor) -> None:
+    """Truth late on its way is not a gap: the state waits for it (up to ``settle_s``), then is judged against it."""
+    auditor.on_truth_humans(humans(1, START_NS, (0.45, -0.35, 1.15)))  # touching the tool
+    auditor.on_truth_state(STATE_KEY, state(0, START_NS + 200_000_000))  # its own truth not here yet
+    assert auditor.process(settle_s=60.0) == 0
+    auditor.on_truth_humans(humans(2, START_NS + 200_000_000, (4.0, 0.0, 1.0)))  # it arrives: far
+    assert auditor.process(settle_s=60.0) == 1
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert (r["cycles"], r["violations"], r["truth_gap_cycles"]) == (1, 0, 0)
+
+
+def test_without_waiting_the_same_state_is_judged_across_the_gap(auditor: TruthAuditor) -> None:
+    auditor.on_truth_humans(humans(1, START_NS, (0.45, -0.35, 1.15)))
+    auditor.on_truth_state(STATE_KEY, state(0, START_NS + 200_000_000))
+    assert auditor.process(settle_s=0.0) == 1
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert (r["cycles"], r["violations"], r["truth_gap_cycles"]) == (1, 1, 1)
+
+
+def test_a_state_older_than_all_truth_is_not_audited(auditor: TruthAuditor) -> None:
+    auditor.on_truth_humans(humans(1, START_NS + 500_000_000, (4.0, 0.0, 1.0)))
+    auditor.on_truth_state(STATE_KEY, state(0, START_NS))
+    auditor.process()
+    r = auditor.report(1.0)["robots"]["ur5"]
+    assert r["cycles"] == 0
     assert r["unaudited_cycles"] == 1
 
 

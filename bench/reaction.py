@@ -68,6 +68,8 @@ TRACKER = "bench"
 PING_KEY = "bench/oneway/ping"
 TARGET_PUBLISHED_P99_MS = 1.0
 K_PLUS_2 = "not reflected before sample k + 2 was sent"
+SEQ_GAP = "the override before the match was not received (seq gap)"
+"""This process lost an override (its own receiving, on a loaded host): the sample cannot be matched."""
 
 NEAR_CAPSULE = {"name": "torso", "a": [0.0, 0.0, 0.8], "b": [0.0, 0.0, 1.8], "radius": 0.35}
 """A plausible body part (1 m, radius 0.35 m: the largest the default cell accepts) through the UR5's base and
@@ -197,7 +199,7 @@ def match_reactions(
             continue
         j = int(candidates[pos])
         if j == 0 or ov_seq[j - 1] != ov_seq[j] - 1:
-            excluded[k] = "the override before the match was not received (seq gap)"
+            excluded[k] = SEQ_GAP
             continue
         if ov_class[j - 1] != 1 - int(sample.near):
             excluded[k] = "ambiguous: the previous sample was never reflected"

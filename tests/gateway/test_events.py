@@ -13,14 +13,14 @@ from pathlib import Path
 
 import pytest
 
-from bench.reaction import RunSettings, run_once
+from bench.reaction import SEQ_GAP, RunSettings, run_once
 from gateway.status import loop_status
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.rate_loop import RateLoop
 from hrc_tools.cell.procs import with_retries
 
 RATE_HZ = 20.0
-SAMPLES = 30
+SAMPLES = 60
 
 
 @pytest.mark.e2e
@@ -43,8 +43,11 @@ def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_drive
     matched = run["samples_matched"]
     detail = f"matched {matched}/{SAMPLES}, reflected by {by}, excluded {run['excluded']}"
     if event_driven:
-        # Three samples per tick period: only a decision per sample reflects each of them.
-        assert matched >= 0.8 * SAMPLES, detail
+        # Three samples per tick period: only a decision per sample reflects each of them. A sample whose override
+        # this process lost on its way (its own receiving, on a loaded host) says nothing of the gateway.
+        judged = SAMPLES - run["excluded"].get(SEQ_GAP, 0)
+        assert judged >= SAMPLES // 2, f"this process lost too many overrides to judge: {detail}"
+        assert matched >= 0.8 * judged, detail
         assert by["event_cycle"] >= 0.8 * matched, detail
         assert run["gateway_event_cycles_during_run"] > 0
     else:

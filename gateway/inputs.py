@@ -47,7 +47,7 @@ import numpy.typing as npt
 from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.humans import HumanCapsules, capsules_from_message, implausible_reason
+from hrc_contract.humans import HumanCapsules, capsules_from_message, implausible_detail
 from hrc_contract.messages import Humans, JointState, MessageError, parse_message
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.robot_model import RobotModel
@@ -75,6 +75,10 @@ _FAULT_KIND: Mapping[str, str] = {
     "outside_world": "implausible",
     "capsule_too_long": "implausible",
     "radius_too_large": "implausible",
+    "duplicate_human_id": "implausible",
+    "too_many_parts": "implausible",
+    "duplicate_part_name": "implausible",
+    "person_too_large": "implausible",
     "q_out_of_limits": "implausible",
     "qd_above_limit": "implausible",
     "qd_inconsistent": "inconsistent",
@@ -312,9 +316,14 @@ class InputStore:
             self._on_tracker_change()
             return
         capsules = capsules_from_message(tracker, msg) if msg.tracker == tracker else None
-        reason = "name_mismatch" if capsules is None else implausible_reason(capsules, self._plausibility[tracker])
-        if capsules is None or reason is not None:
-            self._reject(topic, reason or "name_mismatch", f"tracker {msg.tracker!r}", received)
+        problem = (
+            ("name_mismatch", f"tracker {msg.tracker!r}")
+            if capsules is None
+            else implausible_detail(capsules, self._plausibility[tracker])
+        )
+        if capsules is None or problem is not None:
+            reason, detail = problem or ("name_mismatch", "")
+            self._reject(topic, reason, detail, received)
             self._on_tracker_change()
             return
         transit_ns = max(0, received.wall_ns - msg.stamp_ns)

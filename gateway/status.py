@@ -162,6 +162,8 @@ def track_entries(
                 "holds": holds,
                 "released_by": r.released_by,
                 "action": action,
+                "person": r.person,
+                "held_because": r.held_because,
             }
         )
     return entries
@@ -248,7 +250,27 @@ def status_document(
         loop=loop,
         tracks=list(tracks),
         human_capsules=list(capsules),
+        persons=person_entries(tracks),
     )
+
+
+def person_entries(tracks: Sequence[TrackStatus | Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The status's ``persons``: the live tracks grouped by the person they are a view of, in order of appearance."""
+    persons: dict[str, dict[str, Any]] = {}
+    for entry in tracks:
+        t = entry.model_dump() if isinstance(entry, TrackStatus) else entry
+        if t["state"] == "released" or not t.get("person"):
+            continue
+        p = persons.setdefault(
+            t["person"], {"label": t["person"], "state": "lost", "tracks": [], "lost_tracks": [], "held_because": None}
+        )
+        p["tracks"].append(t["label"])
+        if t["state"] == "seen":
+            p["state"] = "seen"
+        else:
+            p["lost_tracks"].append(t["label"])
+            p["held_because"] = p["held_because"] or t.get("held_because")
+    return list(persons.values())
 
 
 def cycle_status(

@@ -1,37 +1,37 @@
-"""People as tracks: a person the trackers stop reporting is *lost*, never gone (docs/contract.md "Tracks").
+"""People as persons made of tracks: a person no longer seen is *lost*, never gone (docs/contract.md "Tracks",
+docs/safety-math.md §11).
 
-Separation monitoring rests on one assumption: people move at most at K. A person no longer reported (hidden by
-the robot or by another person, a missed detection, a tracker glitch) is somewhere within ``K · (time since last
-seen)`` of where they were last seen, so the gateway keeps them:
+Separation monitoring rests on one assumption: people move at most at K. Someone no longer reported (hidden by the
+robot or by another person, a missed detection, a tracker glitch) is somewhere within ``K · (time since last seen)``
+of where they were last seen, so the gateway keeps them.
 
-    tracker frame ──update──▶ tracks: seen ──(not in a newer frame of its tracker)──▶ lost ──▶ released
-                                         ◀──(same id, within reach)── lost            (redetected | left | reset)
-
-- **seen**: in its tracker's newest frame; its capsules are that frame's.
-- **lost**: its last capsules, each radius grown by ``K_reach · (now − last seen)`` (K_reach: ISO 13855's close
-  range speed where configured, else K). It enters every robot's decision like a seen person.
-- **released**, only by
-  (a) *redetected*: a person of a new frame (any tracker, captured after the track was last seen) who has every part
-      the track had, each within its reach, and who can be them: one person accounts for one track, so someone who
-      continues their own track (seen all along) releases nobody, unless that track is a *twin* (another tracker's
-      view of the same person when it was lost); someone who appeared inside the covered volume after the track was
-      lost (nobody enters there: a *claim*) may release one lost track; a newcomer at the boundary releases none.
-      The same id outside the reach is another person and the lost one stays;
-  (b) *left*: when lost, it was last seen within ``tracking.exit_band_m`` of a side face of the covered volume
-      (inside an exit zone where the cell declares them), moving out through that face;
+- A **track** is one tracker's view of one body, frame after frame: a detection continues its tracker's *seen*
+  track of the same id only when it covers that track's last body (:func:`gateway.bodies.covers`: one detected
+  part per part the track had, within the tracker's frame-to-frame reach). Anything else (a new id, a missing part,
+  a jump, a track that was lost) starts a new track: a lost track is never continued by an id.
+- A **person** is the tracks of all trackers that are one body. A new track joins the one person whose bodies it
+  could be (:func:`gateway.bodies.near`, gated by K between the stamps), when exactly one is near it and it did not
+  appear where people enter; with none near it, or several, or at the boundary, it is a new person (ambiguity keeps
+  more people). A track that comes near another person's seen track is taken out of its person (it may have swapped
+  bodies with them there), unless both persons have no lost tracks and no tracker sees both (then they are one body
+  and join).
+- A lost track is **released** only by
+  (a) *redetected*: a seen track **of the same person**, captured after it was lost, covers its last body (each lost
+      part inside its own part of the detection grown by ``K_reach · Δt`` and the trackers' noise), and is near no
+      lost track of another person;
+  (b) *left*: every capsule of its last body lay in the exit band of one side face of the covered volume (in an
+      exit zone where the cell declares them), its centre moving out through that face;
   (c) *reset*: an operator, after checking the area, released it with an authenticated command.
-  Never by a timeout.
+  Never by a timeout, an id or a name.
 
-A detection outside a track's reach (a 3 m jump in one frame, an id swap) is not motion: the old track is lost where
-it was and the detection is a new track. Pure: no I/O, no clock; every time is passed in (monotonic [ns]).
+Pure: no I/O, no clock; every time is passed in (monotonic [ns]).
 """
 
 from __future__ import annotations
 
 import itertools
-import math
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import NamedTuple
@@ -39,6 +39,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from gateway.bodies import bounding_sphere, covers, near
 from hrc_contract.config import CellConfig, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 
@@ -73,25 +74,6 @@ class ReleaseCause(StrEnum):
     FORGOTTEN = "forgotten_unsafe_test_only"
 
 
-class Detection(NamedTuple):
-    """One human of one tracker frame.
-
-    Attributes:
-        tracker: the tracker's name.
-        human_id: the id the tracker gave (without the tracker prefix).
-        capsules: its capsules (human ids ``<tracker>/<id>``).
-        captured_mono_ns: when the frame was captured, on the gateway's monotonic clock [ns].
-    """
-
-    tracker: str
-    human_id: str
-    capsules: HumanCapsules
-    captured_mono_ns: int
-    frame: HumanCapsules
-    start: int
-    end: int
-
-
 class TrackEvent(NamedTuple):
     """A change of a track's state, for the event log: ``kind`` is ``track_lost`` or ``track_released``."""
 
@@ -114,6 +96,8 @@ class TrackRecord(NamedTuple):
             (then: its tracker's newest frame), so that the records change only when a track changes state.
         capsules: its capsule count.
         released_by: for a released track, what released it.
+        person: the person it belongs to (``P<n>``).
+        held_because: lost: why no detection released it yet, when one could have been them.
     """
 
     label: str
@@ -123,11 +107,30 @@ class TrackRecord(NamedTuple):
     last_seen_mono_ns: int | None
     capsules: int
     released_by: str | None = None
+    person: str = ""
+    held_because: str | None = None
+
+
+@dataclass(eq=False)
+class Person:
+    """The tracks (of any trackers) that are one body; lost tracks stay with their person until released."""
+
+    serial: int
+    tracks: list[Track] = field(default_factory=list)
+    held_because: str | None = None
+    """Why a detection that could have been this person did not release them (shown to the operator)."""
+
+    @property
+    def label(self) -> str:
+        return f"P{self.serial}"
+
+    def has_lost(self) -> bool:
+        return any(t.state is TrackState.LOST for t in self.tracks)
 
 
 @dataclass(eq=False)
 class Track:
-    """One person as one tracker followed them; their capsules are a slice of the frame they were last seen in."""
+    """One tracker's view of one body; its capsules are a slice of the frame it was last seen in."""
 
     serial: int
     label: str
@@ -137,21 +140,14 @@ class Track:
     start: int
     end: int
     last_seen_mono_ns: int
+    person: Person
     state: TrackState = TrackState.SEEN
     centres: deque[tuple[int, FloatArray]] = field(default_factory=lambda: deque(maxlen=64))
     released_by: str | None = None
     released_mono_ns: int = 0
     last_centre: FloatArray | None = None
-    claim: bool = False
-    """It appeared inside the covered volume (nobody enters there): it may be someone lost before it appeared, and may
-    release such lost tracks it covers, of one person only: once it released one, only the other fragments of that
-    one (the same tracker and id, e.g. the tracks a person left behind while parts of them were hidden one after the
-    other). A track that appears at the boundary is a newcomer."""
-    claimed: tuple[str, str] | None = None
-    """The (tracker, id) of the lost person its claim was spent on."""
-    first_seen_mono_ns: int = 0
-    twins: frozenset[int] = frozenset()
-    """Serials of other trackers' tracks that covered it when it was lost: the same person, still seen elsewhere."""
+    sphere_centre_m: FloatArray = field(default_factory=lambda: np.zeros(3))
+    sphere_radius_m: float = 0.0
     _capsules: HumanCapsules | None = None
 
     @property
@@ -171,6 +167,7 @@ class Track:
         self.last_seen_mono_ns = captured_ns
         self.state = TrackState.SEEN
         self.last_centre = centre_m
+        self.sphere_centre_m, self.sphere_radius_m = bounding_sphere(self.capsules)
         centres = self.centres
         if not centres or captured_ns - centres[-1][0] >= CENTRE_SAMPLE_NS:
             centres.append((captured_ns, centre_m))
@@ -202,51 +199,43 @@ def part(capsules: HumanCapsules, start: int, end: int) -> HumanCapsules:
     )
 
 
-def split_frame(tracker: str, capsules: HumanCapsules, captured_mono_ns: int) -> list[Detection]:
-    """A tracker frame's capsules as one detection per human (in the frame's order)."""
-    starts = human_starts(capsules)
-    prefix = len(tracker) + 1
-    return [
-        Detection(
-            tracker,
-            capsules.human_ids[start][prefix:],
-            part(capsules, start, end),
-            captured_mono_ns,
-            capsules,
-            start,
-            end,
-        )
-        for start, end in itertools.pairwise(starts)
-    ]
-
-
 def reach_speed_mps(config: CellConfig) -> float:
     """How fast a lost person's possible positions grow: ISO 13855's close-range speed where configured, else K."""
     safety = config.safety
     return safety.human_speed_close_mps if safety.close_speed_below_m > 0.0 else safety.human_speed_mps
 
 
-def in_entry_band(centre_m: FloatArray, tracking: TrackingConfig) -> bool:
-    """Whether a centre lies where people enter the covered volume: within ``exit_band_m`` of a side face (inside an
-    exit zone where the cell declares them), or outside the volume."""
-    if tracking.exit_zones and not any(
-        all(lo <= x <= hi for x, lo, hi in zip(centre_m, zone.min_m, zone.max_m, strict=True))
-        for zone in tracking.exit_zones
-    ):
-        return False
-    low, high = tracking.coverage_min_m, tracking.coverage_max_m
-    return any(
-        centre_m[axis] - low[axis] <= tracking.exit_band_m or high[axis] - centre_m[axis] <= tracking.exit_band_m
-        for axis in (0, 1)
+def _in_exit_zones(points_m: FloatArray, tracking: TrackingConfig) -> npt.NDArray[np.bool_]:
+    """Per point: inside one of the cell's exit zones (every point, when it declares none)."""
+    if not tracking.exit_zones:
+        return np.ones(len(points_m), dtype=bool)
+    inside = np.zeros(len(points_m), dtype=bool)
+    for zone in tracking.exit_zones:
+        inside |= ((points_m >= np.asarray(zone.min_m)) & (points_m <= np.asarray(zone.max_m))).all(axis=1)
+    return inside
+
+
+def _end_points(capsules: HumanCapsules) -> FloatArray:
+    return np.concatenate((capsules.h_a_world, capsules.h_b_world))
+
+
+def touches_entry_band(capsules: HumanCapsules, tracking: TrackingConfig) -> bool:
+    """Whether any end point lies where people enter the covered volume: within ``exit_band_m`` of a side face (inside
+    an exit zone where the cell declares them), or outside the volume. A body that appears there may have come in."""
+    points = _end_points(capsules)
+    low, high = np.asarray(tracking.coverage_min_m), np.asarray(tracking.coverage_max_m)
+    band = ((points[:, :2] - low[:2] <= tracking.exit_band_m) | (high[:2] - points[:, :2] <= tracking.exit_band_m)).any(
+        axis=1
     )
+    return bool((band & _in_exit_zones(points, tracking)).any())
 
 
 def leaving_face(track: Track, tracking: TrackingConfig) -> str | None:
     """The side face of the covered volume through which a track was last seen leaving, or None.
 
-    Its last centre lies within ``exit_band_m`` of the face (and in an exit zone where the cell declares them) and
-    its centre moved out through that face at ``exit_speed_min_mps`` or more over its last observations; a centre
-    already outside the covered volume counts as having left through the nearest face.
+    Every end point of its last capsules lies within ``exit_band_m`` of the face or beyond it (and in an exit zone
+    where the cell declares them), and its centre moved out through that face at ``exit_speed_min_mps`` or more over
+    its last observations. A hand left at the tool keeps a body from having left, whatever its centre does.
     """
     if not track.centres or track.last_centre is None:
         return None
@@ -255,36 +244,44 @@ def leaving_face(track: Track, tracking: TrackingConfig) -> str | None:
     if span_ns < VELOCITY_MIN_SPAN_NS:
         return None
     velocity = (c1 - c0) / (span_ns / NS_PER_S)
-    if tracking.exit_zones and not any(
-        all(lo <= x <= hi for x, lo, hi in zip(c1, zone.min_m, zone.max_m, strict=True)) for zone in tracking.exit_zones
-    ):
+    points = _end_points(track.capsules)
+    if not _in_exit_zones(points, tracking).all():
         return None
     low, high = tracking.coverage_min_m, tracking.coverage_max_m
+    band = tracking.exit_band_m
     for axis, name in ((0, "x"), (1, "y")):
-        if c1[axis] - low[axis] <= tracking.exit_band_m and -velocity[axis] >= tracking.exit_speed_min_mps:
+        if (points[:, axis] - low[axis] <= band).all() and -velocity[axis] >= tracking.exit_speed_min_mps:
             return f"-{name}"
-        if high[axis] - c1[axis] <= tracking.exit_band_m and velocity[axis] >= tracking.exit_speed_min_mps:
+        if (high[axis] - points[:, axis] <= band).all() and velocity[axis] >= tracking.exit_speed_min_mps:
             return f"+{name}"
     return None
 
 
 class TrackSet:
-    """Every person the cell's trackers reported, seen or lost, and the ones recently released.
+    """Every person the cell's trackers reported, as tracks grouped into persons, seen or lost, and the tracks
+    recently released.
 
     Args:
         config: the cell (``tracking``, K, the trackers' noise).
+        release_by_id_unsafe: TEST ONLY (default: ``tracking.unsafe_release_by_id_for_tests``): the rule this replaced: a lost track is continued by its own
+            tracker's same id within reach, and any detection outside the entry band that covers it releases it,
+            whoever it belongs to. The sweep's teeth run it to show the auditor catches what it lets through.
     """
 
-    def __init__(self, config: CellConfig) -> None:
+    def __init__(self, config: CellConfig, *, release_by_id_unsafe: bool | None = None) -> None:
         self.tracking = config.tracking
         self.reach_speed_mps = reach_speed_mps(config)
         self._noise_m = {name: NOISE_SIGMAS * t.noise_std_m for name, t in config.trackers.items()}
         self._forget = config.tracking.unsafe_forget_lost_for_tests
+        self._by_id = (
+            config.tracking.unsafe_release_by_id_for_tests if release_by_id_unsafe is None else release_by_id_unsafe
+        )
         self.live: list[Track] = []
         self._lost: list[Track] = []
         self._previous: dict[str, _Previous] = {}
         self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
         self._serial = 0
+        self._person_serial = 0
         self._frames: dict[str, object] = {}
         self._lost_cache: tuple[int, HumanCapsules] | None = None
         self._records: tuple[TrackRecord, ...] | None = None
@@ -305,16 +302,19 @@ class TrackSet:
             The tracks' changes (lost, released), in order.
         """
         events: list[TrackEvent] = []
-        new: list[_People] = []
+        observed: list[Track] = []
         for tracker, frame in frames.items():
             if frame is None or self._frames.get(tracker) is frame[0]:
                 continue
             self._frames[tracker] = frame[0]
-            taken, people = self._take_frame(tracker, frame[1], frame[2])
+            taken, tracks = self._take_frame(tracker, frame[1], frame[2])
             events += taken
-            new.append(people)
-        if events or self._lost:
-            events += self._release_redetected(new)
+            observed += tracks
+        if observed:
+            self._regroup(observed)
+        if self._lost and observed:
+            events += self._release_redetected()
+        if events:
             self._lost_cache = None
             self._records = None
         if self._forget:
@@ -334,22 +334,24 @@ class TrackSet:
             self._records = None
         return events
 
-    def _take_frame(self, tracker: str, capsules: HumanCapsules, captured_ns: int) -> tuple[list[TrackEvent], _People]:
-        """Match one tracker's frame to its tracks by id within reach; the rest of its seen tracks are lost.
+    def _take_frame(
+        self, tracker: str, capsules: HumanCapsules, captured_ns: int
+    ) -> tuple[list[TrackEvent], list[Track]]:
+        """Continue this tracker's seen tracks with the frame's detections; lose the rest; start new tracks.
 
         The common case, the same people with the same parts as in this tracker's previous frame, is decided for the
-        whole frame at once (:func:`moved_within`); any other detection by the general rule (:meth:`_match`).
+        whole frame at once (:func:`moved_within`); any other detection by :func:`gateway.bodies.covers`.
 
         Returns:
-            The changes, and the frame's people (for the releases: any of them, continuing a track or not, may be a
-            lost person seen again).
+            The changes, and the tracks of the frame's people (continued or new), in the frame's order.
         """
         margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
         starts = human_starts(capsules)
         prefix = len(tracker) + 1
-        observed: set[int] = set()
-        continued = [None] * (len(starts) - 1) if previous is None else _same_people(previous, capsules)
+        continued: list[Track | None] = (
+            [None] * (len(starts) - 1) if previous is None else _same_people(previous, capsules)
+        )
         centres = (
             np.add.reduceat(capsules.h_a_world + capsules.h_b_world, starts[:-1], axis=0)
             / (2.0 * np.diff(starts))[:, None]
@@ -360,33 +362,33 @@ class TrackSet:
             dt_s = (captured_ns - previous.captured_ns) / NS_PER_S
             ok = moved_within(previous.capsules, capsules, starts, self.reach_speed_mps * dt_s + margin_m)
             continued = [t if t is not None and ok[k] else None for k, t in enumerate(continued)]
+        taken: set[int] = {t.serial for t in continued if t is not None}
+        for k, (start, end) in enumerate(itertools.pairwise(starts)):
+            if continued[k] is None:
+                track = self._continue(
+                    tracker,
+                    capsules.human_ids[start][prefix:],
+                    part(capsules, start, end),
+                    taken,
+                    margin_m,
+                    captured_ns,
+                )
+                if track is not None:
+                    taken.add(track.serial)
+                    continued[k] = track
+        events: list[TrackEvent] = []
+        for track in self._seen_of(tracker):
+            if track.serial not in taken:
+                events += self._lose(track, captured_ns)
         order: list[Track] = []
         for k, (start, end) in enumerate(itertools.pairwise(starts)):
             track = continued[k]
             if track is None:
-                detection = Detection(
-                    tracker,
-                    capsules.human_ids[start][prefix:],
-                    part(capsules, start, end),
-                    captured_ns,
-                    capsules,
-                    start,
-                    end,
-                )
-                track = self._match(detection, observed, margin_m, captured_ns) or self._new_track(detection)
-                if track.state is TrackState.LOST:  # the same person, seen again by their tracker within reach
-                    self._lost.remove(track)
-                    self._lost_cache = None
-                self._records = None
+                track = self._new_track(tracker, capsules.human_ids[start][prefix:], capsules, start, end, captured_ns)
             track.observe(capsules, start, end, captured_ns, centres[k])
-            observed.add(track.serial)
             order.append(track)
-        events: list[TrackEvent] = []
-        for track in self._seen_of(tracker):
-            if track.serial not in observed:
-                events += self._lose(track, captured_ns)
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
-        return events, _People(tracker, capsules, starts, centres, captured_ns, tuple(order))
+        return events, order
 
     def _seen_of(self, tracker: str) -> list[Track]:
         previous = self._previous.get(tracker)
@@ -394,63 +396,151 @@ class TrackSet:
             return []
         return [t for t in previous.tracks if t.state is TrackState.SEEN]
 
-    def _match(self, detection: Detection, observed: set[int], margin_m: float, captured_ns: int) -> Track | None:
-        """The track a detection continues (its tracker, its id, within reach, every part there), or None."""
+    def _continue(
+        self, tracker: str, human_id: str, detection: HumanCapsules, taken: set[int], margin_m: float, captured_ns: int
+    ) -> Track | None:
+        """The seen track of this tracker and id that the detection continues (it covers the track's last body within
+        the reach since its last frame), or None."""
         candidates = [
             t
             for t in self.live
-            if t.tracker == detection.tracker
-            and t.human_id == detection.human_id
-            and t.serial not in observed
+            if t.tracker == tracker
+            and t.human_id == human_id
+            and t.serial not in taken
             and t.last_seen_mono_ns < captured_ns
+            and (t.state is TrackState.SEEN or self._by_id)
         ]
-        # the newest track of that id first: after a glitch the lost one stays where it was
         for track in sorted(candidates, key=lambda t: -t.last_seen_mono_ns):
             reach_m = self.reach_speed_mps * (captured_ns - track.last_seen_mono_ns) / NS_PER_S + margin_m
-            if _continues(track.capsules, detection.capsules, reach_m):
+            if covers(track.capsules, detection, reach_m):
+                if track.state is TrackState.LOST:  # the replaced rule: the same id within reach continues it
+                    self._lost.remove(track)
+                    self._lost_cache = None
+                    self._records = None
                 return track
         return None
 
-    def _new_track(self, detection: Detection) -> Track:
+    def _new_track(
+        self, tracker: str, human_id: str, frame: HumanCapsules, start: int, end: int, captured_ns: int
+    ) -> Track:
+        """A new track, and the person it joins: the one person whose bodies it is near, unless it touches the
+        entry band (it may have come in); otherwise (none, several, or at the band) a new person."""
         self._serial += 1
-        label = f"{detection.tracker}/{detection.human_id}"
+        label = f"{tracker}/{human_id}"
         if any(t.label == label for t in self.live):
             label = f"{label}#{self._serial}"
-        track = Track(
-            self._serial,
-            label,
-            detection.tracker,
-            detection.human_id,
-            detection.frame,
-            detection.start,
-            detection.end,
-            0,
-        )
-        track.claim = not in_entry_band(centre(detection.capsules), self.tracking)
-        track.first_seen_mono_ns = detection.captured_mono_ns
+        body = part(frame, start, end)
+        near_persons = {t.person.serial: t.person for t in self._near(body, tracker, captured_ns)}
+        person: Person | None = None
+        if len(near_persons) == 1 and not touches_entry_band(body, self.tracking):
+            (candidate,) = near_persons.values()
+            # a tracker reports each body once: beside its own detection of this frame, this is another body
+            if not any(
+                t.tracker == tracker and t.state is TrackState.SEEN and t.last_seen_mono_ns == captured_ns
+                for t in candidate.tracks
+            ):
+                person = candidate
+        elif len(near_persons) > 1:
+            names = ", ".join(sorted(p.label for p in near_persons.values()))
+            for p in near_persons.values():
+                if p.has_lost():
+                    p.held_because = f"{label} appeared where it could be any of {names}"
+        if person is None:
+            person = self._new_person()
+        track = Track(self._serial, label, tracker, human_id, frame, start, end, captured_ns, person)
+        person.tracks.append(track)
         self.live.append(track)
+        self._records = None
         return track
+
+    def _new_person(self) -> Person:
+        self._person_serial += 1
+        return Person(self._person_serial)
+
+    def _near(
+        self, body: HumanCapsules, tracker: str, stamp_ns: int, keep: Callable[[Track], bool] | None = None
+    ) -> list[Track]:
+        """Every live track (seen or lost; those ``keep`` accepts) whose last body ``body`` could be, or be part of:
+        one lies inside the other grown by ``K_reach · |Δt|`` and both trackers' noise and margin (a bounding-sphere
+        test first)."""
+        tracks = self.live if keep is None else [t for t in self.live if keep(t)]
+        if not tracks:
+            return []
+        c, r = bounding_sphere(body)
+        centres = np.array([t.sphere_centre_m for t in tracks])
+        radii = np.array([t.sphere_radius_m for t in tracks])
+        dt_s = np.abs(np.array([t.last_seen_mono_ns for t in tracks], dtype=np.float64) - stamp_ns) / NS_PER_S
+        margins = np.array([self._margin_m(tracker, t.tracker) for t in tracks])
+        grow = self.reach_speed_mps * dt_s + margins
+        close = np.linalg.norm(centres - c, axis=1) <= r + radii + grow
+        return [t for k, t in enumerate(tracks) if close[k] and near(body, t.capsules, float(grow[k]))]
+
+    def _regroup(self, observed: Sequence[Track]) -> None:
+        """Persons after a frame: a track near another person's seen track may have swapped bodies with it, so both
+        leave their persons; unless neither person has a lost track and no tracker sees both (one body: they join)."""
+        for track in observed:
+            if track.state is not TrackState.SEEN:
+                continue
+            own = track.person
+            seen_others = self._near(
+                track.capsules,
+                track.tracker,
+                track.last_seen_mono_ns,
+                lambda t: t.person is not own and t.state is TrackState.SEEN,
+            )
+            if not seen_others:
+                continue
+            persons = {t.person.serial: t.person for t in seen_others}
+            if len(persons) == 1:
+                (other,) = persons.values()
+                if self._joinable(own, other) and not self._near(
+                    track.capsules,
+                    track.tracker,
+                    track.last_seen_mono_ns,
+                    lambda t: t.person is not own and t.person is not other and t.state is TrackState.LOST,
+                ):
+                    self._join(own, other)
+                    continue
+            self._detach(track)
+            for t in seen_others:
+                self._detach(t)
+
+    @staticmethod
+    def _joinable(a: Person, b: Person) -> bool:
+        """Two persons may be one body when neither has a lost track and no tracker sees both."""
+        if a.has_lost() or b.has_lost():
+            return False
+        return not {t.tracker for t in a.tracks} & {t.tracker for t in b.tracks}
+
+    def _join(self, keep: Person, other: Person) -> None:
+        for t in other.tracks:
+            t.person = keep
+        keep.tracks += other.tracks
+        other.tracks = []
+        self._records = None
+
+    def _detach(self, track: Track) -> None:
+        """Take a track out of its person into a person of its own (nothing to do when it is alone)."""
+        if len(track.person.tracks) <= 1:
+            return
+        track.person.tracks.remove(track)
+        person = self._new_person()
+        person.tracks.append(track)
+        track.person = person
+        self._records = None
 
     def _lose(self, track: Track, now_mono_ns: int) -> list[TrackEvent]:
         track.state = TrackState.LOST
         self._lost.append(track)
         self._records = None
-        track.twins = frozenset(
-            other.serial
-            for other in self.live
-            if other.tracker != track.tracker
-            and other.state is TrackState.SEEN
-            and _continues(
-                track.capsules,
-                other.capsules,
-                self.reach_speed_mps * abs(other.last_seen_mono_ns - track.last_seen_mono_ns) / NS_PER_S
-                + self._margin_m(track.tracker, other.tracker),
-            )
-        )
         face = leaving_face(track, self.tracking)
         if face is not None:
             return [self._release(track, now_mono_ns, ReleaseCause.LEFT, f"last seen leaving through face {face}")]
-        return [TrackEvent("track_lost", track.label, f"person {track.label} lost: no longer reported")]
+        return [
+            TrackEvent(
+                "track_lost", track.label, f"person {track.person.label} ({track.label}) lost: no longer reported"
+            )
+        ]
 
     def _margin_m(self, tracker_a: str, tracker_b: str) -> float:
         """How far two trackers' views of one person may differ beyond motion: the margin and their noise [m]."""
@@ -458,43 +548,35 @@ class TrackSet:
             self.tracking.association_margin_m + self._noise_m.get(tracker_a, 0.0) + self._noise_m.get(tracker_b, 0.0)
         )
 
-    def _release_redetected(self, frames: Sequence[_People]) -> list[TrackEvent]:
-        """Release every lost track that a person of a new frame accounts for.
-
-        One person accounts for one track: a person who continues their own track (someone else, seen all along)
-        releases nobody, unless that track is a twin of the lost one (another tracker's view of the same person).
-        A person who appeared inside the covered volume (a claim: nobody enters there) may release one lost track.
-        Either way the person must have every part the lost track had, each within its reach (a partial view
-        never releases a whole person).
-        """
+    def _release_redetected(self) -> list[TrackEvent]:
+        """Release every lost track that a seen track of its own person covers, captured after it was lost, when that
+        seen track is near no lost track of another person (then it could be them)."""
         events: list[TrackEvent] = []
-        for track in list(self._lost):
-            track_centre = centre(track.capsules)
-            released = None
-            for people in frames:
-                dt_ns = people.captured_ns - track.last_seen_mono_ns
-                if dt_ns <= 0 or not len(people.centres):
+        for lost in list(self._lost):
+            finders = list(self.live) if self._by_id else [t for t in lost.person.tracks if t.state is TrackState.SEEN]
+            for seen in finders:
+                if seen.state is not TrackState.SEEN or seen.last_seen_mono_ns <= lost.last_seen_mono_ns:
                     continue
-                reach_m = self.reach_speed_mps * dt_ns / NS_PER_S + self._margin_m(track.tracker, people.tracker)
-                near = np.flatnonzero(np.linalg.norm(people.centres - track_centre, axis=1) <= reach_m + 2.5)
-                for k in near:  # a person is at most ~2.5 m across: one whose centre is farther cannot cover it
-                    finder = people.tracks[int(k)]
-                    twin = finder.serial in track.twins
-                    person = (track.tracker, track.human_id)
-                    claim = (
-                        finder.claim
-                        and finder.claimed in (None, person)
-                        and finder.first_seen_mono_ns > track.last_seen_mono_ns
+                if self._by_id and touches_entry_band(seen.capsules, self.tracking):
+                    continue
+                reach_m = self.reach_speed_mps * (seen.last_seen_mono_ns - lost.last_seen_mono_ns) / NS_PER_S
+                if not covers(lost.capsules, seen.capsules, reach_m + self._margin_m(lost.tracker, seen.tracker)):
+                    continue
+                if not self._by_id:
+                    rivals = self._near(
+                        seen.capsules,
+                        seen.tracker,
+                        seen.last_seen_mono_ns,
+                        lambda t: t.state is TrackState.LOST and t.person is not lost.person,
                     )
-                    if (twin or claim) and _continues(track.capsules, people.person(int(k)), reach_m):
-                        if not twin:
-                            finder.claimed = person
-                        by = f"redetected by {finder.label}" + (" (the same person, seen by another tracker)" * twin)
-                        released = self._release(track, people.captured_ns, ReleaseCause.REDETECTED, by)
-                        break
-                if released is not None:
-                    events.append(released)
-                    break
+                    if rivals:
+                        lost.person.held_because = (
+                            f"{seen.label} could also be {rivals[0].person.label} ({rivals[0].label}), lost nearby"
+                        )
+                        continue
+                by = f"redetected by {seen.label} (person {seen.person.label})"
+                events.append(self._release(lost, seen.last_seen_mono_ns, ReleaseCause.REDETECTED, by))
+                break
         return events
 
     def _release_all_lost(self, now_mono_ns: int, cause: ReleaseCause, why: str) -> list[TrackEvent]:
@@ -512,7 +594,15 @@ class TrackSet:
         track.released_mono_ns = now_mono_ns
         self.live.remove(track)
         self.released.append(track)
-        return TrackEvent("track_released", track.label, f"person {track.label} released: {why}", cause.value)
+        person = track.person
+        if track in person.tracks:
+            person.tracks.remove(track)
+        if not person.has_lost():
+            person.held_because = None
+        self._records = None
+        return TrackEvent(
+            "track_released", track.label, f"person {person.label} ({track.label}) released: {why}", cause.value
+        )
 
     # -- what the decisions use -----------------------------------------------------------------------------
 
@@ -524,6 +614,13 @@ class TrackSet:
     def lost(self) -> list[Track]:
         """The lost tracks, in the order they were lost."""
         return list(self._lost)
+
+    def persons(self) -> list[Person]:
+        """Every person with a live track, in the order of their first track."""
+        seen: dict[int, Person] = {}
+        for t in self.live:
+            seen.setdefault(t.person.serial, t.person)
+        return list(seen.values())
 
     def reach_m(self, track: Track, now_mono_ns: int) -> float:
         """How far a lost person may be from where they were last seen at ``now`` [m]."""
@@ -549,8 +646,8 @@ class TrackSet:
 
     def records(self) -> tuple[TrackRecord, ...]:
         """Every live track and the recently released ones (newest last), for the status; the same tuple object
-        while no track changed state (a seen track's newest frame does not count), so that the loop can hand it on
-        every cycle for free."""
+        while no track changed state or person (a seen track's newest frame does not count), so that the loop can
+        hand it on every cycle for free."""
         if self._records is None:
             self._records = tuple(
                 TrackRecord(
@@ -561,42 +658,12 @@ class TrackSet:
                     None if t.state is TrackState.SEEN else t.last_seen_mono_ns,
                     t.n_capsules,
                     t.released_by,
+                    t.person.label,
+                    t.person.held_because if t.state is TrackState.LOST else None,
                 )
                 for t in (*self.live, *self.released)
             )
         return self._records
-
-
-def _continues(track: HumanCapsules, detection: HumanCapsules, reach_m: float) -> bool:
-    """Whether a detection with the track's id continues it: every capsule the track has is in the detection under
-    the same name, and each end point moved at most ``reach_m`` (a missing part or a jump starts a new track and
-    leaves this one lost, where it was)."""
-    index = {name: i for i, name in enumerate(detection.capsule_names)}
-    rows = [index.get(name, -1) for name in track.capsule_names]
-    if min(rows, default=0) < 0:
-        return False
-    rows_arr = np.asarray(rows, dtype=np.intp)
-    moved_a = np.linalg.norm(detection.h_a_world[rows_arr] - track.h_a_world, axis=1)
-    moved_b = np.linalg.norm(detection.h_b_world[rows_arr] - track.h_b_world, axis=1)
-    grown = detection.radius_m[rows_arr] - track.radius_m
-    limit = reach_m - np.maximum(grown, 0.0)
-    return bool(((moved_a <= limit) & (moved_b <= limit)).all()) and math.isfinite(reach_m)
-
-
-class _People(NamedTuple):
-    """The people of one new tracker frame: the frame, each one's first capsule (and the end), their centres [m]."""
-
-    tracker: str
-    capsules: HumanCapsules
-    starts: list[int]
-    centres: FloatArray
-    captured_ns: int
-    tracks: tuple[Track, ...]
-    """The track each person continues (or started), in the frame's order."""
-
-    def person(self, k: int) -> HumanCapsules:
-        """The capsules of the frame's k-th person (human ids ``<tracker>/<id>``)."""
-        return part(self.capsules, self.starts[k], self.starts[k + 1])
 
 
 class _Previous(NamedTuple):

@@ -593,6 +593,18 @@ class PlausibilityConfig(_Frozen):
     max_capsule_radius_m: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
         0.35, description="Largest human capsule radius [m]. At most 1 m: no body part is thicker than 2 m."
     )
+    max_person_extent_m: Annotated[float, Field(gt=0.0, le=3.5, allow_inf_nan=False)] = Field(
+        3.0,
+        description="Largest extent of one reported person: the diagonal of the box around their capsules plus "
+        "twice their largest radius [m]. A person lying down with arms overhead spans ~2.8 m; a larger 'person' is "
+        "several people merged (or not a person) and is refused: its centre or parts would stand for bodies it "
+        "does not describe. At most 3.5 m.",
+    )
+    max_capsules_per_person: Annotated[int, Field(ge=1, le=256)] = Field(
+        64,
+        description="Most capsules one reported person may have (a body model with more parts than this is a "
+        "point cloud, not a person). At most 256.",
+    )
 
     @model_validator(mode="after")
     def _world_is_a_volume(self) -> PlausibilityConfig:
@@ -702,10 +714,23 @@ class TrackingConfig(_Frozen):
         f"the sweep's auditor catches it. Refused unless {UNSAFE_ENV_VAR} names it.",
     )
 
+    unsafe_release_by_id_for_tests: bool = Field(
+        False,
+        description="TEST ONLY: the release rule before issue 32: a lost track is continued by its tracker's same id "
+        "within reach, and any detection away from the entry band that covers it releases it, whoever it is (one "
+        "person stands in for another), to show that the sweep's auditor catches it. Refused unless "
+        f"{UNSAFE_ENV_VAR} names it.",
+    )
+
     @field_validator("unsafe_forget_lost_for_tests")
     @classmethod
     def _unsafe_only_when_named(cls, value: bool) -> bool:
         return refuse_unless_named(value, "unsafe_forget_lost_for_tests", "lost people are forgotten")
+
+    @field_validator("unsafe_release_by_id_for_tests")
+    @classmethod
+    def _unsafe_release_only_when_named(cls, value: bool) -> bool:
+        return refuse_unless_named(value, "unsafe_release_by_id_for_tests", "lost people are released by others")
 
     @model_validator(mode="after")
     def _coverage_is_a_volume(self) -> TrackingConfig:
@@ -868,11 +893,17 @@ class CellConfig(_Frozen):
         return self
 
     def tracker_plausibility(self, tracker: str) -> PlausibilityConfig:
-        """What the door allows ``tracker``: the cell's limits, a ROS 2 skeleton tracker's own radius and length."""
+        """What the door allows ``tracker``: the cell's limits, a ROS 2 skeleton tracker's own radius and length (its
+        reach spheres stand for hidden limbs, so one person may span their diameter more than the cell allows)."""
         ros2 = self.trackers[tracker].ros2
         if ros2 is None:
             return self.plausibility
-        limits = {"max_capsule_radius_m": ros2.max_capsule_radius_m, "max_capsule_length_m": ros2.max_capsule_length_m}
+        extra_m = 2.0 * max(0.0, ros2.max_capsule_radius_m - self.plausibility.max_capsule_radius_m)
+        limits = {
+            "max_capsule_radius_m": ros2.max_capsule_radius_m,
+            "max_capsule_length_m": ros2.max_capsule_length_m,
+            "max_person_extent_m": self.plausibility.max_person_extent_m + extra_m,
+        }
         return self.plausibility.model_copy(update=limits)
 
     def sha256(self) -> str:

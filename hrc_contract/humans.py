@@ -14,6 +14,7 @@ e.g. a capsule kilometres long passing a hand's width from the tool, lose all pr
 
 from __future__ import annotations
 
+import itertools
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
@@ -94,11 +95,22 @@ def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:
 
 
 def implausible_reason(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> str | None:
-    """Why a tracker's capsules cannot be real, or None if they can.
+    """Why a tracker's capsules cannot be real, or None if they can (:func:`implausible_detail` without the detail)."""
+    found = implausible_detail(capsules, plausibility)
+    return None if found is None else found[0]
+
+
+def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> tuple[str, str] | None:
+    """Why a tracker's capsules cannot be real, with what was found, or None if they can.
 
     Returns:
-        ``outside_world`` (an end point outside ``world_min_m``..``world_max_m``), ``capsule_too_long``
-        (``‖b − a‖`` above ``max_capsule_length_m``) or ``radius_too_large`` (above ``max_capsule_radius_m``).
+        The reason and a detail: ``outside_world`` (an end point outside ``world_min_m``..``world_max_m``),
+        ``capsule_too_long`` (``‖b − a‖`` above ``max_capsule_length_m``), ``radius_too_large`` (above
+        ``max_capsule_radius_m``); and what one reported person cannot be (docs/contract.md "What one person may
+        be"): ``duplicate_human_id`` (one id listed twice in a frame), ``too_many_parts`` (more capsules than
+        ``max_capsules_per_person``), ``duplicate_part_name`` (two capsules of one person with one name), or
+        ``person_too_large`` (the diagonal of the box around one person's capsules, plus twice their largest
+        radius, above ``max_person_extent_m``: people merged into one, or not a person).
     """
     if capsules.n_capsules == 0:
         return None
@@ -106,10 +118,44 @@ def implausible_reason(capsules: HumanCapsules, plausibility: PlausibilityConfig
     high = np.asarray(plausibility.world_max_m)
     for ends in (capsules.h_a_world, capsules.h_b_world):
         if not ((ends >= low) & (ends <= high)).all():
-            return "outside_world"
+            return "outside_world", "a capsule end point outside the cell's world volume"
     axis = capsules.h_b_world - capsules.h_a_world
-    if float(np.einsum("ij,ij->i", axis, axis).max()) > plausibility.max_capsule_length_m**2:
-        return "capsule_too_long"
+    longest_sq = float(np.einsum("ij,ij->i", axis, axis).max())
+    if longest_sq > plausibility.max_capsule_length_m**2:
+        return (
+            "capsule_too_long",
+            f"a capsule {longest_sq**0.5:.2f} m long, at most {plausibility.max_capsule_length_m} m",
+        )
     if float(capsules.radius_m.max()) > plausibility.max_capsule_radius_m:
-        return "radius_too_large"
+        return (
+            "radius_too_large",
+            f"a radius of {float(capsules.radius_m.max()):.2f} m, at most {plausibility.max_capsule_radius_m} m",
+        )
+    return _implausible_person(capsules, plausibility)
+
+
+def _implausible_person(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> tuple[str, str] | None:
+    """What no single body is, per reported person (each person's capsules are listed together)."""
+    ids = capsules.human_ids
+    starts = [0, *(i for i in range(1, len(ids)) if ids[i] != ids[i - 1]), len(ids)]
+    if len(set(ids)) != len(starts) - 1:
+        return "duplicate_human_id", "a human id listed twice in one frame"
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule
+    firsts = starts[:-1]
+    low = np.minimum.reduceat(np.minimum(ends[:, :3], ends[:, 3:]), firsts, axis=0)
+    high = np.maximum.reduceat(np.maximum(ends[:, :3], ends[:, 3:]), firsts, axis=0)
+    extent = np.linalg.norm(high - low, axis=1) + 2.0 * np.maximum.reduceat(capsules.radius_m, firsts)
+    for k, (start, end) in enumerate(itertools.pairwise(starts)):
+        if end - start > plausibility.max_capsules_per_person:
+            return "too_many_parts", (
+                f"person {ids[start]!r} has {end - start} capsules, at most {plausibility.max_capsules_per_person}"
+            )
+        names = capsules.capsule_names[start:end]
+        if len(set(names)) != len(names):
+            twice = sorted({n for n in names if names.count(n) > 1})
+            return "duplicate_part_name", f"person {ids[start]!r} has two capsules named {twice[0]!r}"
+        if extent[k] > plausibility.max_person_extent_m:
+            return "person_too_large", (
+                f"person {ids[start]!r} spans {extent[k]:.2f} m, at most {plausibility.max_person_extent_m} m"
+            )
     return None

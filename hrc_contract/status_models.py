@@ -222,6 +222,33 @@ class TrackStatus(_Strict):
     action: str | None = Field(
         description="Lost: what to do, for people (e.g. clear the area and reset); null otherwise."
     )
+    person: str = Field(
+        "",
+        description="The person (``P<n>``) this track is a view of: the tracks of every tracker that are one body "
+        '(docs/contract.md "Tracks").',
+    )
+    held_because: str | None = Field(
+        None,
+        description="Lost: why no detection released it although one could have been this person (it could as well "
+        "be someone else); null otherwise.",
+    )
+
+
+class PersonStatus(_Strict):
+    """One body in the cell, whatever trackers see it and whatever ids they give it."""
+
+    label: str = Field(description="``P<n>``, numbered as persons appear.")
+    state: Literal["seen", "lost"] = Field(
+        description="Seen while any of its tracks is seen; lost when all are (kept, growing at K, until released)."
+    )
+    tracks: list[str] = Field(description="The labels of its live tracks (seen and lost).")
+    lost_tracks: list[str] = Field(
+        description="Its lost tracks: parts or views of this body no sensor accounts for now; each holds the robots "
+        "it could reach until released."
+    )
+    held_because: str | None = Field(
+        description="Why a detection that could have been this person did not release them; null otherwise."
+    )
 
 
 class InputCounters(_Strict):
@@ -306,6 +333,11 @@ class GatewayStatus(_Strict):
     )
     human_capsules: list[HumanCapsuleStatus] = Field(
         default_factory=list, description="The capsules of ``humans`` (world frame), for drawing the cell."
+    )
+    persons: list[PersonStatus] = Field(
+        default_factory=list,
+        description="Every person with a live track: the tracks of all trackers that are one body (docs/contract.md "
+        '"Tracks").',
     )
 
 

@@ -215,6 +215,7 @@ class CellVariant:
     method: str | None = None
     occlusion: bool = False
     unsafe_forget_lost: bool = False
+    unsafe_release_by_id: bool = False
     interface: str | None = None
     zed_trackers: bool = False
     zed_body_fitting: bool = False
@@ -227,6 +228,8 @@ class CellVariant:
             safety["unsafe_ignore_delay_for_tests"] = True
         if self.unsafe_forget_lost:
             raw["tracking"]["unsafe_forget_lost_for_tests"] = True
+        if self.unsafe_release_by_id:
+            raw["tracking"]["unsafe_release_by_id_for_tests"] = True
         if self.human_speed_mps is not None:
             safety["human_speed_mps"] = self.human_speed_mps
             safety["human_speed_close_mps"] = max(safety["human_speed_close_mps"], self.human_speed_mps)
@@ -588,6 +591,13 @@ def _parser() -> argparse.ArgumentParser:
         "show the auditor's teeth (refused unless HRC_ALLOW_UNSAFE=unsafe_forget_lost_for_tests is set)",
     )
     parser.add_argument(
+        "--unsafe-release-by-id",
+        action="store_true",
+        help="TEST ONLY: the gateway releases a lost person by the rule before issue 32 (the same id within reach, or "
+        "any detection away from the entry band that covers them), to show the auditor's teeth (refused unless "
+        "HRC_ALLOW_UNSAFE=unsafe_release_by_id_for_tests is set)",
+    )
+    parser.add_argument(
         "--tight-braking",
         action="store_true",
         help="the gateway assumes the controller's real braking time for every joint (no slack in the braking model)",
@@ -657,6 +667,8 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
         print("UNSAFE: gateway ran with unsafe_ignore_delay_for_tests = true (t_delay = 0)")
     if args.unsafe_forget_lost:
         print("UNSAFE: gateway ran with unsafe_forget_lost_for_tests = true (a person no longer reported is forgotten)")
+    if args.unsafe_release_by_id:
+        print("UNSAFE: gateway ran with unsafe_release_by_id_for_tests = true (lost people released by others)")
     if args.occlusion:
         print("occlusion: the trackers saw with line of sight, missed people and swapped ids (drawn per case)")
     if args.tight_braking:
@@ -754,6 +766,7 @@ def cli(argv: list[str] | None = None) -> None:
         occlusion=args.occlusion,
         interface=args.interface,
         unsafe_forget_lost=args.unsafe_forget_lost,
+        unsafe_release_by_id=args.unsafe_release_by_id,
         zed_trackers=args.zed_trackers,
         zed_body_fitting=args.zed_body_fitting,
     )

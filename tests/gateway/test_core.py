@@ -291,8 +291,9 @@ def test_random_inputs_invariants(cell_config: CellConfig, ur5: RobotModel) -> N
         q = (q_rad + rng.uniform(-0.02, 0.02, 6)).tolist()
         qd = rng.uniform(-2.0, 2.0, 6).tolist()
         capsules = []
+        body_m = rng.uniform([-2.0, -2.0, 0.5], [2.0, 2.0, 1.5])  # one person: parts within a body's extent
         for k in range(int(rng.integers(0, 4))):
-            a = rng.uniform([-2.5, -2.5, 0.0], [2.5, 2.5, 2.0])
+            a = body_m + rng.uniform(-0.5, 0.5, 3)
             b = a + rng.uniform(-0.3, 0.3, 3)
             capsules.append({"name": f"c{k}", "a": a.tolist(), "b": b.tolist(), "radius": float(rng.uniform(0, 0.15))})
         sent = cell.joint_seq

@@ -269,7 +269,8 @@ def test_plausible_frames_at_the_limits_pass(store: InputStore, cell_config: Cel
     corner = {"name": "c", "a": low, "b": low, "radius": p.max_capsule_radius_m}
     leg = {"name": "leg", "a": [0.0, 0.0, 0.1], "b": [0.0, 0.0, 0.1 + p.max_capsule_length_m], "radius": 0.08}
     top = {"name": "t", "a": high, "b": high, "radius": 0.0}
-    store.on_humans(FRONT_KEY, enc(hm(humans=[{"id": "h1", "capsules": [corner, leg, top]}])), at())
+    people = [{"id": "h1", "capsules": [corner]}, {"id": "h2", "capsules": [leg]}, {"id": "h3", "capsules": [top]}]
+    store.on_humans(FRONT_KEY, enc(hm(humans=people)), at())
     assert store.snapshot(at()).faults == {}
     assert store.snapshot(at()).humans["front"].capsules.n_capsules == 3
 
@@ -733,3 +734,44 @@ def test_flattened_capsules_match_the_message_on_random_frames() -> None:
         np.testing.assert_array_equal(caps.h_a_world.reshape(-1, 3), np.array([c["a"] for _, c in flat]).reshape(-1, 3))
         np.testing.assert_array_equal(caps.h_b_world.reshape(-1, 3), np.array([c["b"] for _, c in flat]).reshape(-1, 3))
         np.testing.assert_array_equal(caps.radius_m, [c["radius"] for _, c in flat])
+
+
+# -- what one person may be (issue 32) ------------------------------------------------------------------------------
+
+
+def _capsule(name: str, x: float, y: float = 0.0) -> dict[str, object]:
+    return {"name": name, "a": [x, y, 0.0], "b": [x, y, 0.9], "radius": 0.15}
+
+
+@pytest.mark.parametrize(
+    ("people", "reason"),
+    [
+        ([{"id": "m", "capsules": [_capsule("legs", 0.0), _capsule("hand", 4.5)]}], "person_too_large"),
+        ([{"id": "m", "capsules": [_capsule("arm", 0.0), _capsule("arm", 0.3)]}], "duplicate_part_name"),
+        ([{"id": "m", "capsules": [_capsule(f"p{k}", 0.01 * k) for k in range(65)]}], "too_many_parts"),
+        (
+            [
+                {"id": "a", "capsules": [_capsule("legs", 0.0)]},
+                {"id": "b", "capsules": [_capsule("legs", 1.0)]},
+                {"id": "a", "capsules": [_capsule("torso", 2.0)]},
+            ],
+            "duplicate_human_id",
+        ),
+    ],
+)
+def test_the_door_refuses_what_no_single_body_is(store: InputStore, people: list[dict[str, object]], reason: str) -> None:
+    """A tracker that merges people (one 'person' 4.5 m wide), names parts by kind, reports a point cloud as one
+    person, or lists one id twice: refused with the reason, and the robots stop (a person one body cannot be would
+    otherwise stand for bodies it does not describe)."""
+    store.on_humans(FRONT_KEY, enc(hm(humans=people)), at())
+    snap = store.snapshot(at())
+    assert snap.faults["tracker/front"].code == "tracker_implausible"
+    assert snap.faults["tracker/front"].reason.startswith(reason)
+    assert store.counters()[0]["tracker/front"] == {reason: 1}
+
+
+def test_one_body_at_the_limits_passes(store: InputStore, cell_config: CellConfig) -> None:
+    """A person lying down with arms overhead (2.4 m) and 64 named parts is one body."""
+    parts = [_capsule(f"p{k}", 2.4 * k / 63) for k in range(cell_config.plausibility.max_capsules_per_person)]
+    store.on_humans(FRONT_KEY, enc(hm(humans=[{"id": "h1", "capsules": parts}])), at())
+    assert store.snapshot(at()).faults == {}

@@ -1,0 +1,110 @@
+"""Bodies as volumes: whether one set of human capsules lies inside another, grown by a distance.
+
+The tracks (``gateway/tracks.py``) decide who is who by these volumes, never by ids or part names (docs/safety-math.md
+§11): a detection *could be* a person when one body lies inside the other grown by what the person can move between
+their two stamps (:func:`near`); it *covers* a lost body when each capsule of the lost body lies inside its own
+capsule of the detection, grown by the lost person's reach (:func:`covers`: one detection part per lost part, so a
+view of the legs never stands for a whole person, whatever the reach and whatever the parts are called).
+
+A capsule (segment a–b, radius r) lies inside another grown by g when both its end spheres do: the grown capsule is
+convex and a capsule is the convex hull of its end spheres. Pure numpy; no state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from hrc_contract.humans import HumanCapsules
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+def _point_segment_distance_m(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
+    """Distance of each point ``p`` (n, 3) to each segment ``a``–``b`` (m, 3): an (n, m) array [m]."""
+    d = b - a
+    dd = np.einsum("ij,ij->i", d, d)
+    rel = p[:, None, :] - a[None, :, :]
+    t = np.einsum("nmk,mk->nm", rel, d) / np.where(dd > 0.0, dd, 1.0)[None, :]
+    t = np.clip(t, 0.0, 1.0)
+    closest = a[None, :, :] + t[:, :, None] * d[None, :, :]
+    return np.linalg.norm(p[:, None, :] - closest, axis=2)  # type: ignore[no-any-return]
+
+
+def inside_matrix(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> BoolArray:
+    """Whether capsule i of ``small`` lies inside capsule j of ``big`` grown by ``grow_m`` [m]: an (n, m) array."""
+    if small.n_capsules == 0 or big.n_capsules == 0 or not np.isfinite(grow_m):
+        return np.zeros((small.n_capsules, big.n_capsules), dtype=bool)
+    limit = big.radius_m[None, :] + grow_m - small.radius_m[:, None]
+    da = _point_segment_distance_m(small.h_a_world, big.h_a_world, big.h_b_world)
+    db = _point_segment_distance_m(small.h_b_world, big.h_a_world, big.h_b_world)
+    return (da <= limit) & (db <= limit)
+
+
+def within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
+    """Every capsule of ``small`` lies inside some capsule of ``big`` grown by ``grow_m`` [m] (``small`` could be a
+    part of the body ``big`` after it moved at most ``grow_m``)."""
+    if small.n_capsules == 0:
+        return False
+    return bool(inside_matrix(small, big, grow_m).any(axis=1).all())
+
+
+def near(x: HumanCapsules, y: HumanCapsules, grow_m: float) -> bool:
+    """Whether ``x`` and ``y`` could be (parts of) one body, ``grow_m`` apart in motion and noise [m]: one lies inside
+    the other grown by ``grow_m``."""
+    return within(x, y, grow_m) or within(y, x, grow_m)
+
+
+def covers(lost: HumanCapsules, detection: HumanCapsules, grow_m: float) -> bool:
+    """Whether each capsule of ``lost`` lies inside its own capsule of ``detection`` grown by ``grow_m`` [m].
+
+    One detection capsule per lost capsule (a bipartite matching): a detection with fewer parts than the lost body
+    never covers it, however far the reach has grown, and two lost parts are not explained by one seen part.
+    """
+    n, m = lost.n_capsules, detection.n_capsules
+    if n == 0 or n > m:
+        return False
+    fits = inside_matrix(lost, detection, grow_m)
+    if not fits.any(axis=1).all():
+        return False
+    return _perfect_matching(fits)
+
+
+def _perfect_matching(fits: BoolArray) -> bool:
+    """Whether every row of ``fits`` can take its own column (Kuhn's augmenting paths; rows ≤ columns ≤ 64)."""
+    n, m = fits.shape
+    owner = [-1] * m
+    options = [np.flatnonzero(fits[i]).tolist() for i in range(n)]
+
+    def augment(i: int, visited: list[bool]) -> bool:
+        for j in options[i]:
+            if visited[j]:
+                continue
+            visited[j] = True
+            if owner[j] < 0 or augment(owner[j], visited):
+                owner[j] = i
+                return True
+        return False
+
+    # rows with the fewest options first: the usual case (one-to-one, each part near its own) needs no backtracking
+    return all(augment(i, [False] * m) for i in sorted(range(n), key=lambda i: len(options[i])))
+
+
+def bounding_sphere(capsules: HumanCapsules) -> tuple[FloatArray, float]:
+    """A sphere around every capsule: the mean of the end points and the largest distance to an end point plus
+    that capsule's radius [m]."""
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world))
+    centre_m = ends.mean(axis=0)
+    radii = np.concatenate((capsules.radius_m, capsules.radius_m))
+    return centre_m, float((np.linalg.norm(ends - centre_m, axis=1) + radii).max())
+
+
+def extent_m(capsules: HumanCapsules) -> float:
+    """The largest distance between two end points of the capsules, plus twice the largest radius [m]: how far
+    apart two points of this body are."""
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world))
+    if len(ends) == 0:
+        return 0.0
+    span = ends.max(axis=0) - ends.min(axis=0)
+    return float(np.linalg.norm(span) + 2.0 * capsules.radius_m.max())

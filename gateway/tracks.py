@@ -263,9 +263,9 @@ class TrackSet:
 
     Args:
         config: the cell (``tracking``, K, the trackers' noise).
-        release_by_id_unsafe: TEST ONLY (default: ``tracking.unsafe_release_by_id_for_tests``): the rule this replaced: a lost track is continued by its own
-            tracker's same id within reach, and any detection outside the entry band that covers it releases it,
-            whoever it belongs to. The sweep's teeth run it to show the auditor catches what it lets through.
+        release_by_id_unsafe: TEST ONLY (default: ``tracking.unsafe_release_by_id_for_tests``): the rule replaced
+            by persons (issue 32): a lost track is continued by its tracker's same id within reach, and any detection
+            away from the entry band that covers it releases it, whoever it belongs to. The sweep's teeth.
     """
 
     def __init__(self, config: CellConfig, *, release_by_id_unsafe: bool | None = None) -> None:
@@ -486,7 +486,7 @@ class TrackSet:
                 track.capsules,
                 track.tracker,
                 track.last_seen_mono_ns,
-                lambda t: t.person is not own and t.state is TrackState.SEEN,
+                lambda t, own=own: t.person is not own and t.state is TrackState.SEEN,  # type: ignore[misc]
             )
             if not seen_others:
                 continue
@@ -497,7 +497,9 @@ class TrackSet:
                     track.capsules,
                     track.tracker,
                     track.last_seen_mono_ns,
-                    lambda t: t.person is not own and t.person is not other and t.state is TrackState.LOST,
+                    lambda t, own=own, other=other: (  # type: ignore[misc]
+                        t.person is not own and t.person is not other and t.state is TrackState.LOST
+                    ),
                 ):
                     self._join(own, other)
                     continue
@@ -567,7 +569,7 @@ class TrackSet:
                         seen.capsules,
                         seen.tracker,
                         seen.last_seen_mono_ns,
-                        lambda t: t.state is TrackState.LOST and t.person is not lost.person,
+                        lambda t, mine=lost.person: t.state is TrackState.LOST and t.person is not mine,  # type: ignore[misc]
                     )
                     if rivals:
                         lost.person.held_because = (

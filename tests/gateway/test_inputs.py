@@ -759,7 +759,9 @@ def _capsule(name: str, x: float, y: float = 0.0) -> dict[str, object]:
         ),
     ],
 )
-def test_the_door_refuses_what_no_single_body_is(store: InputStore, people: list[dict[str, object]], reason: str) -> None:
+def test_the_door_refuses_what_no_single_body_is(
+    store: InputStore, people: list[dict[str, object]], reason: str
+) -> None:
     """A tracker that merges people (one 'person' 4.5 m wide), names parts by kind, reports a point cloud as one
     person, or lists one id twice: refused with the reason, and the robots stop (a person one body cannot be would
     otherwise stand for bodies it does not describe)."""

@@ -107,8 +107,10 @@ def test_covering_takes_one_detected_part_per_lost_part_whatever_the_growth() ->
 
 def test_near_is_symmetric_and_needs_a_whole_body_inside_the_other() -> None:
     a, b = person("f", "a", 1.0, 0.0), person("s", "b", 1.36, 0.0)
-    assert not near(a, b, 0.2) and not near(b, a, 0.2)
-    assert near(a, b, 0.4) and near(b, a, 0.4)
+    assert not near(a, b, 0.2)
+    assert not near(b, a, 0.2)
+    assert near(a, b, 0.4)
+    assert near(b, a, 0.4)
 
 
 # -- the review's six ways (1-5 here; 6 is the joint state's, tests/gateway/test_inputs.py) ----------------------------
@@ -255,7 +257,8 @@ def test_two_lost_people_and_one_detection_between_them_release_nobody(cell_conf
         feed.see(i * FRAME_NS, "front", person("front", "c", 1.0, 0.2))
     assert sorted(t.label for t in feed.tracks.lost()) == ["front/a", "front/b"]
     held = {r.held_because for r in feed.tracks.records() if r.state is TrackState.LOST}
-    assert held and all(h is not None and "could be any of" in h for h in held)
+    assert held
+    assert all(h is not None and "could be any of" in h for h in held)
 
 
 def test_a_blink_is_released_by_the_same_person_seen_again(cell_config: CellConfig) -> None:
@@ -357,6 +360,6 @@ def test_a_person_hidden_at_the_tool_is_released_by_nothing_but_themselves(cell_
             feed.see(t, tracker, *people, stamp_late_ns=late_ns[tracker])
             if t > hidden_ns + S // 2:  # every tracker has reported A hidden by now (the lateness is < 0.5 s)
                 held = [x for x in feed.tracks.live if x.label.split("#")[0] in ("front/a", "side/a")]
-                assert held and all(x.state is TrackState.LOST for x in held), (
-                    f"A was released at {t / S:.3f} s: {[x.released_by for x in feed.tracks.released]}"
-                )
+                why = f"A was released at {t / S:.3f} s: {[x.released_by for x in feed.tracks.released]}"
+                assert held, why
+                assert all(x.state is TrackState.LOST for x in held), why

@@ -35,7 +35,14 @@ EMITTING_SOURCES = [
 COUNTING_CALLS = {"_reject": 1, "_count": 1, "count_rejection": 1, "MessageError": 0}
 """Calls that count a rejection, and the position of the reason among their arguments."""
 FAULT_CALLS = {"Fault", "TopicFault"}
-REASON_RETURNING = {"_joint_state_problem", "implausible_reason", "implausible_detail", "_implausible_person", "order", "fault_code"}
+REASON_RETURNING = {
+    "_joint_state_problem",
+    "implausible_reason",
+    "implausible_detail",
+    "_implausible_person",
+    "order",
+    "fault_code",
+}
 """Functions whose string results are reasons (or, for ``fault_code``, codes)."""
 
 

@@ -61,6 +61,8 @@ ROBOT = "ur5"
 TRACKER = "front"
 FORGET = os.environ.get("HRC_TRACKS_TEETH") == "forget"
 FORGET_SETTING = "unsafe_forget_lost_for_tests"
+BY_ID = os.environ.get("HRC_TRACKS_TEETH") == "by_id"
+BY_ID_SETTING = "unsafe_release_by_id_for_tests"
 
 FRAME_S = 1 / 30
 """The tracker's frame period, as the real trackers publish [s]."""
@@ -97,11 +99,12 @@ class TracksCell:
         return httpx.get(f"http://127.0.0.1:{self.http_port}{path}", timeout=10.0).json()
 
     def status(self) -> dict[str, Any] | None:
+        """The gateway's status, or None while it has none (not started, or no fresh status: a 503)."""
         try:
             doc: dict[str, Any] = self.get("/api/v1/status")
         except (httpx.HTTPError, ValueError):
             return None
-        return doc
+        return doc if "robots" in doc else None
 
     def events(self) -> list[dict[str, Any]]:
         events: list[dict[str, Any]] = self.get("/api/v1/events")["events"]
@@ -111,19 +114,29 @@ class TracksCell:
         wait_or_fail(condition, timeout_s, what, self.logs, self.procs)
 
 
-def _cell_config() -> CellConfig:
-    """The default cell with its front tracker only (the test plays it), forgetting lost people in the teeth run."""
+def _cell_config(trackers: Sequence[str] = (TRACKER,)) -> CellConfig:
+    """The default cell with the given trackers (the test plays them), forgetting lost people in the teeth run, or
+    releasing them by id in the persons' teeth run."""
     config = load_cell_config(None)
-    tracking = config.tracking.model_copy(update={"unsafe_forget_lost_for_tests": FORGET})
-    return config.model_copy(update={"trackers": {TRACKER: config.trackers[TRACKER]}, "tracking": tracking})
+    update = {"unsafe_forget_lost_for_tests": FORGET, "unsafe_release_by_id_for_tests": BY_ID}
+    tracking = config.tracking.model_copy(update=update)
+    return config.model_copy(update={"trackers": {t: config.trackers[t] for t in trackers}, "tracking": tracking})
 
 
 @pytest.fixture
-def cell(tmp_path: Path) -> Iterator[TracksCell]:
+def trackers(request: pytest.FixtureRequest) -> tuple[str, ...]:
+    """The trackers the test plays (one; the persons' tests play two, as the parameter)."""
+    return tuple(getattr(request, "param", (TRACKER,)))
+
+
+@pytest.fixture
+def cell(tmp_path: Path, trackers: tuple[str, ...]) -> Iterator[TracksCell]:
     with ExitStack() as stack:
         if FORGET:
             stack.enter_context(unsafe_test_settings(FORGET_SETTING))
-        config = _cell_config()
+        if BY_ID:
+            stack.enter_context(unsafe_test_settings(BY_ID_SETTING))
+        config = _cell_config(trackers)
         config_path = write_cell_config(config, tmp_path / "cell.toml")
         pki = CellPki(tmp_path / "pki")
         provision_cell(pki, CellPolicy.from_config(config))
@@ -157,9 +170,11 @@ class Tracker:
     """Publishes one tracker's frames at 30 Hz: a scene (the people it sees) held until changed, and one-shot
     frames played once each, in order, before the scene resumes."""
 
-    def __init__(self, session: zenoh.Session, cell: str) -> None:
+    def __init__(self, session: zenoh.Session, cell: str, name: str = TRACKER, late_s: float = 0.0) -> None:
+        self.name = name
+        self._late_ns = int(late_s * 1e9)
         self._publisher = session.declare_publisher(
-            keys.tracker_humans(cell, TRACKER), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+            keys.tracker_humans(cell, name), congestion_control=zenoh.CongestionControl.BLOCK, express=True
         )
         self._lock = threading.Lock()
         self._scene: list[Human] = []
@@ -185,7 +200,8 @@ class Tracker:
         while not self._halt.is_set():
             with self._lock:
                 people = self._once.pop(0) if self._once else self._scene
-                message = Humans(tracker=TRACKER, seq=len(self.sent) + 1, stamp_ns=time.time_ns(), humans=people)
+                stamp_ns = time.time_ns() - self._late_ns
+                message = Humans(tracker=self.name, seq=len(self.sent) + 1, stamp_ns=stamp_ns, humans=people)
                 self._publisher.put(to_payload(message))
                 self.sent.append(Sent(message.seq, message.stamp_ns, len(people)))
             next_s += FRAME_S
@@ -353,8 +369,8 @@ def test_a_two_frame_blink_does_not_move_the_robot(scene: Scene) -> None:
     assert [f.people for f in frames[:3]] == [0, 0, 1]
     # The gateway took the empty frames: it lost the person ...
     scene.cell.wait(lambda: any(e["kind"] == "track_lost" for e in scene.cell.events()), "the person lost")
-    # ... and found them again where they were: the same track, seen.
-    scene.cell.wait(lambda: (t := scene.track("front/h1")) is not None and t["state"] == "seen", "the person seen")
+    # ... and found them again where they were: released by the person seen again (a new track of the same person).
+    scene.cell.wait(lambda: bool(_released(scene.cell, "front/h1", "redetected")), "the person seen again")
     _assert_never_moved(scene.watch, frames[0].stamp_ns, frames[-1].stamp_ns, q_still)
 
 
@@ -409,8 +425,9 @@ def test_a_person_lost_for_good_holds_the_robot_until_an_operator_resets_them(sc
 
 
 def test_a_three_metre_jump_in_one_frame_keeps_the_robot_stopped(scene: Scene) -> None:
-    """(c) The person's next frame puts them 3 m away: not believed (250 m/s); the robot stays stopped until the
-    lost person's reach covers the new detection."""
+    """(c) The person's next frame puts them 3 m away: not believed (250 m/s). The detection is someone else, followed
+    from then on: when the lost person's reach covers it, it is still not evidence about the lost person (issue 32);
+    the robot stays stopped until an operator resets them."""
     q_still = scene.watch.last_truth(1)[0].q
     (hand,) = [c for c in scene.person[0].capsules if c.name == "hand_r"]
     jumped = [person_at("h1", np.array(hand.a), scene.away_xy, JUMP_M)]
@@ -424,9 +441,14 @@ def test_a_three_metre_jump_in_one_frame_keeps_the_robot_stopped(scene: Scene) -
     _assert_never_moved(scene.watch, jump_ns, believable_ns, q_still)
     # Meanwhile the status showed the one lost where they were and a new track where the detection is.
     assert any(e["kind"] == "track_lost" and e["track"] == "front/h1" for e in cell.events())
-    # Once their reach covers it, the detection may be them: released, and the robot resumes.
-    cell.wait(lambda: bool(_released(cell, "front/h1", "redetected")), "the lost person released")
-    cell.wait(scene.watch.moving, "the robot resuming")
+    # Once their reach covers it, the detection is still someone followed since the loss: nothing releases them.
+    held_until_ns = believable_ns + 1_500_000_000
+    cell.wait(lambda: bool(scene.watch.overrides_since(held_until_ns)), "overrides 1.5 s after the reach covered it")
+    _assert_never_moved(scene.watch, jump_ns, held_until_ns, q_still)
+    assert not _released(cell, "front/h1", "redetected")
+    track = scene.track("front/h1")
+    assert track is not None
+    assert track["state"] == "lost", track
 
 
 def test_a_person_seen_again_far_away_within_reach_lets_the_robot_resume(scene: Scene) -> None:
@@ -450,3 +472,156 @@ def test_a_person_seen_again_far_away_within_reach_lets_the_robot_resume(scene: 
     robot = scene.robot()
     assert robot is not None
     assert robot["closest"]["human"] == "front/h2", robot
+
+
+# -- persons (issue 32): two trackers; nothing but A themselves releases A --------------------------------------------
+#
+# Teeth: HRC_TRACKS_TEETH=by_id runs these against a gateway that releases by the rule before persons
+# (tracking.unsafe_release_by_id_for_tests); then each of them fails.
+
+SIDE = "side"
+FAR_M = 1.9
+"""B stands this much farther out than A (along the direction away from the robot's base) [m]."""
+HOLD_S = 2.5
+"""How long each case watches the robot stay still after what used to release A [s]."""
+
+
+@dataclass
+class TwoTrackers:
+    scene: Scene
+    side: Tracker
+    hand_m: np.ndarray
+
+
+@pytest.fixture
+def two(request: pytest.FixtureRequest, cell: TracksCell) -> Iterator[TwoTrackers]:
+    """Front and side (side ``late_s`` behind, from the test's parameter); A with a hand at the tool, seen by front
+    only, until the robot stands still."""
+    late_s = getattr(request, "param", 0.0)
+    with (
+        zenoh.open(session_config([], [cell.gateway_endpoint], cell.options(TRACKER_EMULATOR, "peer"))) as trk,
+        zenoh.open(session_config([], [cell.gateway_endpoint], cell.options(AUDITOR, "client"))) as obs,
+    ):
+        watch = Watch(obs, cell.config.cell)
+        front, side = Tracker(trk, cell.config.cell), Tracker(trk, cell.config.cell, SIDE, late_s)
+        try:
+            cell.wait(watch.moving, "the robot running its program with nobody in the cell", START_S)
+            s = Scene(cell, front, watch)
+            robot = s.robot()
+            assert robot is not None
+            hand_m = np.array(next(link for link in robot["links"] if link["name"] == "tool")["b_m"])
+            radius_m = float(np.linalg.norm(hand_m[:2]))
+            if radius_m > 0.1:
+                s.away_xy = hand_m[:2] / radius_m
+            s.person = [person_at("a", hand_m, s.away_xy)]
+            front.show(s.person)
+            cell.wait(watch.standstill, "the robot braked to a standstill for A's hand at the tool")
+            yield TwoTrackers(s, side, hand_m)
+        finally:
+            front.close()
+            side.close()
+
+
+def _held_still(two: TwoTrackers, since_ns: int, label: str = "front/a") -> None:
+    """For HOLD_S from ``since_ns`` the robot never moved and A's track stays lost."""
+    scene = two.scene
+    until_ns = since_ns + int(HOLD_S * 1e9)
+    q_still = scene.watch.last_truth(1)[0].q
+    scene.cell.wait(lambda: bool(scene.watch.overrides_since(until_ns)), f"overrides {HOLD_S} s on")
+    _assert_never_moved(scene.watch, since_ns, until_ns, q_still)
+    documents: list[dict[str, Any]] = []
+    scene.cell.wait(lambda: (d := scene.cell.status()) is not None and bool(documents.append(d) or True), "a status")
+    status = documents[-1]
+    track = next((t for t in status["tracks"] if t["label"] == label), None)
+    assert track is not None, status["tracks"]
+    assert track["state"] == "lost", track
+    persons = {p["label"]: p for p in status["persons"]}
+    assert label in persons[track["person"]]["lost_tracks"], persons
+
+
+@pytest.mark.parametrize("trackers", [("front", SIDE)], indirect=True)
+def test_persons_1_a_second_trackers_first_view_of_someone_followed_does_not_release_a(two: TwoTrackers) -> None:
+    """A at the tool, B 1.9 m farther out, both followed by front. A is hidden; side then reports B for the first
+    time (a new id for side): that is B, not someone who appeared; A keeps the robot still."""
+    scene = two.scene
+    b = person_at("b", two.hand_m, scene.away_xy, FAR_M)
+    scene.tracker.show([*scene.person, b])
+    scene.cell.wait(lambda: scene.track("front/b") is not None, "B followed by front")
+    first = scene.tracker.show([b])  # A hidden
+    scene.cell.wait(lambda: (t := scene.track("front/a")) is not None and t["state"] == "lost", "A lost")
+    hidden_ns = scene.tracker.frames_from(first)[0].stamp_ns
+    two.side.show([person_at("s9", two.hand_m, scene.away_xy, FAR_M + 0.02)])
+    _held_still(two, hidden_ns)
+    documents: list[dict[str, Any]] = []
+    scene.cell.wait(lambda: (d := scene.cell.status()) is not None and bool(documents.append(d) or True), "a status")
+    status = documents[-1]
+    b_tracks = [t for t in status["tracks"] if t["label"] in ("front/b", "side/s9")]
+    assert len({t["person"] for t in b_tracks}) == 1, (status["tracks"], status["persons"])  # one body, one person
+
+
+@pytest.mark.parametrize("trackers", [("front", SIDE)], indirect=True)
+def test_persons_2_a_tracker_renaming_someone_it_follows_does_not_release_a(two: TwoTrackers) -> None:
+    """Same cell, side sees B all along; after A is hidden, front gives B a new id."""
+    scene = two.scene
+    b = person_at("b", two.hand_m, scene.away_xy, FAR_M)
+    scene.tracker.show([*scene.person, b])
+    two.side.show([person_at("s1", two.hand_m, scene.away_xy, FAR_M + 0.02)])
+    scene.cell.wait(lambda: scene.track("side/s1") is not None, "B followed by side")
+    first = scene.tracker.show([b])  # A hidden
+    scene.cell.wait(lambda: (t := scene.track("front/a")) is not None and t["state"] == "lost", "A lost")
+    hidden_ns = scene.tracker.frames_from(first)[0].stamp_ns
+    scene.tracker.show([person_at("b2", two.hand_m, scene.away_xy, FAR_M)])  # front renames B
+    _held_still(two, hidden_ns)
+
+
+@pytest.mark.parametrize("trackers", [("front", SIDE)], indirect=True)
+@pytest.mark.parametrize("two", [0.14], indirect=True)
+def test_persons_3_a_neighbour_seen_by_a_late_tracker_does_not_release_a(two: TwoTrackers) -> None:
+    """Side stamps its frames 140 ms late (inside the age limit). A and B in one posture, B 0.36 m farther out; both
+    trackers see both. A is hidden from both; side keeps seeing B."""
+    scene = two.scene
+    b = person_at("b", two.hand_m, scene.away_xy, 0.36)
+    scene.tracker.show([*scene.person, b])
+    two.side.show([person_at("sa", two.hand_m, scene.away_xy, 0.01), person_at("sb", two.hand_m, scene.away_xy, 0.37)])
+    scene.cell.wait(lambda: scene.track("side/sb") is not None, "both followed by side")
+    time.sleep(0.5)
+    first = scene.tracker.show([b])  # A hidden from front ...
+    two.side.show([person_at("sb", two.hand_m, scene.away_xy, 0.37)])  # ... and from side
+    scene.cell.wait(lambda: (t := scene.track("front/a")) is not None and t["state"] == "lost", "A lost")
+    _held_still(two, scene.tracker.frames_from(first)[0].stamp_ns)
+
+
+@pytest.mark.parametrize("trackers", [("front", SIDE)], indirect=True)
+def test_persons_5_a_person_re_seen_without_the_reaching_hand_does_not_release_the_hand(two: TwoTrackers) -> None:
+    """A reaches with the hand to the tool, is hidden for 0.6 s, and is re-seen (same id) without the hand."""
+    scene = two.scene
+    first = scene.tracker.show([], once=[[]] * 18)  # 0.6 s hidden
+    scene.cell.wait(lambda: (t := scene.track("front/a")) is not None and t["state"] == "lost", "A lost")
+    (torso,) = [c for c in scene.person[0].capsules if c.name == "torso"]
+    scene.tracker.show([Human(id="a", capsules=[torso])], once=[[]] * 18)
+    _held_still(two, scene.tracker.frames_from(first)[0].stamp_ns)
+
+
+@pytest.mark.parametrize("trackers", [("front", SIDE)], indirect=True)
+@pytest.mark.parametrize("what", ["merged", "duplicate_names"])
+def test_persons_4_a_body_no_person_can_be_is_refused_and_holds_the_robot(two: TwoTrackers, what: str) -> None:
+    """A tracker that merges people (one 'person' 4.5 m wide, a hand at the tool) or names parts by kind."""
+    scene = two.scene
+    (hand,) = [c for c in scene.person[0].capsules if c.name == "hand_r"]
+    if what == "merged":
+        far = person_at("m", two.hand_m, scene.away_xy, 4.0)
+        body = Human(id="a", capsules=[hand, *(c.model_copy(update={"name": f"far_{c.name}"}) for c in far.capsules)])
+        reason = "person_too_large"
+    else:
+        body = Human(id="a", capsules=[hand, hand.model_copy(update={"name": "hand_r"})])
+        reason = "duplicate_part_name"
+    first = scene.tracker.show([body])
+    scene.cell.wait(
+        lambda: (r := scene.robot()) is not None and any(reason in f["reason"] for f in r["faults"]),
+        f"the fault for {reason}",
+    )
+    since_ns = scene.tracker.frames_from(first)[0].stamp_ns
+    until_ns = since_ns + int(HOLD_S * 1e9)
+    q_still = scene.watch.last_truth(1)[0].q
+    scene.cell.wait(lambda: bool(scene.watch.overrides_since(until_ns)), "overrides")
+    _assert_never_moved(scene.watch, since_ns, until_ns, q_still)

@@ -30,6 +30,7 @@ Pure: no I/O, no clock; every time is passed in (monotonic [ns]).
 from __future__ import annotations
 
 import itertools
+import math
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -39,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.bodies import bounding_sphere, covers, near
+from gateway.bodies import bounding_sphere, covers, near, within
 from hrc_contract.config import CellConfig, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 
@@ -59,6 +60,12 @@ VELOCITY_MIN_SPAN_NS = 60_000_000
 """At least this span of observations is needed to call a track 'moving out' [ns]."""
 NOISE_SIGMAS = 3.0
 """A tracker's position noise, ``noise_std_m``, counts this many times in the association margin."""
+REAPPEAR_MAX_S = 0.1
+"""A track its tracker lost at most this long ago [s] is continued at the entry band by a detection of the same id
+inside its body grown by the motion meanwhile (:meth:`TrackSet._fragment_of`)."""
+JOIN_DT_MAX_S = 0.05
+"""Two trackers' views join one person only when they agree within the margin and what a person moves in this long
+[s]: a late tracker's stamps must not make a neighbour 'the same body' (issue 32, case 3)."""
 
 
 class TrackState(StrEnum):
@@ -282,6 +289,7 @@ class TrackSet:
         self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
         self._serial = 0
         self._person_serial = 0
+        self._frame_ns = 0
         self._frames: dict[str, object] = {}
         self._lost_cache: tuple[int, HumanCapsules] | None = None
         self._records: tuple[TrackRecord, ...] | None = None
@@ -347,6 +355,7 @@ class TrackSet:
         """
         margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
+        self._frame_ns = captured_ns
         starts = human_starts(capsules)
         prefix = len(tracker) + 1
         continued: list[Track | None] = (
@@ -430,14 +439,20 @@ class TrackSet:
         if any(t.label == label for t in self.live):
             label = f"{label}#{self._serial}"
         body = part(frame, start, end)
-        near_persons = {t.person.serial: t.person for t in self._near(body, tracker, captured_ns)}
+        near = self._near(body, tracker, captured_ns)
+        near_persons = {t.person.serial: t.person for t in near}
         person: Person | None = None
-        if len(near_persons) == 1 and not touches_entry_band(body, self.tracking):
+        if len(near_persons) == 1 and (
+            not touches_entry_band(body, self.tracking) or self._fragment_of(body, tracker, human_id, near)
+        ):
             (candidate,) = near_persons.values()
             # a tracker reports each body once: beside its own detection of this frame, this is another body
             if not any(
                 t.tracker == tracker and t.state is TrackState.SEEN and t.last_seen_mono_ns == captured_ns
                 for t in candidate.tracks
+            ) and (
+                any(t.state is TrackState.LOST for t in near)  # the lost person seen again, within their reach
+                or self._near(body, tracker, captured_ns, lambda t: t.person is candidate, JOIN_DT_MAX_S)
             ):
                 person = candidate
         elif len(near_persons) > 1:
@@ -453,16 +468,39 @@ class TrackSet:
         self._records = None
         return track
 
+    def _fragment_of(self, body: HumanCapsules, tracker: str, human_id: str, near: Sequence[Track]) -> bool:
+        """Whether a new track is the body its tracker lost a moment ago: the same tracker and id, lost at most
+        :data:`REAPPEAR_MAX_S` before, and inside that track's last body grown by what a person moves meanwhile (a
+        frame missed, a part out of view). At the entry band too: a newcomer from outside cannot stand inside the
+        body of the person seen there a moment ago."""
+        margin_m = self._margin_m(tracker, tracker)
+        for t in near:
+            dt_s = (self._frame_ns - t.last_seen_mono_ns) / NS_PER_S
+            if (
+                t.tracker == tracker
+                and t.human_id == human_id
+                and t.state is TrackState.LOST
+                and 0.0 < dt_s <= REAPPEAR_MAX_S
+                and within(body, t.capsules, self.reach_speed_mps * dt_s + margin_m)
+            ):
+                return True
+        return False
+
     def _new_person(self) -> Person:
         self._person_serial += 1
         return Person(self._person_serial)
 
     def _near(
-        self, body: HumanCapsules, tracker: str, stamp_ns: int, keep: Callable[[Track], bool] | None = None
+        self,
+        body: HumanCapsules,
+        tracker: str,
+        stamp_ns: int,
+        keep: Callable[[Track], bool] | None = None,
+        max_dt_s: float = math.inf,
     ) -> list[Track]:
         """Every live track (seen or lost; those ``keep`` accepts) whose last body ``body`` could be, or be part of:
-        one lies inside the other grown by ``K_reach · |Δt|`` and both trackers' noise and margin (a bounding-sphere
-        test first)."""
+        one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both trackers' noise and margin (a
+        bounding-sphere test first). The cap makes a tight test for joining (a late stamp must not widen it)."""
         tracks = self.live if keep is None else [t for t in self.live if keep(t)]
         if not tracks:
             return []
@@ -470,6 +508,7 @@ class TrackSet:
         centres = np.array([t.sphere_centre_m for t in tracks])
         radii = np.array([t.sphere_radius_m for t in tracks])
         dt_s = np.abs(np.array([t.last_seen_mono_ns for t in tracks], dtype=np.float64) - stamp_ns) / NS_PER_S
+        dt_s = np.minimum(dt_s, max_dt_s)
         margins = np.array([self._margin_m(tracker, t.tracker) for t in tracks])
         grow = self.reach_speed_mps * dt_s + margins
         close = np.linalg.norm(centres - c, axis=1) <= r + radii + grow
@@ -493,13 +532,21 @@ class TrackSet:
             persons = {t.person.serial: t.person for t in seen_others}
             if len(persons) == 1:
                 (other,) = persons.values()
-                if self._joinable(own, other) and not self._near(
-                    track.capsules,
-                    track.tracker,
-                    track.last_seen_mono_ns,
-                    lambda t, own=own, other=other: (  # type: ignore[misc]
-                        t.person is not own and t.person is not other and t.state is TrackState.LOST
-                    ),
+                if (
+                    self._joinable(own, other)
+                    and self._near(
+                        track.capsules,
+                        track.tracker,
+                        track.last_seen_mono_ns,
+                        lambda t, other=other: t.person is other and t.state is TrackState.SEEN,  # type: ignore[misc]
+                        JOIN_DT_MAX_S,
+                    )
+                    and not self._near(
+                        track.capsules,
+                        track.tracker,
+                        track.last_seen_mono_ns,
+                        lambda t, own=own, other=other: t.person is not own and t.person is not other,  # type: ignore[misc]
+                    )
                 ):
                     self._join(own, other)
                     continue
@@ -509,10 +556,9 @@ class TrackSet:
 
     @staticmethod
     def _joinable(a: Person, b: Person) -> bool:
-        """Two persons may be one body when neither has a lost track and no tracker sees both."""
-        if a.has_lost() or b.has_lost():
-            return False
-        return not {t.tracker for t in a.tracks} & {t.tracker for t in b.tracks}
+        """Two persons may be one body when no tracker sees both (a tracker reports each body once)."""
+        seen_a = {t.tracker for t in a.tracks if t.state is TrackState.SEEN}
+        return not seen_a & {t.tracker for t in b.tracks if t.state is TrackState.SEEN}
 
     def _join(self, keep: Person, other: Person) -> None:
         for t in other.tracks:

@@ -555,6 +555,30 @@ class TrackerConfig(_Frozen):
         description="Probability per frame that two people the emulated sensor reports exchange their ids, "
         "from that frame on.",
     )
+    stamp_late_s: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.0,
+        description="The emulated sensor stamps each frame this much before its capture (a tracker whose stamps lag "
+        "its images) [s]: its people look this much older, and another tracker's view of them this much newer.",
+    )
+    id_renew_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = Field(
+        0.0,
+        description="Probability per frame and person that the emulated sensor gives someone it follows a new id, "
+        "from that frame on (a tracker re-identifying a person).",
+    )
+    blind_until_s: NonNegativeFloat = Field(
+        0.0,
+        description="The emulated sensor reports nobody until this scenario time [s] (a tracker that joins late: its "
+        "first view of people others follow).",
+    )
+    merge_within_m: NonNegativeFloat = Field(
+        0.0,
+        description="The emulated sensor reports people whose centres are within this of each other as one person, "
+        "all their capsules under one id (a tracker that merges people) [m]; 0 = never.",
+    )
+    part_names_by_kind: bool = Field(
+        False,
+        description="The emulated sensor names capsules by kind, without their side (two capsules named 'forearm').",
+    )
     ros2: Ros2TrackerInput | None = Field(
         None,
         description="The tracker is a ROS 2 body tracker read over rmw_zenoh (gateway/ros2_trackers.py): its "

@@ -28,7 +28,7 @@ from hrc_contract.config import Box, TrackerConfig
 from hrc_contract.messages import Humans
 from tracker_emu.occlusion import NO_BLOCKERS, Blockers, fixture_blockers, join_blockers
 from tracker_emu.scenario import Scenario, TrackedHuman, humans_at, scenario_time
-from tracker_emu.sensor import humans_message, measure, rename, swap_ids
+from tracker_emu.sensor import humans_message, measure, merge_close, names_by_kind, rename, renew_ids, swap_ids
 
 
 @dataclass
@@ -177,17 +177,22 @@ class TrackerEmulator:
     ) -> None:
         sensor.counters.captured += 1
         config = sensor.config
-        measured = measure(humans_true, sensor.rng, config, coverage=self.coverage, blockers=blockers)
+        blind = self.elapsed_s(now_s) < config.blind_until_s
+        measured = measure([] if blind else humans_true, sensor.rng, config, coverage=self.coverage, blockers=blockers)
         if measured is None:
             sensor.counters.dropped += 1
         else:
             names = swap_ids(measured, sensor.names, sensor.rng, config.id_swap_probability)
             sensor.counters.id_swaps += names != sensor.names
+            names = renew_ids(measured, names, sensor.rng, config.id_renew_probability, sensor.counters.captured)
             sensor.names = names
+            reported = merge_close(rename(measured, names), config.merge_within_m)
+            if config.part_names_by_kind:
+                reported = names_by_kind(reported)
             self._order += 1
+            stamp_ns = now_ns - round(config.stamp_late_s * 1e9)
             heapq.heappush(
-                self._pending,
-                _Pending(now_s + config.latency_s, self._order, sensor.name, now_ns, rename(measured, names)),
+                self._pending, _Pending(now_s + config.latency_s, self._order, sensor.name, stamp_ns, reported)
             )
         # Next capture on the sensor's own grid; instants already past are skipped, not caught up in a burst.
         sensor.next_capture_s += sensor.period_s

@@ -89,6 +89,51 @@ def measure(
     return measured
 
 
+def merge_close(humans: Sequence[TrackedHuman], within_m: float) -> list[TrackedHuman]:
+    """People whose centres lie within ``within_m`` of an earlier one's, reported as that one (all capsules under its
+    id): a tracker that merges people standing together."""
+    if within_m <= 0.0 or len(humans) < 2:
+        return list(humans)
+    groups: list[list[TrackedHuman]] = []
+    for human in humans:
+        c = centre_m(human)
+        group = next((g for g in groups if np.linalg.norm(centre_m(g[0]) - c) <= within_m), None)
+        if group is None:
+            groups.append([human])
+        else:
+            group.append(human)
+    return [TrackedHuman(g[0].id, tuple(c for h in g for c in h.capsules)) for g in groups]
+
+
+def names_by_kind(humans: Sequence[TrackedHuman]) -> list[TrackedHuman]:
+    """Capsules named by their kind, the side left out (``forearm_l`` → ``forearm``)."""
+    return [
+        TrackedHuman(
+            h.id,
+            tuple(BodyCapsule(c.name.removesuffix("_l").removesuffix("_r"), c.a, c.b, c.radius_m) for c in h.capsules),
+        )
+        for h in humans
+    ]
+
+
+def renew_ids(
+    reported: Sequence[TrackedHuman],
+    names: Mapping[str, str],
+    rng: np.random.Generator,
+    probability: float,
+    serial: int,
+) -> dict[str, str]:
+    """The sensor's names for the people after this frame: with ``probability`` each reported person gets a new id
+    (``<id>-<serial>``; one draw per person, none when ``probability`` is 0)."""
+    new = dict(names)
+    if probability == 0.0 or not reported:
+        return new
+    for human, draw in zip(reported, rng.random(len(reported)), strict=True):
+        if draw < probability:
+            new[human.id] = f"{human.id}-{serial}"
+    return new
+
+
 def swap_ids(
     reported: Sequence[TrackedHuman], names: Mapping[str, str], rng: np.random.Generator, probability: float
 ) -> dict[str, str]:

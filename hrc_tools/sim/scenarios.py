@@ -303,6 +303,69 @@ def with_occlusion(rng: np.random.Generator, trackers: dict[str, TrackerConfig])
     return {name: TrackerConfig.model_validate(t.model_dump()) for name, t in occluding.items()}
 
 
+PERSONS_STREAM = 19
+"""The hostile tracking of a case (:func:`with_hostile_tracking`) is drawn from its own stream (``[seed, index, 19]``):
+the same people, sensors, links and occlusion as without, plus what it adds."""
+COMPANION_GAP_M = (0.3, 0.7)
+"""How far beside the first person their companion walks [m]: close enough for one tracker's views to be
+ambiguous, farther than bodies overlap."""
+STAMP_LATE_S = (0.05, 0.14)
+"""How late one tracker stamps its frames (within the data age limit with its latency capped) [s]."""
+
+
+def with_hostile_tracking(
+    rng: np.random.Generator, humans: list[HumanScript], trackers: dict[str, TrackerConfig], duration_s: float
+) -> tuple[list[HumanScript], dict[str, TrackerConfig], dict[str, Any]]:
+    """The cases that broke the release rule before persons (issue 32): a companion walking beside the first person,
+    a second tracker where there was one, one tracker stamping late, trackers renewing ids, one joining late, and
+    now and then one that merges people or names parts by kind (the door refuses those: the robots stop).
+
+    Returns:
+        The people, the trackers and what was drawn (for the case's parameters).
+    """
+    drawn: dict[str, Any] = {}
+    if humans and rng.random() < 0.6:
+        first = humans[0]
+        gap_m = float(rng.uniform(*COMPANION_GAP_M))
+        (x0, y0), (x1, y1) = first.keyframes[0].xy_m, first.keyframes[-1].xy_m
+        dx, dy = x1 - x0, y1 - y0
+        norm = math.hypot(dx, dy) or 1.0
+        side = (-dy / norm * gap_m, dx / norm * gap_m)
+        if norm == 1.0 and dx == 0.0 and dy == 0.0:  # a person who starts and ends in one place: beside them in x
+            side = (gap_m, 0.0)
+        frames = [k.model_copy(update={"xy_m": (k.xy_m[0] + side[0], k.xy_m[1] + side[1])}) for k in first.keyframes]
+        companion = _clip_to("h9", first.both_arms, frames, duration_s)
+        if companion is not None:
+            humans = [*humans, companion]
+            drawn["companion_gap_m"] = round(gap_m, 3)
+    trackers = dict(trackers)
+    if len(trackers) == 1:
+        (only,) = trackers.values()
+        bearing = float(rng.uniform(-math.pi, math.pi))
+        x_m, y_m = _at(bearing, float(rng.uniform(*SENSOR_DISTANCE_M)))
+        position = (x_m, y_m, float(rng.uniform(*SENSOR_HEIGHT_M))) if only.position_m is not None else None
+        trackers["side"] = only.model_copy(update={"position_m": position})
+    names = sorted(trackers)
+    late = names[int(rng.integers(0, len(names)))]
+    updates: dict[str, dict[str, Any]] = {name: {} for name in names}
+    updates[late]["stamp_late_s"] = float(rng.uniform(*STAMP_LATE_S))
+    updates[late]["latency_s"] = min(trackers[late].latency_s, 0.02)
+    for name in names:
+        updates[name]["id_renew_probability"] = float(rng.choice([0.0, rng.uniform(0.0, 0.02)]))
+    if rng.random() < 0.5:
+        joins = names[int(rng.integers(0, len(names)))]
+        updates[joins]["blind_until_s"] = float(rng.uniform(0.5, 4.0))
+    if rng.random() < 0.1:
+        updates[names[int(rng.integers(0, len(names)))]]["merge_within_m"] = 1.0
+    if rng.random() < 0.1:
+        updates[names[int(rng.integers(0, len(names)))]]["part_names_by_kind"] = True
+    trackers = {n: TrackerConfig.model_validate(trackers[n].model_dump() | updates[n]) for n in names}
+    drawn["trackers"] = {
+        n: {k: round(v, 4) if isinstance(v, float) else v for k, v in u.items()} for n, u in updates.items()
+    }
+    return humans, trackers, drawn
+
+
 def _spot_xy_m(person: dict[str, Any]) -> tuple[float, float] | None:
     """Where a generated person stops near the robot (from their parameters), None for people who walk past [m]."""
     distance_m = person.get("stop_m", person.get("distance_m"))
@@ -402,6 +465,7 @@ def generate_case(
     *,
     coverage: Box = DEFAULT_COVERAGE,
     occlusion: bool = False,
+    hostile_tracking: bool = False,
 ) -> SweepCase:
     """Case number ``index`` of the sweep seeded ``sweep_seed`` (the same numbers give the same case).
 
@@ -413,6 +477,8 @@ def generate_case(
         watchdog_s: the controller's override watchdog [s].
         coverage: the volume the trackers cover (people enter and leave through its side faces) [m].
         occlusion: the trackers see with line of sight (:func:`with_occlusion`, drawn from the case's own stream).
+        hostile_tracking: the cases that broke the release rule before persons (:func:`with_hostile_tracking`, drawn
+            from its own stream, after the occlusion).
     """
     rng = np.random.default_rng([sweep_seed, index])
     people = int(rng.choice([1, 1, 2, 3]))
@@ -432,6 +498,10 @@ def generate_case(
         occlusion_rng = np.random.default_rng([sweep_seed, index, OCCLUSION_STREAM])
         trackers = with_occlusion(occlusion_rng, trackers)
         fixtures = occluding_fixtures(occlusion_rng, trackers, people_params)
+    hostile: dict[str, Any] = {}
+    if hostile_tracking:
+        hostile_rng = np.random.default_rng([sweep_seed, index, PERSONS_STREAM])
+        humans, trackers, hostile = with_hostile_tracking(hostile_rng, humans, trackers, duration_s)
     scenario = Scenario(
         description=f"generated case {index} of sweep {sweep_seed}",
         duration_s=duration_s,
@@ -446,6 +516,8 @@ def generate_case(
         "beyond_budget": beyond_path,
         "fixtures": [f.model_dump() for f in fixtures],
     }
+    if hostile_tracking:
+        params["hostile_tracking"] = hostile
     return SweepCase(
         index=index,
         seed=int(rng.integers(0, 2**31 - 1)),
@@ -643,17 +715,25 @@ def case_of_cell(
     *,
     collaborative: bool = False,
     occlusion: bool = False,
+    hostile_tracking: bool = False,
 ) -> SweepCase:
     """Case ``index`` of a suite for the cell ``config``: its data-age limit, its controllers' shortest watchdog and
     its covered volume (the stress suite of the sweep, or the collaborative one; trackers with line of sight if
-    ``occlusion``)."""
-    generate = generate_collaborative_case if collaborative else generate_case
-    return generate(
+    ``occlusion``; the stress suite's hostile tracking if ``hostile_tracking``)."""
+    watchdog_s = min(r.controller.watchdog_s for r in config.robots.values())
+    coverage = covered_volume(config.tracking)
+    max_age_s = config.safety.max_data_age_s
+    if collaborative:
+        return generate_collaborative_case(
+            suite_seed, index, duration_s, max_age_s, watchdog_s, coverage=coverage, occlusion=occlusion
+        )
+    return generate_case(
         suite_seed,
         index,
         duration_s,
-        config.safety.max_data_age_s,
-        watchdog_s=min(r.controller.watchdog_s for r in config.robots.values()),
-        coverage=covered_volume(config.tracking),
+        max_age_s,
+        watchdog_s,
+        coverage=coverage,
         occlusion=occlusion,
+        hostile_tracking=hostile_tracking,
     )

@@ -199,6 +199,8 @@ class CellVariant:
         method: ``safety.method``, if not the configured one.
         occlusion: the cases' trackers see with line of sight, miss people and swap ids
             (:func:`hrc_tools.sim.scenarios.with_occlusion`); a change of the cases, not of the cell.
+        hostile_tracking: the cases that broke the release rule before persons (companions, two trackers with one
+            late, renewed ids, late joiners: :func:`hrc_tools.sim.scenarios.with_hostile_tracking`).
         unsafe_forget_lost: TEST ONLY: the gateway forgets a person as soon as no tracker reports them (the classic
             fail-open); ``apply`` refuses it unless ``HRC_ALLOW_UNSAFE`` names ``unsafe_forget_lost_for_tests``.
         interface: every robot's controller interface (``zenoh``, ``ur_rtde``, ``abb_rws``: through the controller
@@ -214,6 +216,7 @@ class CellVariant:
     robot_model: str | None = None
     method: str | None = None
     occlusion: bool = False
+    hostile_tracking: bool = False
     unsafe_forget_lost: bool = False
     unsafe_release_by_id: bool = False
     interface: str | None = None
@@ -266,6 +269,7 @@ def _init_worker(config_path: str | None, variant: CellVariant) -> None:
     _WORKER["config"] = config
     _WORKER["robots"] = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     _WORKER["occlusion"] = variant.occlusion
+    _WORKER["hostile_tracking"] = variant.hostile_tracking
     _WORKER["zed_trackers"] = variant.zed_trackers
     _WORKER["zed_body_fitting"] = variant.zed_body_fitting
 
@@ -278,13 +282,14 @@ def run_case(
     duration_s: float,
     *,
     occlusion: bool = False,
+    hostile_tracking: bool = False,
     zed_trackers: bool = False,
     zed_body_fitting: bool = False,
 ) -> CaseResult:
     """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``, read as
     ZED cameras through the ROS 2 adapter if ``zed_trackers``, fitting hidden keypoints if ``zed_body_fitting``) and
     simulate it."""
-    case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion)
+    case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion, hostile_tracking=hostile_tracking)
     case_config = case.config(config)
     if zed_trackers:
         case_config = with_zed_trackers(case_config, body_fitting=zed_body_fitting)
@@ -334,6 +339,7 @@ def _run_in_worker(task: tuple[int, int, float]) -> CaseResult:
         index,
         duration_s,
         occlusion=_WORKER["occlusion"],
+        hostile_tracking=_WORKER["hostile_tracking"],
         zed_trackers=_WORKER["zed_trackers"],
         zed_body_fitting=_WORKER["zed_body_fitting"],
     )
@@ -591,6 +597,13 @@ def _parser() -> argparse.ArgumentParser:
         "show the auditor's teeth (refused unless HRC_ALLOW_UNSAFE=unsafe_forget_lost_for_tests is set)",
     )
     parser.add_argument(
+        "--hostile-tracking",
+        action="store_true",
+        help="the cases that broke the release rule before persons (issue 32), drawn per case "
+        "(hrc_tools.sim.scenarios.with_hostile_tracking): a companion beside the first person, two trackers, one "
+        "stamping late, renewed ids, a tracker joining late, now and then merged people or parts named by kind",
+    )
+    parser.add_argument(
         "--unsafe-release-by-id",
         action="store_true",
         help="TEST ONLY: the gateway releases a lost person by the rule before issue 32 (the same id within reach, or "
@@ -669,6 +682,8 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
         print("UNSAFE: gateway ran with unsafe_forget_lost_for_tests = true (a person no longer reported is forgotten)")
     if args.unsafe_release_by_id:
         print("UNSAFE: gateway ran with unsafe_release_by_id_for_tests = true (lost people released by others)")
+    if args.hostile_tracking:
+        print("hostile tracking: companions, two trackers (one late), renewed ids, late joiners (drawn per case)")
     if args.occlusion:
         print("occlusion: the trackers saw with line of sight, missed people and swapped ids (drawn per case)")
     if args.tight_braking:
@@ -764,6 +779,7 @@ def cli(argv: list[str] | None = None) -> None:
         args.robot_model,
         args.method,
         occlusion=args.occlusion,
+        hostile_tracking=args.hostile_tracking,
         interface=args.interface,
         unsafe_forget_lost=args.unsafe_forget_lost,
         unsafe_release_by_id=args.unsafe_release_by_id,

@@ -89,22 +89,3 @@ def _perfect_matching(fits: BoolArray) -> bool:
 
     # rows with the fewest options first: the usual case (one-to-one, each part near its own) needs no backtracking
     return all(augment(i, [False] * m) for i in sorted(range(n), key=lambda i: len(options[i])))
-
-
-def bounding_sphere(capsules: HumanCapsules) -> tuple[FloatArray, float]:
-    """A sphere around every capsule: the mean of the end points and the largest distance to an end point plus
-    that capsule's radius [m]."""
-    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world))
-    centre_m = ends.mean(axis=0)
-    radii = np.concatenate((capsules.radius_m, capsules.radius_m))
-    return centre_m, float((np.linalg.norm(ends - centre_m, axis=1) + radii).max())
-
-
-def extent_m(capsules: HumanCapsules) -> float:
-    """The largest distance between two end points of the capsules, plus twice the largest radius [m]: how far
-    apart two points of this body are."""
-    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world))
-    if len(ends) == 0:
-        return 0.0
-    span = ends.max(axis=0) - ends.min(axis=0)
-    return float(np.linalg.norm(span) + 2.0 * capsules.radius_m.max())

@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.bodies import bounding_sphere, covers, near, within
+from gateway.bodies import covers, near, within
 from hrc_contract.config import CellConfig, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 
@@ -153,8 +153,11 @@ class Track:
     released_by: str | None = None
     released_mono_ns: int = 0
     last_centre: FloatArray | None = None
-    sphere_centre_m: FloatArray = field(default_factory=lambda: np.zeros(3))
-    sphere_radius_m: float = 0.0
+    box_lo_m: FloatArray = field(default_factory=lambda: np.zeros(3))
+    """Lower corner of the box around its last capsules' end points [m] (with ``box_hi_m`` and ``radius_max_m``: a
+    cheap first test of which bodies could be near)."""
+    box_hi_m: FloatArray = field(default_factory=lambda: np.zeros(3))
+    radius_max_m: float = 0.0
     _capsules: HumanCapsules | None = None
 
     @property
@@ -174,7 +177,7 @@ class Track:
         self.last_seen_mono_ns = captured_ns
         self.state = TrackState.SEEN
         self.last_centre = centre_m
-        self.sphere_centre_m, self.sphere_radius_m = bounding_sphere(self.capsules)
+        self.box_lo_m, self.box_hi_m, self.radius_max_m = _box(self.capsules)
         centres = self.centres
         if not centres or captured_ns - centres[-1][0] >= CENTRE_SAMPLE_NS:
             centres.append((captured_ns, centre_m))
@@ -497,28 +500,53 @@ class TrackSet:
         stamp_ns: int,
         keep: Callable[[Track], bool] | None = None,
         max_dt_s: float = math.inf,
+        among: Sequence[Track] | None = None,
     ) -> list[Track]:
-        """Every live track (seen or lost; those ``keep`` accepts) whose last body ``body`` could be, or be part of:
-        one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both trackers' noise and margin (a
-        bounding-sphere test first). The cap makes a tight test for joining (a late stamp must not widen it)."""
-        tracks = self.live if keep is None else [t for t in self.live if keep(t)]
+        """Every live track (seen or lost; those ``keep`` accepts; only ``among`` when given) whose last body ``body``
+        could be, or be part of: one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both
+        trackers' noise and margin. The cap makes a tight test for joining (a late stamp must not widen it)."""
+        pool = self.live if among is None else among
+        tracks = pool if keep is None else [t for t in pool if keep(t)]
         if not tracks:
             return []
-        c, r = bounding_sphere(body)
-        centres = np.array([t.sphere_centre_m for t in tracks])
-        radii = np.array([t.sphere_radius_m for t in tracks])
+        lo, hi, r_max = _box(body)
         dt_s = np.abs(np.array([t.last_seen_mono_ns for t in tracks], dtype=np.float64) - stamp_ns) / NS_PER_S
         dt_s = np.minimum(dt_s, max_dt_s)
         margins = np.array([self._margin_m(tracker, t.tracker) for t in tracks])
         grow = self.reach_speed_mps * dt_s + margins
-        close = np.linalg.norm(centres - c, axis=1) <= r + radii + grow
-        return [t for k, t in enumerate(tracks) if close[k] and near(body, t.capsules, float(grow[k]))]
+        boxes = np.array([(t.box_lo_m, t.box_hi_m) for t in tracks])
+        radii = np.array([t.radius_max_m for t in tracks])
+        maybe = _boxes_may_nest(lo, hi, r_max, boxes[:, 0], boxes[:, 1], radii, grow)
+        return [t for k, t in enumerate(tracks) if maybe[k] and near(body, t.capsules, float(grow[k]))]
+
+    def _seen_of_others_maybe_near(self, observed: Sequence[Track]) -> list[list[Track]]:
+        """Per observed track, the seen tracks of other persons whose boxes could nest with its own (one matrix for
+        the frame: most tracks are far from everybody else's and need no closer look)."""
+        seen = [t for t in self.live if t.state is TrackState.SEEN]
+        if len(seen) < 2:
+            return [[] for _ in observed]
+        lo = np.array([t.box_lo_m for t in seen])
+        hi = np.array([t.box_hi_m for t in seen])
+        r_max = np.array([t.radius_max_m for t in seen])
+        stamps = np.array([t.last_seen_mono_ns for t in seen], dtype=np.float64)
+        noise = np.array([self._noise_m.get(t.tracker, 0.0) for t in seen])
+        out = []
+        for track in observed:
+            grow = (
+                self.reach_speed_mps * np.abs(stamps - track.last_seen_mono_ns) / NS_PER_S
+                + self.tracking.association_margin_m
+                + noise
+                + self._noise_m.get(track.tracker, 0.0)
+            )
+            maybe = _boxes_may_nest(track.box_lo_m, track.box_hi_m, track.radius_max_m, lo, hi, r_max, grow)
+            out.append([seen[k] for k in np.flatnonzero(maybe) if seen[k].person is not track.person])
+        return out
 
     def _regroup(self, observed: Sequence[Track]) -> None:
         """Persons after a frame: a track near another person's seen track may have swapped bodies with it, so both
         leave their persons; unless neither person has a lost track and no tracker sees both (one body: they join)."""
-        for track in observed:
-            if track.state is not TrackState.SEEN:
+        for track, maybe in zip(observed, self._seen_of_others_maybe_near(observed), strict=True):
+            if track.state is not TrackState.SEEN or not maybe:
                 continue
             own = track.person
             seen_others = self._near(
@@ -526,6 +554,7 @@ class TrackSet:
                 track.tracker,
                 track.last_seen_mono_ns,
                 lambda t, own=own: t.person is not own and t.state is TrackState.SEEN,  # type: ignore[misc]
+                among=maybe,
             )
             if not seen_others:
                 continue
@@ -712,6 +741,31 @@ class TrackSet:
                 for t in (*self.live, *self.released)
             )
         return self._records
+
+
+def _box(capsules: HumanCapsules) -> tuple[FloatArray, FloatArray, float]:
+    """The box around the capsules' end points (lower, upper corner [m]) and their largest radius [m]."""
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world))
+    return ends.min(axis=0), ends.max(axis=0), float(capsules.radius_m.max())
+
+
+def _boxes_may_nest(
+    lo: FloatArray,
+    hi: FloatArray,
+    r_max: float,
+    los: FloatArray,
+    his: FloatArray,
+    radii: FloatArray,
+    grow: FloatArray,
+) -> npt.NDArray[np.bool_]:
+    """Per body of (``los``, ``his``, ``radii``): whether one body (box ``lo``–``hi``) may lie inside the other grown
+    by ``grow`` [m], either way. Necessary for :func:`gateway.bodies.near`: every end point of a body inside another
+    grown by g lies within that one's largest radius plus g of its end points' box."""
+    slack = (radii + grow)[:, None]
+    inside_them = ((lo >= los - slack) & (hi <= his + slack)).all(axis=1)
+    slack_own = (r_max + grow)[:, None]
+    inside_it = ((los >= lo - slack_own) & (his <= hi + slack_own)).all(axis=1)
+    return inside_them | inside_it  # type: ignore[return-value]
 
 
 class _Previous(NamedTuple):

@@ -274,3 +274,62 @@ def test_id_swaps_and_misses_in_the_emulator_are_seeded() -> None:
     assert all(len(set(ids(m))) == len(m.humans) for m in frames)
     plain = TrackerEmulator(scenario, {"front": TrackerConfig(noise_std_m=0.0)}, seed=1, start_s=START_S)
     assert sum(len(m.humans) for m in frames) < sum(len(m.humans) for _, _, m in play(plain, 20.0))
+
+
+# -- what a hostile sweep plays (issue 32): late stamps, renewed ids, late joiners, merged people, names by kind -------
+
+
+def _two_people() -> Scenario:
+    """Two people standing 0.5 m apart for 3 s."""
+    return Scenario(
+        description="two people side by side",
+        duration_s=3.0,
+        loop=False,
+        humans=[
+            HumanScript(id="a", keyframes=[Keyframe(t_s=0.0, xy_m=(1.5, 0.0), heading_rad=np.pi),
+                                           Keyframe(t_s=3.0, xy_m=(1.5, 0.0), heading_rad=np.pi)]),
+            HumanScript(id="b", keyframes=[Keyframe(t_s=0.0, xy_m=(1.5, 0.5), heading_rad=np.pi),
+                                           Keyframe(t_s=3.0, xy_m=(1.5, 0.5), heading_rad=np.pi)]),
+        ],
+    )  # fmt: skip
+
+
+def _frames(**faults: object) -> list[tuple[float, Humans]]:
+    tracker = TrackerConfig.model_validate({"rate_hz": 10.0, "noise_std_m": 0.0, "latency_s": 0.02, **faults})
+    return [
+        (t, m) for t, _, m in play(TrackerEmulator(_two_people(), {"front": tracker}, seed=3, start_s=START_S), 2.0)
+    ]
+
+
+def test_a_late_tracker_stamps_its_frames_before_their_capture() -> None:
+    on_time, late = _frames(), _frames(stamp_late_s=0.14)
+    assert len(on_time) == len(late) > 10
+    for (_, a), (_, b) in zip(on_time, late, strict=True):
+        assert a.stamp_ns - b.stamp_ns == 140_000_000
+        assert a.humans == b.humans
+
+
+def test_a_tracker_that_renews_ids_gives_someone_a_new_id_for_good() -> None:
+    frames = _frames(id_renew_probability=0.3)
+    ids = [sorted(h.id for h in m.humans) for _, m in frames]
+    assert ids[0] != ids[-1], "renewed at least once in 20 frames at 0.3"
+    assert all(len(set(i)) == 2 for i in ids), "two people, two ids, always"
+    assert _frames(id_renew_probability=0.0)[-1][1].humans == _frames()[-1][1].humans
+
+
+def test_a_tracker_that_joins_late_reports_nobody_until_then() -> None:
+    frames = _frames(blind_until_s=1.0)
+    assert all(m.humans == [] for t, m in frames if t - START_S < 1.0)
+    assert all(len(m.humans) == 2 for t, m in frames if t - START_S > 1.1)
+
+
+def test_a_tracker_that_merges_people_reports_one_with_both_bodies() -> None:
+    (_, frame), *_ = _frames(merge_within_m=1.0)
+    (merged,) = frame.humans
+    assert len(merged.capsules) == 2 * len(CAPSULE_NAMES)
+
+
+def test_a_tracker_that_names_parts_by_kind_reports_two_parts_with_one_name() -> None:
+    (_, frame), *_ = _frames(part_names_by_kind=True)
+    names = [c.name for c in frame.humans[0].capsules]
+    assert len(set(names)) < len(names)

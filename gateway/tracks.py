@@ -647,9 +647,10 @@ class TrackSet:
                         lambda t, mine=lost.person: t.state is TrackState.LOST and t.person is not mine,  # type: ignore[misc]
                     )
                     if rivals:
-                        lost.person.held_because = (
-                            f"{seen.label} could also be {rivals[0].person.label} ({rivals[0].label}), lost nearby"
-                        )
+                        why = f"{seen.label} could also be {rivals[0].person.label} ({rivals[0].label}), lost nearby"
+                        if lost.person.held_because != why:
+                            lost.person.held_because = why
+                            self._records = None
                         continue
                 by = f"redetected by {seen.label} (person {seen.person.label})"
                 events.append(self._release(lost, seen.last_seen_mono_ns, ReleaseCause.REDETECTED, by))

@@ -195,6 +195,7 @@ class _Stream:
     fault_mono_ns: int = 0
     valid_since_fault: bool = True
     unproven: BoolArray | None = None
+    unproven_fault: TopicFault | None = None
 
     def order(self, seq: int, stamp_ns: int, received: Clocks, max_future_ns: int) -> str | None:
         """Why this message breaks the stream's order, ``duplicate`` for an exact repeat, or None."""
@@ -222,8 +223,9 @@ class _Stream:
         self.fault = TopicFault(code, f"{reason}: {detail}" if detail else reason)
         self.fault_mono_ns = now_mono_ns
         self.valid_since_fault = False
-        if to_prove is not None:
+        if to_prove is not None and to_prove.any():
             self.unproven = to_prove.copy() if self.unproven is None else self.unproven | to_prove
+            self.unproven_fault = self.fault
 
     def prove(self, moving_consistently: BoolArray) -> None:
         """An accepted state showed these joints moving consistently: they need no more proof."""
@@ -232,13 +234,12 @@ class _Stream:
 
     def active_fault(self, now_mono_ns: int, hold_ns: int) -> TopicFault | None:
         if self.fault is not None and self.valid_since_fault and now_mono_ns - self.fault_mono_ns >= hold_ns:
-            if self.unproven is None or not self.unproven.any():
-                self.fault, self.unproven = None, None
-            else:
+            if self.unproven is None or self.unproven_fault is None or not self.unproven.any():
+                self.fault, self.unproven, self.unproven_fault = None, None, None
+            else:  # only the proof is missing: show the contradiction it is for, whatever came after it
                 joints = ", ".join(str(j) for j in np.flatnonzero(self.unproven))
                 kept = f"; kept until joint(s) {joints} are seen moving consistently"
-                if not self.fault.reason.endswith(kept):
-                    self.fault = TopicFault(self.fault.code, self.fault.reason.split("; kept until")[0] + kept)
+                self.fault = TopicFault(self.unproven_fault.code, self.unproven_fault.reason + kept)
         return self.fault
 
 
@@ -335,7 +336,10 @@ class InputStore:
             received.mono_ns,
         )
         with self._lock:  # judged under the lock: the newest accepted state is part of the judgement
-            judged = _joint_state_problem(msg, robot, entry, self._qd_tolerance)
+            # a restarted producer (seq not after the newest, the stream's order judges it) starts a new chain of
+            # motion: an emulator restarts its program elsewhere; a restart never clears a missing proof
+            restarted = entry.sample is not None and msg.seq <= entry.sample.seq
+            judged = _joint_state_problem(msg, robot, entry, self._qd_tolerance, restarted)
             if isinstance(judged, JointStateProblem):
                 self._reject_locked(topic, judged.reason, judged.detail, received, judged.to_prove)
                 if judged.motion is not None:
@@ -345,7 +349,9 @@ class InputStore:
                 return
             if joint_motion.judged_span_s(entry.motion, judged.stamp_ns) >= joint_motion.PROOF_SPAN_S:
                 # judged consistent over a stretch long enough for a lie to show: its motion is proof
-                self._streams[topic].prove(joint_motion.moving(judged.v_radps, _qd_room(msg, self._qd_tolerance)))
+                self._streams[topic].prove(joint_motion.moving(judged.v_radps, 0.5 * _qd_room(msg, self._qd_tolerance)))
+            if restarted:
+                entry.motion.clear()
             entry.motion.append(judged)
             previous, entry.sample = entry.sample, sample
             echo = entry.path.on_state(msg.override_seq, msg.stamp_ns, self._max_future_ns)
@@ -515,9 +521,10 @@ def _qd_room(msg: JointState, qd_tolerance: tuple[float, float]) -> FloatArray:
 
 
 def _joint_state_problem(
-    msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float]
+    msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float], restarted: bool = False
 ) -> JointStateProblem | joint_motion.MotionEntry:
-    """(lock held) Why a parsed joint state cannot be this robot's, or its entry on the motion chain.
+    """(lock held) Why a parsed joint state cannot be this robot's, or its entry on the motion chain (the first of
+    a new chain when ``restarted``).
 
     Against the robot (names, joint count, URDF limits), against itself (``qd = override · qd_nominal`` per
     joint, sign included) and against the accepted states before it (:func:`_jump`,
@@ -544,14 +551,15 @@ def _joint_state_problem(
             "qd_inconsistent",
             f"qd beyond override {msg.override:.3f} × qd_nominal ± tolerance at joint {j}: qd {qd[j]:+.3f} rad/s, "
             f"qd_nominal {qd_nominal[j]:+.3f} rad/s",
-            off & joint_motion.moving(claimed_radps, room_radps),  # a standing joint's glitch needs no proof
+            # on a joint claimed to move fast enough for a reversal to show; a standing joint's glitch needs no proof
+            off & joint_motion.moving(claimed_radps, 0.5 * room_radps),
         )
     jump = _jump(entry.sample, msg, entry.qd_max_radps)
     if jump is not None:
         return JointStateProblem("q_jump", jump)
     newest = entry.motion[-1] if entry.motion else None
-    if newest is not None and msg.stamp_ns <= newest.stamp_ns:
-        newest = None  # not after the newest accepted state: the stream's order judges it (and it is not stored)
+    if newest is not None and (restarted or msg.stamp_ns <= newest.stamp_ns):
+        newest = None  # a restart, or not after the newest state: the stream's order judges it
     state = joint_motion.extend(
         newest,
         msg.stamp_ns,

@@ -242,7 +242,7 @@ def judged_span_s(history: deque[MotionEntry], stamp_ns: int) -> float:
     return 0.0
 
 
-def moving(velocity_radps: FloatArray, tolerance_radps: FloatArray) -> BoolArray:
-    """Joints whose velocity exceeds the tolerance: a contradiction on them would show (a reversed ``qd_nominal``
-    differs from ``qd`` by twice the speed) [per joint]."""
-    return np.asarray(np.abs(velocity_radps) > tolerance_radps)
+def moving(velocity_radps: FloatArray, threshold_radps: FloatArray) -> BoolArray:
+    """Joints whose velocity exceeds ``threshold_radps``, per joint. The door passes half its ``qd`` tolerance: a
+    reversed ``qd_nominal`` differs from ``qd`` by twice the speed, so above that a reversal shows."""
+    return np.asarray(np.abs(velocity_radps) > threshold_radps)

@@ -942,3 +942,22 @@ def test_a_state_stamped_before_the_newest_is_judged_by_the_order(store: InputSt
 
 def test_the_motion_reason_names_its_fault_kind() -> None:
     assert fault_code("joint_state", "q_motion_inconsistent") == "joint_state_inconsistent"
+
+
+def test_a_restarted_controller_elsewhere_starts_a_new_chain(store: InputStore) -> None:
+    """An emulator restarts its program at another point (seq from 0, q 0.3 rad away after 100 ms, within q_jump):
+    a seq_backwards fault for the hold, not a contradiction of motion that would need proof in motion."""
+    _stream(store, 30)
+    _stream(store, 30, seq0=0, t0_ns=NOW + 216 * MS, q0=0.4)
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1}
+    assert fault_codes(store, NOW + 217 * MS + HOLD_NS) == {}
+
+
+def test_the_kept_fault_shows_its_contradiction_after_a_later_fault(store: InputStore) -> None:
+    _stream(store, 5)
+    q = _stream(store, 100, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, report=_lying_still)
+    _stream(store, 10, seq0=1, t0_ns=NOW + 440 * MS, q0=q, override=lambda k: 0.0)  # a restart: out of order
+    assert fault_codes(store, NOW + 441 * MS) == {"robot/ur5": "joint_state_out_of_order"}
+    fault = store.snapshot(at(NOW + 441 * MS + HOLD_NS)).faults["robot/ur5"]  # the restart's hold is over
+    assert fault.code == "joint_state_inconsistent"
+    assert fault.reason.startswith("q_motion_inconsistent")

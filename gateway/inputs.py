@@ -338,8 +338,12 @@ class InputStore:
         with self._lock:  # judged under the lock: the newest accepted state is part of the judgement
             # a restarted producer (seq not after the newest, the stream's order judges it) starts a new chain of
             # motion: an emulator restarts its program elsewhere; a restart never clears a missing proof
-            restarted = entry.sample is not None and msg.seq <= entry.sample.seq
-            judged = _joint_state_problem(msg, robot, entry, self._qd_tolerance, restarted)
+            order = self._streams[topic].order(msg.seq, msg.stamp_ns, received, self._max_future_ns)
+            restarted = order == "seq_backwards"
+            # a state the stream's order refuses (future, backwards, a duplicate) is not judged for its motion: it
+            # never joins the chain, and a forged stamp cannot move the chain's time
+            motion = order is None or restarted
+            judged = _joint_state_problem(msg, robot, entry, self._qd_tolerance, restarted, motion)
             if isinstance(judged, JointStateProblem):
                 self._reject_locked(topic, judged.reason, judged.detail, received, judged.to_prove)
                 if judged.motion is not None:
@@ -521,10 +525,15 @@ def _qd_room(msg: JointState, qd_tolerance: tuple[float, float]) -> FloatArray:
 
 
 def _joint_state_problem(
-    msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float], restarted: bool = False
+    msg: JointState,
+    robot: str,
+    entry: _Robot,
+    qd_tolerance: tuple[float, float],
+    restarted: bool = False,
+    motion: bool = True,
 ) -> JointStateProblem | joint_motion.MotionEntry:
     """(lock held) Why a parsed joint state cannot be this robot's, or its entry on the motion chain (the first of
-    a new chain when ``restarted``).
+    a new chain when ``restarted``; its motion not judged unless ``motion``).
 
     Against the robot (names, joint count, URDF limits), against itself (``qd = override · qd_nominal`` per
     joint, sign included) and against the accepted states before it (:func:`_jump`,
@@ -569,7 +578,7 @@ def _joint_state_problem(
         room_radps,
         entry.qd_max_radps / joint_motion.ACCEL_TIME_MIN_S,
     )
-    if newest is not None:
+    if newest is not None and motion:
         found = joint_motion.contradiction(entry.motion, state)
         if found is not None:
             return JointStateProblem("q_motion_inconsistent", found.detail, found.joints, state)

@@ -961,3 +961,15 @@ def test_the_kept_fault_shows_its_contradiction_after_a_later_fault(store: Input
     fault = store.snapshot(at(NOW + 441 * MS + HOLD_NS)).faults["robot/ur5"]  # the restart's hold is over
     assert fault.code == "joint_state_inconsistent"
     assert fault.reason.startswith("q_motion_inconsistent")
+
+
+def test_a_state_the_order_refuses_is_not_judged_for_its_motion(store: InputStore) -> None:
+    """Error path: a forged state stamped 6 ms ahead of its arrival, 20 mrad away from a standing robot (within
+    q_jump), is stamp_in_future only; it does not join the chain (its stamp would move the chain's time) nor ask for
+    proof in motion (the standing robot could never give it)."""
+    q = _stream(store, 5, override=lambda k: 0.0)
+    forged = js(seq=10**9, stamp_ns=NOW + 23 * MS, q=[q + 0.02, -1.2, 1.5, 0.1, 0.2, 0.3])
+    store.on_joint_state(JOINT_KEY, enc(forged), at(NOW + 17 * MS))
+    _stream(store, 5, seq0=6, t0_ns=NOW + 20 * MS, q0=q, override=lambda k: 0.0)
+    assert rejected(store, "robot/ur5") == {"stamp_in_future": 1}
+    assert fault_codes(store, NOW + 17 * MS + HOLD_NS) == {}

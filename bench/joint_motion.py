@@ -129,7 +129,7 @@ def _sim(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.joint_motion", description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--duration-s", type=float, default=WALK_S)
+    parser.add_argument("--duration-s", type=float, default=WALK_S, help="per seed and source; at least 6 s [s]")
     args = parser.parse_args(argv)
     config = load_cell_config(None)
     ur5 = load_robot_model("ur5", config.robots["ur5"])

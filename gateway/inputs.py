@@ -16,14 +16,22 @@ Every input is treated as hostile. A message on a configured topic is rejected, 
   forged "newer" frame would otherwise hide every genuine one);
 - contradicts itself or what the gateway commanded: joint velocities other than ``override · qd_nominal``, sign
   included (``qd_inconsistent``); joints that moved farther since the newest accepted state than their velocity
-  limits allow in the time between the two stamps (``q_jump``); an applied override above every recent command
+  limits allow in the time between the two stamps (``q_jump``); joints whose ``q`` moved other than their reported
+  ``qd`` and ``override · qd_nominal`` allow between the stamps (``q_motion_inconsistent``:
+  :mod:`gateway.joint_motion`); an applied override above every recent command
   and not braking toward it (``override_above_commanded``, on two joint states in a row, i.e. longer than one
   controller cycle); an ``override_seq`` first reported before that override was sent, or one never sent
   (``echo_before_send``, ``echo_never_sent``: :meth:`gateway.delay.OverridePath.on_state`).
 
 A topic fault lasts until a valid message has arrived after it AND ``streams.fault_hold_s`` has passed since its
 last occurrence, so that an attacker interleaving bad frames with good ones keeps the robot stopped instead of
-flickering. An exact repeat of a recently accepted message (same seq and stamp: a duplicated packet) is counted
+flickering. A contradiction in motion (``qd_inconsistent`` on a joint claimed to move, ``q_motion_inconsistent``)
+also names the joints it was seen on, and lasts until each of them has been seen *moving* consistently (an accepted
+state whose ``qd`` exceeds the tolerance there, judged over at least
+:data:`gateway.joint_motion.PROOF_SPAN_S`): a robot the fault has stopped is consistent whatever its
+``qd_nominal`` says, so standing still for the hold proves nothing (a controller reversing ``qd_nominal`` was caught
+each time it moved, cleared while it stood, and δ = 1 came back in bursts). An honest controller shows it while it
+brakes. An exact repeat of a recently accepted message (same seq and stamp: a duplicated packet) is counted
 as ``duplicate`` and is not a fault. Messages for robots or trackers the cell does not have are counted
 (``unknown_robot``, ``unknown_tracker``) and concern no robot.
 
@@ -44,6 +52,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from gateway import joint_motion
 from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -53,6 +62,7 @@ from hrc_runtime.clocks import Clocks
 from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 TopicKind = Literal["joint_state", "tracker"]
 
 RECENT_MESSAGES = 64
@@ -83,6 +93,7 @@ _FAULT_KIND: Mapping[str, str] = {
     "qd_above_limit": "implausible",
     "qd_inconsistent": "inconsistent",
     "q_jump": "inconsistent",
+    "q_motion_inconsistent": "inconsistent",
     "echo_before_send": "inconsistent",
     "echo_never_sent": "inconsistent",
 }
@@ -99,6 +110,26 @@ def fault_code(kind: TopicKind, reason: str) -> str:
 class TopicFault(NamedTuple):
     code: str
     reason: str
+
+
+class JointStateProblem(NamedTuple):
+    """Why a joint state is refused.
+
+    Attributes:
+        reason: the rejection reason (counted; its fault code by :func:`fault_code`).
+        detail: what was found, for the fault's reason.
+        to_prove: the joints a contradiction in motion was seen on (they must be seen moving consistently before
+            the fault clears), None for any other problem.
+        motion: a state refused only for how its ``q`` moved, as an entry of the motion chain: it stays on the
+            chain (not as the robot's state), so the states after it are judged with the velocities it reported. A
+            lie that persists is then judged over every state, never over one long gap between two accepted ones
+            (whose slack for a turning velocity, A · Δt² / 4, grows until the lie passes).
+    """
+
+    reason: str
+    detail: str
+    to_prove: BoolArray | None = None
+    motion: joint_motion.MotionEntry | None = None
 
 
 class JointSample(NamedTuple):
@@ -167,6 +198,8 @@ class _Stream:
     fault: TopicFault | None = None
     fault_mono_ns: int = 0
     valid_since_fault: bool = True
+    unproven: BoolArray | None = None
+    unproven_fault: TopicFault | None = None
 
     def order(self, seq: int, stamp_ns: int, received: Clocks, max_future_ns: int) -> str | None:
         """Why this message breaks the stream's order, ``duplicate`` for an exact repeat, or None."""
@@ -185,16 +218,32 @@ class _Stream:
         self.recent.append((seq, stamp_ns))
         self.valid_since_fault = True
 
-    def raise_fault(self, reason: str, detail: str, now_mono_ns: int, code: str | None = None) -> None:
-        """Start (or restart) the fault: it lasts until a valid message came after it and the hold passed."""
+    def raise_fault(
+        self, reason: str, detail: str, now_mono_ns: int, code: str | None = None, to_prove: BoolArray | None = None
+    ) -> None:
+        """Start (or restart) the fault: it lasts until a valid message came after it, the hold passed and every
+        joint of ``to_prove`` (this and earlier contradictions in motion) has been seen moving consistently."""
         code = code or fault_code(self.kind, reason)
         self.fault = TopicFault(code, f"{reason}: {detail}" if detail else reason)
         self.fault_mono_ns = now_mono_ns
         self.valid_since_fault = False
+        if to_prove is not None and to_prove.any():
+            self.unproven = to_prove.copy() if self.unproven is None else self.unproven | to_prove
+            self.unproven_fault = self.fault
+
+    def prove(self, moving_consistently: BoolArray) -> None:
+        """An accepted state showed these joints moving consistently: they need no more proof."""
+        if self.unproven is not None:
+            self.unproven = self.unproven & ~moving_consistently
 
     def active_fault(self, now_mono_ns: int, hold_ns: int) -> TopicFault | None:
         if self.fault is not None and self.valid_since_fault and now_mono_ns - self.fault_mono_ns >= hold_ns:
-            self.fault = None
+            if self.unproven is None or self.unproven_fault is None or not self.unproven.any():
+                self.fault, self.unproven, self.unproven_fault = None, None, None
+            else:  # only the proof is missing: show the contradiction it is for, whatever came after it
+                joints = ", ".join(str(j) for j in np.flatnonzero(self.unproven))
+                kept = f"; kept until joint(s) {joints} are seen moving consistently"
+                self.fault = TopicFault(self.unproven_fault.code, self.unproven_fault.reason + kept)
         return self.fault
 
 
@@ -211,15 +260,17 @@ class _Robot:
     path: OverridePath = field(default_factory=OverridePath)
     above_commanded: int = 0
     sample: JointSample | None = None
+    motion: deque[joint_motion.MotionEntry] = field(default_factory=lambda: deque(maxlen=joint_motion.HISTORY_STATES))
 
 
 def _robot_entry(robot: RobotModel, command_window_ns: int) -> _Robot:
     moving = robot.t_brake_link_s[robot.t_brake_link_s > 0.0]
+    qd_max_radps = np.asarray(robot.velocity_limit_radps, dtype=float) * VELOCITY_LIMIT_FACTOR
     return _Robot(
         n_joints=robot.n_joints,
         q_min_rad=np.asarray(robot.model.lowerPositionLimit, dtype=float) - LIMIT_MARGIN_RAD,
         q_max_rad=np.asarray(robot.model.upperPositionLimit, dtype=float) + LIMIT_MARGIN_RAD,
-        qd_max_radps=np.asarray(robot.velocity_limit_radps, dtype=float) * VELOCITY_LIMIT_FACTOR,
+        qd_max_radps=qd_max_radps,
         t_brake_min_s=float(moving.min()) if moving.size else float(robot.braking_time_s.max()),
         commanded=WindowMax(command_window_ns),
     )
@@ -289,12 +340,27 @@ class InputStore:
             received.mono_ns,
         )
         with self._lock:  # judged under the lock: the newest accepted state is part of the judgement
-            reason, detail = _joint_state_problem(msg, robot, entry, self._qd_tolerance)
-            if reason is not None:
-                self._reject_locked(topic, reason, detail, received)
+            # a restarted producer (seq not after the newest, the stream's order judges it) starts a new chain of
+            # motion: an emulator restarts its program elsewhere; a restart never clears a missing proof
+            order = self._streams[topic].order(msg.seq, msg.stamp_ns, received, self._max_future_ns)
+            restarted = order == "seq_backwards"
+            # a state the stream's order refuses (future, backwards, a duplicate) is not judged for its motion: it
+            # never joins the chain, and a forged stamp cannot move the chain's time
+            motion = order is None or restarted
+            judged = _joint_state_problem(msg, robot, entry, self._qd_tolerance, restarted, motion)
+            if isinstance(judged, JointStateProblem):
+                self._reject_locked(topic, judged.reason, judged.detail, received, judged.to_prove)
+                if judged.motion is not None:
+                    entry.motion.append(judged.motion)
                 return
             if not self._in_order(topic, msg.seq, msg.stamp_ns, received):
                 return
+            if joint_motion.judged_span_s(entry.motion, judged.stamp_ns) >= joint_motion.PROOF_SPAN_S:
+                # judged consistent over a stretch long enough for a lie to show: its motion is proof
+                self._streams[topic].prove(joint_motion.moving(judged.v_radps, 0.5 * _qd_room(msg, self._qd_tolerance)))
+            if restarted:
+                entry.motion.clear()
+            entry.motion.append(judged)
             previous, entry.sample = entry.sample, sample
             echo = entry.path.on_state(msg.override_seq, msg.stamp_ns, self._max_future_ns)
             if echo is not None:
@@ -316,13 +382,10 @@ class InputStore:
             self._on_tracker_change()
             return
         capsules = capsules_from_message(tracker, msg) if msg.tracker == tracker else None
-        problem = (
-            ("name_mismatch", f"tracker {msg.tracker!r}")
-            if capsules is None
-            else implausible_detail(capsules, self._plausibility[tracker])
-        )
+        problem = None if capsules is None else implausible_detail(capsules, self._plausibility[tracker])
         if capsules is None or problem is not None:
-            reason, detail = problem or ("name_mismatch", "")
+            reason = "name_mismatch" if problem is None else problem[0]
+            detail = f"tracker {msg.tracker!r}" if problem is None else problem[1]
             self._reject(topic, reason, detail, received)
             self._on_tracker_change()
             return
@@ -391,12 +454,15 @@ class InputStore:
         with self._lock:
             self._reject_locked(topic, reason, detail, received)
 
-    def _reject_locked(self, topic: str, reason: str, detail: str, received: Clocks) -> None:
-        """(lock held) Count a rejection and fault its topic, if configured."""
+    def _reject_locked(
+        self, topic: str, reason: str, detail: str, received: Clocks, to_prove: BoolArray | None = None
+    ) -> None:
+        """(lock held) Count a rejection and fault its topic, if configured (``to_prove``: see
+        :meth:`_Stream.raise_fault`)."""
         self._rejected[(topic, reason)] += 1
         stream = self._streams.get(topic)
         if stream is not None:
-            stream.raise_fault(reason, detail[:200], received.mono_ns)
+            stream.raise_fault(reason, detail[:200], received.mono_ns, to_prove=to_prove)
 
     def _in_order(self, topic: str, seq: int, stamp_ns: int, received: Clocks) -> bool:
         """(lock held) Whether to store this valid message; counts it, or its rejection and fault."""
@@ -457,38 +523,72 @@ class InputStore:
         self._clock_offset_ns = offset_ns
 
 
+def _qd_room(msg: JointState, qd_tolerance: tuple[float, float]) -> FloatArray:
+    """How far ``qd`` may be from ``override · qd_nominal``, per joint: absolute + ratio · |qd_nominal| [rad/s]."""
+    absolute, ratio = qd_tolerance
+    room_radps: FloatArray = absolute + ratio * np.abs(np.asarray(msg.qd_nominal, dtype=float))
+    return room_radps
+
+
 def _joint_state_problem(
-    msg: JointState, robot: str, entry: _Robot, qd_tolerance: tuple[float, float]
-) -> tuple[str | None, str]:
-    """(lock held) Why a parsed joint state cannot be this robot's, or (None, "").
+    msg: JointState,
+    robot: str,
+    entry: _Robot,
+    qd_tolerance: tuple[float, float],
+    restarted: bool = False,
+    motion: bool = True,
+) -> JointStateProblem | joint_motion.MotionEntry:
+    """(lock held) Why a parsed joint state cannot be this robot's, or its entry on the motion chain (the first of
+    a new chain when ``restarted``; its motion not judged unless ``motion``).
 
     Against the robot (names, joint count, URDF limits), against itself (``qd = override · qd_nominal`` per
-    joint, sign included) and against the newest accepted state (:func:`_jump`).
+    joint, sign included) and against the accepted states before it (:func:`_jump`,
+    :func:`gateway.joint_motion.contradiction`).
     """
     if msg.robot != robot:
-        return "name_mismatch", f"robot {msg.robot!r} on the key of {robot!r}"
+        return JointStateProblem("name_mismatch", f"robot {msg.robot!r} on the key of {robot!r}")
     if len(msg.q) != entry.n_joints:
-        return "wrong_joint_count", f"{len(msg.q)} joints, the robot has {entry.n_joints}"
-    q = np.asarray(msg.q)
+        return JointStateProblem("wrong_joint_count", f"{len(msg.q)} joints, the robot has {entry.n_joints}")
+    q = np.asarray(msg.q, dtype=float)
     if not ((q >= entry.q_min_rad) & (q <= entry.q_max_rad)).all():
-        return "q_out_of_limits", "a joint position beyond its URDF limit"
-    qd = np.asarray(msg.qd)
-    qd_nominal = np.asarray(msg.qd_nominal)
+        return JointStateProblem("q_out_of_limits", "a joint position beyond its URDF limit")
+    qd = np.asarray(msg.qd, dtype=float)
+    qd_nominal = np.asarray(msg.qd_nominal, dtype=float)
     if (np.abs(qd) > entry.qd_max_radps).any() or (np.abs(qd_nominal) > entry.qd_max_radps).any():
-        return "qd_above_limit", "a joint velocity above its URDF limit"
-    absolute, ratio = qd_tolerance
+        return JointStateProblem("qd_above_limit", "a joint velocity above its URDF limit")
+    room_radps = _qd_room(msg, qd_tolerance)
+    claimed_radps = msg.override * qd_nominal
     # sign included: joints moving against qd_nominal move where the gateway does not look
-    off = np.abs(qd - msg.override * qd_nominal) > absolute + ratio * np.abs(qd_nominal)
+    off = np.abs(qd - claimed_radps) > room_radps
     if off.any():
         j = int(np.argmax(off))
-        return "qd_inconsistent", (
+        return JointStateProblem(
+            "qd_inconsistent",
             f"qd beyond override {msg.override:.3f} × qd_nominal ± tolerance at joint {j}: qd {qd[j]:+.3f} rad/s, "
-            f"qd_nominal {qd_nominal[j]:+.3f} rad/s"
+            f"qd_nominal {qd_nominal[j]:+.3f} rad/s",
+            # on a joint claimed to move fast enough for a reversal to show; a standing joint's glitch needs no proof
+            off & joint_motion.moving(claimed_radps, 0.5 * room_radps),
         )
     jump = _jump(entry.sample, msg, entry.qd_max_radps)
     if jump is not None:
-        return "q_jump", jump
-    return None, ""
+        return JointStateProblem("q_jump", jump)
+    newest = entry.motion[-1] if entry.motion else None
+    if newest is not None and (restarted or msg.stamp_ns <= newest.stamp_ns):
+        newest = None  # a restart, or not after the newest state: the stream's order judges it
+    state = joint_motion.extend(
+        newest,
+        msg.stamp_ns,
+        q,
+        qd,
+        claimed_radps,
+        room_radps,
+        entry.qd_max_radps / joint_motion.ACCEL_TIME_MIN_S,
+    )
+    if newest is not None and motion:
+        found = joint_motion.contradiction(entry.motion, state)
+        if found is not None:
+            return JointStateProblem("q_motion_inconsistent", found.detail, found.joints, state)
+    return state
 
 
 def _jump(previous: JointSample | None, msg: JointState, qd_max_radps: FloatArray) -> str | None:

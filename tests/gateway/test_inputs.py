@@ -4,11 +4,13 @@ inconsistent message counted by reason and faulting its topic (held); never rais
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from gateway.inputs import JUMP_MARGIN_RAD, VELOCITY_LIMIT_FACTOR, InputStore, age_s
+from gateway import joint_motion
+from gateway.inputs import JUMP_MARGIN_RAD, VELOCITY_LIMIT_FACTOR, InputStore, age_s, fault_code
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import capsules_from_message
@@ -485,12 +487,16 @@ def test_a_pose_jump_between_two_states_faults_the_robot(store: InputStore, ur5:
 
 
 def test_motion_within_the_velocity_limit_is_continuous(store: InputStore, ur5: RobotModel) -> None:
+    """Every joint at 0.99 of its velocity limit (× 1.05), 4 ms apart, reported as it moves (qd, qd_nominal)."""
     stamp_ns = NOW - 40 * MS
-    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=stamp_ns, q=Q0)), at())
+    qd = [0.99 * VELOCITY_LIMIT_FACTOR * float(v) * (-1) ** j for j, v in enumerate(ur5.velocity_limit_radps)]
+    moving = {"qd": qd, "qd_nominal": qd, "override": 1.0}
+    store.on_override_sent("ur5", 1, 1.0, at(NOW - 60 * MS))  # the gateway let it run at full speed
+    store.on_joint_state(JOINT_KEY, enc(js(seq=1, stamp_ns=stamp_ns, q=Q0, **moving)), at())
     q = list(Q0)
-    for k in range(2, 10):  # every joint at 0.99 of what its limit allows, 4 ms apart
-        q = [v + 0.99 * _allowed_rad(ur5, j, 4 * MS) * (-1) ** j for j, v in enumerate(q)]
-        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=stamp_ns + (k - 1) * 4 * MS, q=q)), at())
+    for k in range(2, 10):
+        q = [v + w * 4e-3 for v, w in zip(q, qd, strict=True)]
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=stamp_ns + (k - 1) * 4 * MS, q=q, **moving)), at())
     assert store.snapshot(at()).faults == {}
     assert stored_seq(store) == 9
 
@@ -527,7 +533,7 @@ def test_states_after_a_rejected_jump_are_judged_against_the_last_accepted(store
     store.on_joint_state(JOINT_KEY, enc(js(seq=2, stamp_ns=NOW - 6 * MS, q=_moved(4, 1.5))), at())
     for k in range(3, 6):
         t = NOW + (k - 3) * 4 * MS
-        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 4 * MS, q=_moved(4, 0.001 * k))), at(t))
+        store.on_joint_state(JOINT_KEY, enc(js(seq=k, stamp_ns=t - 4 * MS, q=_moved(4, 0.0002 * k))), at(t))
     assert rejected(store, "robot/ur5") == {"q_jump": 1}
     assert stored_seq(store, NOW + 8 * MS) == 5
     assert fault_codes(store, NOW + 8 * MS) == {"robot/ur5": "joint_state_inconsistent"}
@@ -542,10 +548,14 @@ def test_a_repeated_stamp_is_judged_by_the_order_not_as_a_jump(store: InputStore
 
 
 def _applied(store: InputStore, overrides: list[float], commanded: float) -> None:
+    """States 4 ms apart at these applied overrides (qd_nominal 0.5 rad/s), q moving as they say."""
     store.on_override_sent("ur5", 1, commanded, at(NOW - 20 * MS))
+    q = np.array(Q0)
     for k, applied in enumerate(overrides):
         t = NOW + 4 * k * MS
-        raw = js(seq=1 + k, stamp_ns=t - 2 * MS, override=applied, override_seq=1, qd=[0.5 * applied] * 6)
+        if k:
+            q = q + 0.5 * 0.5 * (overrides[k - 1] + applied) * 4e-3  # the trapezoid of qd over the 4 ms
+        raw = js(seq=1 + k, stamp_ns=t - 2 * MS, q=q.tolist(), override=applied, override_seq=1, qd=[0.5 * applied] * 6)
         store.on_joint_state(JOINT_KEY, enc(raw), at(t))
 
 
@@ -777,3 +787,233 @@ def test_one_body_at_the_limits_passes(store: InputStore, cell_config: CellConfi
     parts = [_capsule(f"p{k}", 2.4 * k / 63) for k in range(cell_config.plausibility.max_capsules_per_person)]
     store.on_humans(FRONT_KEY, enc(hm(humans=[{"id": "h1", "capsules": parts}])), at())
     assert store.snapshot(at()).faults == {}
+
+
+# -- joint states consistent with themselves (issue 32, item 6) ------------------------------------------------
+
+V_RADPS = 0.8
+"""The programmed speed of joint 0 in these cases [rad/s] (a UR5 base joint at a brisk pace)."""
+
+
+def _stream(
+    store: InputStore,
+    n: int,
+    *,
+    seq0: int = 1,
+    t0_ns: int = NOW,
+    q0: float = 0.0,
+    override: Callable[[int], float] = lambda k: 1.0,
+    report: Callable[[int, float], dict] = lambda k, ov: {},
+    period_ns: int = 4 * MS,
+) -> float:
+    """``n`` states 4 ms apart of a robot whose joint 0 truly moves at ``override(k) · V_RADPS``; ``report(k, ov)``
+    changes what the state says (honest by default). The gateway commands full speed. Returns joint 0's q."""
+    store.on_override_sent("ur5", 1, 1.0, at(t0_ns - 20 * MS))
+    q = q0
+    previous = override(0)
+    for k in range(n):
+        ov = override(k)
+        if k:
+            q += 0.5 * (previous + ov) * V_RADPS * period_ns / 1e9
+        previous = ov
+        raw = js(
+            seq=seq0 + k,
+            stamp_ns=t0_ns + k * period_ns,
+            q=[q, -1.2, 1.5, 0.1, 0.2, 0.3],
+            qd=[ov * V_RADPS, 0, 0, 0, 0, 0],
+            qd_nominal=[V_RADPS, 0, 0, 0, 0, 0],
+            override=ov,
+            override_seq=1,
+        )
+        raw.update(report(k, ov))
+        store.on_joint_state(JOINT_KEY, enc(raw), at(t0_ns + k * period_ns + MS))
+    return q
+
+
+def _lying_still(k: int, ov: float) -> dict:
+    """q advances, qd and qd_nominal say 0 (the reviewer's case)."""
+    return {"qd": [0.0] * 6, "qd_nominal": [0.0] * 6}
+
+
+def _reversed(k: int, ov: float) -> dict:
+    """qd_nominal reversed on joint 0 while qd still says where the robot goes."""
+    return {"qd_nominal": [-V_RADPS, 0, 0, 0, 0, 0]}
+
+
+def test_an_honest_moving_robot_is_consistent(store: InputStore) -> None:
+    _stream(store, 100, override=lambda k: min(1.0, k / 50))
+    assert store.counters()[0] == {}
+    assert stored_seq(store, NOW + 400 * MS) == 100
+
+
+def test_q_advancing_while_qd_and_qd_nominal_say_zero_faults_the_robot(store: InputStore) -> None:
+    """Issue 32, item 6: each 4 ms step (3.2 mrad) is within q_jump's limit; the lie shows over a few steps."""
+    _stream(store, 5)  # honest, at full speed
+    _stream(store, 20, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, report=_lying_still)
+    snap = store.snapshot(at(NOW + 120 * MS))
+    assert snap.faults["robot/ur5"].code == "joint_state_inconsistent"
+    assert snap.faults["robot/ur5"].reason.startswith("q_motion_inconsistent: joint 0 moved +0.")
+    assert "q_jump" not in rejected(store, "robot/ur5")
+    assert rejected(store, "robot/ur5")["q_motion_inconsistent"] >= 15
+    first = store.snapshot(at(NOW + 20 * MS + 3 * 4 * MS + MS))  # within three lying states
+    assert first.faults["robot/ur5"].reason.startswith("q_motion_inconsistent")
+
+
+def test_a_lying_robot_that_stops_when_stopped_stays_faulted(store: InputStore, ur5: RobotModel) -> None:
+    """The lie shows only while the robot moves: stopped by the fault, it is consistent whatever it says, and the
+    fault is kept (until joint 0 is seen moving consistently), never cleared by standing for the hold."""
+    t_brake_s = float(ur5.t_brake_link_s[ur5.t_brake_link_s > 0].min())
+    brake = lambda k: max(0.0, 1.0 - k * 0.004 / t_brake_s)  # noqa: E731
+    _stream(store, 5)
+    q = _stream(store, 300, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, override=brake, report=_lying_still)
+    for t_ns in (NOW + 500 * MS, NOW + 1200 * MS):
+        fault = store.snapshot(at(t_ns)).faults["robot/ur5"]
+        assert fault.reason.startswith("q_motion_inconsistent")
+    assert fault.reason.endswith("kept until joint(s) 0 are seen moving consistently")
+    assert q > 0.016
+
+
+def test_a_reversed_qd_nominal_stays_faulted_while_the_robot_stands(store: InputStore, ur5: RobotModel) -> None:
+    """The reviewer's burst: qd_nominal reversed, caught while the robot moved, consistent while it stood (override
+    0, qd 0), cleared after the hold, and δ = 1 came back (the stored state said "moving away")."""
+    t_brake_s = float(ur5.t_brake_link_s[ur5.t_brake_link_s > 0].min())
+    brake = lambda k: max(0.0, 1.0 - k * 0.004 / t_brake_s)  # noqa: E731
+    _stream(store, 5)
+    _stream(store, 300, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, override=brake, report=_reversed)
+    assert rejected(store, "robot/ur5")["qd_inconsistent"] > 10
+    sample = store.snapshot(at(NOW + 1220 * MS)).joint["ur5"]
+    assert sample is not None
+    assert sample.override == 0.0  # standing, consistent: accepted
+    for t_ns in (NOW + 800 * MS, NOW + 1220 * MS, NOW + 5000 * MS):
+        assert fault_codes(store, t_ns) == {"robot/ur5": "joint_state_inconsistent"}
+
+
+def test_an_honest_robot_recovers_after_one_inconsistent_state(store: InputStore, ur5: RobotModel) -> None:
+    """One bad state while moving: the robot brakes consistently (that is the proof), then the hold passes."""
+    t_brake_s = float(ur5.t_brake_link_s[ur5.t_brake_link_s > 0].min())
+    _stream(store, 5)
+    _stream(store, 1, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, report=_reversed)
+    _stream(store, 200, seq0=7, t0_ns=NOW + 24 * MS, q0=0.0192, override=lambda k: max(0.0, 1 - k * 0.004 / t_brake_s))
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+    assert fault_codes(store, NOW + 21 * MS + HOLD_NS - MS) == {"robot/ur5": "joint_state_inconsistent"}
+    assert fault_codes(store, NOW + 21 * MS + HOLD_NS) == {}
+
+
+def test_a_glitch_on_a_standing_joint_clears_after_the_hold(store: InputStore) -> None:
+    """A joint the program does not move reports a velocity once: nothing to prove in motion, the hold clears it."""
+    _stream(store, 5, override=lambda k: 0.0)
+    _stream(
+        store,
+        1,
+        seq0=6,
+        t0_ns=NOW + 20 * MS,
+        override=lambda k: 0.0,
+        report=lambda k, ov: {"qd": [0.0, 0.3, 0, 0, 0, 0]},
+    )
+    _stream(store, 200, seq0=7, t0_ns=NOW + 24 * MS, override=lambda k: 0.0)
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 1}
+    assert fault_codes(store, NOW + 21 * MS + HOLD_NS) == {}
+
+
+def test_a_stream_alternating_honest_and_lying_states_never_clears(store: InputStore) -> None:
+    _stream(store, 5)
+    q = _stream(
+        store, 400, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, report=lambda k, ov: {} if k % 2 else _reversed(k, ov)
+    )
+    assert q > 1.0
+    assert fault_codes(store, NOW + 20 * MS + 400 * 4 * MS) == {"robot/ur5": "joint_state_inconsistent"}
+    assert rejected(store, "robot/ur5") == {"qd_inconsistent": 200}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_honest_streams_with_jittered_stamps_and_noise_are_consistent(
+    cell_config: CellConfig, ur5: RobotModel, seed: int
+) -> None:
+    """Invariant: a smooth motion (accelerations up to 10 rad/s²) reported with its velocities, stamped up to 1.5 ms
+    off the instant of its q and with 0.4 mrad of position noise, at 4-20 ms between states, is never refused."""
+    rng = np.random.default_rng(seed)
+    store = InputStore(cell_config, {"ur5": ur5})
+    store.on_override_sent("ur5", 1, 1.0, at(NOW - 20 * MS))
+    amplitude = rng.uniform(0.1, 0.6, 6)
+    omega = rng.uniform(1.0, 4.0, 6)
+    phase = rng.uniform(0, 2 * np.pi, 6)
+    t_s = 0.0
+    assert joint_motion.STAMP_JITTER_S >= 0.0015
+    assert joint_motion.Q_NOISE_RAD >= 0.0004
+    for k in range(400):
+        t_s += float(rng.uniform(0.004, 0.02))
+        q = np.array(Q0) + amplitude * np.sin(omega * t_s + phase)
+        qd = amplitude * omega * np.cos(omega * t_s + phase)
+        stamp_ns = NOW + round((t_s + rng.uniform(-0.0015, 0.0015)) * 1e9)
+        raw = js(seq=k + 1, stamp_ns=stamp_ns, q=(q + rng.uniform(-4e-4, 4e-4, 6)).tolist(), qd=qd.tolist(),
+                 qd_nominal=qd.tolist(), override=1.0, override_seq=1)  # fmt: skip
+        store.on_joint_state(JOINT_KEY, enc(raw), at(stamp_ns + 3 * MS))
+    assert store.counters()[0] == {}
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_velocity_reported_other_than_the_motion_is_refused(
+    cell_config: CellConfig, ur5: RobotModel, seed: int
+) -> None:
+    """Invariant: a joint moving at 0.1-3 rad/s whose qd and qd_nominal claim a fraction of that in [-1, 0.5] (a
+    reversal, a standstill, half the speed) is refused within 0.25 s, and the fault holds while it goes on."""
+    rng = np.random.default_rng(100 + seed)
+    store = InputStore(cell_config, {"ur5": ur5})
+    store.on_override_sent("ur5", 1, 1.0, at(NOW - 20 * MS))
+    joint = int(rng.integers(6))
+    speed = float(rng.uniform(0.1, 3.0)) * (1 if rng.random() < 0.5 else -1)
+    claim = speed * float(rng.uniform(-1.0, 0.5))
+    q = np.array(Q0)
+    first_fault_ms = None
+    for k in range(150):
+        q[joint] += speed * 0.004 if k else 0.0
+        qd = [claim if j == joint else 0.0 for j in range(6)]
+        raw = js(seq=k + 1, stamp_ns=NOW + k * 4 * MS, q=q.tolist(), qd=qd, qd_nominal=qd, override=1.0, override_seq=1)
+        store.on_joint_state(JOINT_KEY, enc(raw), at(NOW + k * 4 * MS + MS))
+        if first_fault_ms is None and store.snapshot(at(NOW + k * 4 * MS + MS)).faults:
+            first_fault_ms = 4 * k
+    assert first_fault_ms is not None, (joint, speed, claim)
+    assert first_fault_ms <= 250, (joint, speed, claim, first_fault_ms)
+    assert fault_codes(store, NOW + 600 * MS + HOLD_NS) == {"robot/ur5": "joint_state_inconsistent"}
+
+
+def test_a_state_stamped_before_the_newest_is_judged_by_the_order(store: InputStore) -> None:
+    """Error path: the motion check judges only a state after the newest accepted one (the order judges the rest)."""
+    _stream(store, 5)
+    store.on_joint_state(JOINT_KEY, enc(js(seq=9, stamp_ns=NOW, q=[2.0, -1.2, 1.5, 0.1, 0.2, 0.3])), at(NOW + 30 * MS))
+    assert rejected(store, "robot/ur5") == {"stamp_backwards": 1}
+
+
+def test_the_motion_reason_names_its_fault_kind() -> None:
+    assert fault_code("joint_state", "q_motion_inconsistent") == "joint_state_inconsistent"
+
+
+def test_a_restarted_controller_elsewhere_starts_a_new_chain(store: InputStore) -> None:
+    """An emulator restarts its program at another point (seq from 0, q 0.3 rad away after 100 ms, within q_jump):
+    a seq_backwards fault for the hold, not a contradiction of motion that would need proof in motion."""
+    _stream(store, 30)
+    _stream(store, 30, seq0=0, t0_ns=NOW + 216 * MS, q0=0.4)
+    assert rejected(store, "robot/ur5") == {"seq_backwards": 1}
+    assert fault_codes(store, NOW + 217 * MS + HOLD_NS) == {}
+
+
+def test_the_kept_fault_shows_its_contradiction_after_a_later_fault(store: InputStore) -> None:
+    _stream(store, 5)
+    q = _stream(store, 100, seq0=6, t0_ns=NOW + 20 * MS, q0=0.016, report=_lying_still)
+    _stream(store, 10, seq0=1, t0_ns=NOW + 440 * MS, q0=q, override=lambda k: 0.0)  # a restart: out of order
+    assert fault_codes(store, NOW + 441 * MS) == {"robot/ur5": "joint_state_out_of_order"}
+    fault = store.snapshot(at(NOW + 441 * MS + HOLD_NS)).faults["robot/ur5"]  # the restart's hold is over
+    assert fault.code == "joint_state_inconsistent"
+    assert fault.reason.startswith("q_motion_inconsistent")
+
+
+def test_a_state_the_order_refuses_is_not_judged_for_its_motion(store: InputStore) -> None:
+    """Error path: a forged state stamped 6 ms ahead of its arrival, 20 mrad away from a standing robot (within
+    q_jump), is stamp_in_future only; it does not join the chain (its stamp would move the chain's time) nor ask for
+    proof in motion (the standing robot could never give it)."""
+    q = _stream(store, 5, override=lambda k: 0.0)
+    forged = js(seq=10**9, stamp_ns=NOW + 23 * MS, q=[q + 0.02, -1.2, 1.5, 0.1, 0.2, 0.3])
+    store.on_joint_state(JOINT_KEY, enc(forged), at(NOW + 17 * MS))
+    _stream(store, 5, seq0=6, t0_ns=NOW + 20 * MS, q0=q, override=lambda k: 0.0)
+    assert rejected(store, "robot/ur5") == {"stamp_in_future": 1}
+    assert fault_codes(store, NOW + 17 * MS + HOLD_NS) == {}

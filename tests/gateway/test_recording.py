@@ -219,14 +219,19 @@ class _Loop:
         self.frame_seq = 0
         self.delta = 0.0
         self.override_seq = -1
+        self.q_rad = np.array(Q, dtype=float)
+        self.previous_delta = 0.0
 
     def joint_state(self, t_ns: int) -> bytes:
         self.state_seq += 1
+        if self.state_seq > 1:  # q moves as qd says over the 4 ms (the door's q_motion_inconsistent)
+            self.q_rad = self.q_rad + 0.5 * (self.previous_delta + self.delta) * np.asarray(QD_NOMINAL) * 0.004
+        self.previous_delta = self.delta
         message = JointState(
             robot="ur5",
             seq=self.state_seq,
             stamp_ns=t_ns,
-            q=Q,
+            q=self.q_rad.tolist(),
             qd=[self.delta * v for v in QD_NOMINAL],
             qd_nominal=QD_NOMINAL,
             override=self.delta,

@@ -171,9 +171,11 @@ class Cell:
                 "seq": self.joint_seq,
                 "stamp_ns": stamp,
                 "q": list(q),
-                "qd": list(qd_nominal),  # override 1 · qd_nominal
+                # standing at q (applied override 0, qd 0): a robot moving at qd_nominal would move its q, and the
+                # known answers are for the pose q (the door checks q's change against qd: q_motion_inconsistent)
+                "qd": [0.0] * len(qd_nominal),
                 "qd_nominal": list(qd_nominal),
-                "override": 1.0,
+                "override": 0.0,
                 "override_seq": echoed,
                 "mode": "running",
             }

@@ -60,7 +60,7 @@ VELOCITY_MIN_SPAN_NS = 60_000_000
 """At least this span of observations is needed to call a track 'moving out' [ns]."""
 NOISE_SIGMAS = 3.0
 """A tracker's position noise, ``noise_std_m``, counts this many times in the association margin."""
-REAPPEAR_MAX_S = 0.1
+REAPPEAR_MAX_S = 0.25
 """A track its tracker lost at most this long ago [s] is continued at the entry band by a detection of the same id
 inside its body grown by the motion meanwhile (:meth:`TrackSet._fragment_of`)."""
 JOIN_DT_MAX_S = 0.05

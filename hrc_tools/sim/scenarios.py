@@ -306,9 +306,9 @@ def with_occlusion(rng: np.random.Generator, trackers: dict[str, TrackerConfig])
 PERSONS_STREAM = 19
 """The hostile tracking of a case (:func:`with_hostile_tracking`) is drawn from its own stream (``[seed, index, 19]``):
 the same people, sensors, links and occlusion as without, plus what it adds."""
-COMPANION_GAP_M = (0.3, 0.7)
-"""How far beside the first person their companion walks [m]: close enough for one tracker's views to be
-ambiguous, farther than bodies overlap."""
+COMPANION_GAP_M = (0.4, 2.0)
+"""How far behind the first person (farther from the robot's base, on their path) their companion walks [m]: the
+first one hidden at the robot, the companion seen (the review's cases 1-3)."""
 STAMP_LATE_S = (0.05, 0.14)
 """How late one tracker stamps its frames (within the data age limit with its latency capped) [s]."""
 
@@ -316,7 +316,7 @@ STAMP_LATE_S = (0.05, 0.14)
 def with_hostile_tracking(
     rng: np.random.Generator, humans: list[HumanScript], trackers: dict[str, TrackerConfig], duration_s: float
 ) -> tuple[list[HumanScript], dict[str, TrackerConfig], dict[str, Any]]:
-    """The cases that broke the release rule before persons (issue 32): a companion walking beside the first person,
+    """The cases that broke the release rule before persons (issue 32): a companion walking behind the first person,
     a second tracker where there was one, one tracker stamping late, trackers renewing ids, one joining late, and
     now and then one that merges people or names parts by kind (the door refuses those: the robots stop).
 
@@ -324,20 +324,17 @@ def with_hostile_tracking(
         The people, the trackers and what was drawn (for the case's parameters).
     """
     drawn: dict[str, Any] = {}
-    if humans and rng.random() < 0.6:
+    if humans and rng.random() < 0.7:
         first = humans[0]
         gap_m = float(rng.uniform(*COMPANION_GAP_M))
-        (x0, y0), (x1, y1) = first.keyframes[0].xy_m, first.keyframes[-1].xy_m
-        dx, dy = x1 - x0, y1 - y0
-        norm = math.hypot(dx, dy) or 1.0
-        side = (-dy / norm * gap_m, dx / norm * gap_m)
-        if norm == 1.0 and dx == 0.0 and dy == 0.0:  # a person who starts and ends in one place: beside them in x
-            side = (gap_m, 0.0)
-        frames = [k.model_copy(update={"xy_m": (k.xy_m[0] + side[0], k.xy_m[1] + side[1])}) for k in first.keyframes]
+        closest = min(first.keyframes, key=lambda k: math.hypot(*k.xy_m))
+        norm = math.hypot(*closest.xy_m) or 1.0
+        out = (closest.xy_m[0] / norm * gap_m, closest.xy_m[1] / norm * gap_m)  # behind them, farther from the base
+        frames = [k.model_copy(update={"xy_m": (k.xy_m[0] + out[0], k.xy_m[1] + out[1])}) for k in first.keyframes]
         companion = _clip_to("h9", first.both_arms, frames, duration_s)
         if companion is not None:
             humans = [*humans, companion]
-            drawn["companion_gap_m"] = round(gap_m, 3)
+            drawn["companion_behind_m"] = round(gap_m, 3)
     trackers = dict(trackers)
     if len(trackers) == 1:
         (only,) = trackers.values()

@@ -600,7 +600,7 @@ def _parser() -> argparse.ArgumentParser:
         "--hostile-tracking",
         action="store_true",
         help="the cases that broke the release rule before persons (issue 32), drawn per case "
-        "(hrc_tools.sim.scenarios.with_hostile_tracking): a companion beside the first person, two trackers, one "
+        "(hrc_tools.sim.scenarios.with_hostile_tracking): a companion behind the first person, two trackers, one "
         "stamping late, renewed ids, a tracker joining late, now and then merged people or parts named by kind",
     )
     parser.add_argument(

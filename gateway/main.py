@@ -45,6 +45,7 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import Override, to_payload
 from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus, LoopStatus
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
@@ -53,7 +54,6 @@ from hrc_runtime.mcap_sink import RecordingError
 from hrc_runtime.memory import configure_heap
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_realtime_scheduling
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import StopEvent, stop_on_signals
 from hrc_runtime.zenoh_session import (

@@ -42,9 +42,8 @@ from gateway.handoff import LatestJobThread
 from gateway.ros2_trackers import tracker_topics, trackers_node_name
 from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
-from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
-from hrc_runtime.pki import default_pki_dir
-from hrc_runtime.rmw_zenoh import (
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.ros2.rmw_zenoh import (
     ADMIN_SPACE,
     Distro,
     Ros2Node,
@@ -58,7 +57,8 @@ from hrc_runtime.rmw_zenoh import (
     topic_key,
     topic_type,
 )
-from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
+from hrc_runtime.pki import default_pki_dir
 from hrc_runtime.zenoh_session import (
     PLAIN_TCP_LOOPBACK,
     SessionOptions,

@@ -37,8 +37,8 @@ from hrc_contract.status_models import (
     RobotStatus,
     TrackStatus,
 )
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.rate_loop import RateLoop
-from hrc_runtime.robot_model import RobotModel
 
 DIGITS = 4
 """Distances, times and δ are rounded to this many decimals (0.1 mm, 0.1 ms)."""

@@ -18,7 +18,16 @@ from support.paths import REPO_ROOT
 from hrc_contract import errors
 from hrc_contract.errors import HrcError
 
-PACKAGES = ("hrc_contract", "hrc_runtime", "gateway", "controller_emu", "controller_bridge", "tracker_emu", "hrc_tools")
+PACKAGES = (
+    "hrc_contract",
+    "hrc_runtime",
+    "hrc_devices",
+    "gateway",
+    "controller_emu",
+    "controller_bridge",
+    "tracker_emu",
+    "hrc_tools",
+)
 # a program's or tool's entry points: one per program by design
 ENTRY_NAMES = {"cli", "main"}
 

@@ -60,7 +60,7 @@ from gateway.ros2_face import (
 from hrc_contract.config import CellConfig, Pose
 from hrc_contract.messages import Humans, JointState, Override
 from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus
-from hrc_runtime.rmw_zenoh import Distro, fully_qualified_name, new_message
+from hrc_devices.ros2.rmw_zenoh import Distro, fully_qualified_name, new_message
 from hrc_tools.record.cell import RejectedPayload, receive
 from hrc_tools.record.ros2_mcap import Ros2BagSink, Ros2Topic, qos
 

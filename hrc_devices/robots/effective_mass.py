@@ -34,15 +34,16 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 MASS_BOUND_MARGIN = 0.15
 """The per-link bound is the largest sampled value times 1 + this: the margin for the configurations between samples
-(the largest value over 20 000 extra random samples of the box exceeds the sampled one by at most 4 % for the UR5,
-tests/hrc_runtime/test_effective_mass.py holds the bound above 2000 fresh random configurations and directions)."""
+(the largest value over 20 000 extra random samples of the box exceeds the sampled one by at most 4 % for the UR5;
+tests/hrc_devices/robots/test_effective_mass.py holds the bound above 2000 fresh random configurations and
+directions)."""
 MASS_CAP_KG = 150.0
 """A link whose sampled mass bound exceeds this gets ∞ (the region's own mass decides): near a singularity the bound
 grows without limit, and a large finite number would pretend a precision it does not have [kg]."""

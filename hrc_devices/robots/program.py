@@ -29,8 +29,8 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hrc_contract.config import ConfigError
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.config import one_line, read_toml
-from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 

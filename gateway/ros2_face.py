@@ -33,13 +33,14 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import zenoh
 
 from gateway.handoff import LatestJobThread
 from gateway.ros2_trackers import tracker_topics, trackers_node_name
+from gateway.status import StatusJob
 from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
 from hrc_devices.robots.model import RobotModel
@@ -68,9 +69,6 @@ from hrc_runtime.zenoh_session import (
     mutual_tls,
     session_config,
 )
-
-if TYPE_CHECKING:
-    from gateway.main import StatusJob
 
 log = logging.getLogger("hrc-gateway.ros2")
 

@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tomllib
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -122,20 +120,6 @@ def capsule_point_jacobians(
     cross = _SURFACE_SKEWS * radius_m @ J_a[3:]  # (7, 3, n)
     points = axis[:, None, :, :] - cross[None, :, :, :]  # (S, 7, 3, n)
     return points.reshape(-1, *axis.shape[1:])
-
-
-def program_waypoints_rad(program_path: str | Path) -> FloatArray:
-    """The joint positions of a controller program's waypoints (``[[waypoints]] q_rad``), shape (W, n) [rad].
-
-    Raises:
-        OSError, tomllib.TOMLDecodeError, KeyError, ValueError: the file cannot be read as a program.
-    """
-    with Path(program_path).open("rb") as f:
-        raw = tomllib.load(f)
-    waypoints = np.array([w["q_rad"] for w in raw["waypoints"]], dtype=float)
-    if waypoints.ndim != 2 or len(waypoints) < 2 or not np.isfinite(waypoints).all():
-        raise ValueError(f"{program_path}: not a program of at least two waypoints of finite joint positions")
-    return waypoints
 
 
 def path_samples(waypoints_rad: FloatArray, step_rad: float = PATH_STEP_RAD) -> FloatArray:

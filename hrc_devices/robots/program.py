@@ -194,6 +194,16 @@ def load_program(path: Path | str) -> Program:
     return parse_program(raw, str(path))
 
 
+def program_waypoints_rad(path: Path | str) -> FloatArray:
+    """The joint positions of a program's waypoints (``[[waypoints]] q_rad``), shape (W, n) [rad]: the program file
+    read by :func:`load_program`, as the controller reads it.
+
+    Raises:
+        ConfigError: see :func:`load_program`.
+    """
+    return np.array([w.q_rad for w in load_program(path).waypoints], dtype=float)
+
+
 def _label(index: int, waypoint: Waypoint) -> str:
     return f"waypoint {index} ({waypoint.name!r})" if waypoint.name else f"waypoint {index}"
 

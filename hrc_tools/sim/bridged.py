@@ -56,11 +56,12 @@ from hrc_devices.controllers.abb_rws.client import (
     parse_execution_state,
     parse_joint_target,
     parse_speed_ratio,
+    reading_of,
     speed_ratio_pct,
 )
 from hrc_devices.controllers.registry import VENDORS, bridged_kinds
 from hrc_devices.controllers.ur_rtde.client import reading_from_values
-from hrc_devices.controllers.vendor import ControllerReading, VendorError
+from hrc_devices.controllers.vendor import VendorError
 from hrc_runtime.clocks import Clocks
 from hrc_tools.sim.links import NS_PER_S, SimLink
 
@@ -388,18 +389,7 @@ class SimBridge:
         except VendorError as exc:
             self.core.count_rejected(exc.reason)
             return
-        now = self._clocks(t_ns)
-        reading = ControllerReading(
-            received_wall_ns=now.wall_ns,
-            received_mono_ns=now.mono_ns,
-            q_rad=q_rad,
-            qd_radps=None,
-            target_qd_radps=None,
-            speed_fraction=ratio_pct / 100.0,
-            speed_scaling=None,
-            running=execution == "running",
-            state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
-        )
+        reading = reading_of(ratio_pct, execution, q_rad, self._clocks(t_ns))
         self._publish(self.core.on_reading(reading), poll["truth"], t_ns)
 
     # -- readings ------------------------------------------------------------------------------------------------

@@ -132,6 +132,23 @@ def parse_execution_state(body: bytes) -> str:
     return str(text)
 
 
+def reading_of(ratio_pct: int, execution: str, q_rad: tuple[float, ...], now: Clocks) -> ControllerReading:
+    """The bridge's reading of one poll: the speed ratio [%], the execution state and the joint target [rad], as
+    parsed by :func:`parse_speed_ratio`, :func:`parse_execution_state` and :func:`parse_joint_target`, received at
+    ``now``. RWS 1.0 offers no joint velocities, no target velocities and no further scaling: those are None."""
+    return ControllerReading(
+        received_wall_ns=now.wall_ns,
+        received_mono_ns=now.mono_ns,
+        q_rad=q_rad,
+        qd_radps=None,
+        target_qd_radps=None,
+        speed_fraction=ratio_pct / 100.0,
+        speed_scaling=None,
+        running=execution == "running",
+        state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
+    )
+
+
 def _error_message(body: bytes) -> str:
     """The ``msg`` of an RWS error body, or the start of the body."""
     try:
@@ -225,18 +242,7 @@ class AbbRwsInterface:
         status, body = self._request("GET", self._jointtarget, None, deadline_s)
         now = self._clock()
         self._expect(status, 200, body, "GET jointtarget")
-        q_rad = parse_joint_target(body, self.n_joints)
-        return ControllerReading(
-            received_wall_ns=now.wall_ns,
-            received_mono_ns=now.mono_ns,
-            q_rad=q_rad,
-            qd_radps=None,
-            target_qd_radps=None,
-            speed_fraction=ratio_pct / 100.0,
-            speed_scaling=None,
-            running=execution == "running",
-            state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
-        )
+        return reading_of(ratio_pct, execution, parse_joint_target(body, self.n_joints), now)
 
     def close(self) -> None:
         """Close the connection (a later call reconnects)."""

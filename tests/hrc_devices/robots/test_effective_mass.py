@@ -16,10 +16,10 @@ from hrc_devices.robots.effective_mass import (
     MASS_BOUND_MARGIN,
     cached_link_mass_bounds,
     path_samples,
-    program_waypoints_rad,
     with_payload,
 )
 from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import program_waypoints_rad
 
 PAYLOAD_KG = 1.0
 

@@ -52,8 +52,9 @@ from bench.reaction import (
 )
 from hrc_contract import keys
 from hrc_contract.config import AbbRwsInterfaceConfig, CellConfig, UrRtdeInterfaceConfig
+from hrc_devices.controllers.abb_rws import EMULATOR_RWS_PASSWORD
 from hrc_runtime.config import load_cell_config
-from hrc_tools.cell.launcher import EMULATOR_RWS_PASSWORD, vendor_face_args
+from hrc_tools.cell.launcher import vendor_face_args
 from hrc_tools.cell.procs import (
     free_port,
     programs,

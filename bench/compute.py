@@ -38,9 +38,9 @@ from gateway.inputs import InputStore
 from gateway.kernels import RobotKernels
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, Pose
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from tracker_emu.body import BodyPose, body_capsules
 
 NAME = "compute"

@@ -26,15 +26,15 @@ from typing import Any
 import numpy as np
 
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from gateway import joint_motion
 from gateway.inputs import InputStore
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, TrackerConfig
 from hrc_contract.messages import Override, to_payload
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.bridged import default_interface
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.links import LinkFaults

@@ -21,8 +21,8 @@ from contextlib import contextmanager
 from bench.productivity import run_variant
 from gateway.methods import ContactAware
 from hrc_contract.config import CellConfig
+from hrc_devices.robots.model import load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import load_robot_model
 
 MASS_MODELS = ("link_bound", "simple")
 

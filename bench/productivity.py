@@ -43,8 +43,8 @@ from bench._progress import Progress
 from bench._report import Report, Target, default_json_path, print_header, table
 from bench.productivity_plot import PlotError, plot_cycles_per_hour
 from hrc_contract.config import CellConfig
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from hrc_tools.sim.links import LinkFault, LinkFaults

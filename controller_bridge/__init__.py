@@ -6,4 +6,4 @@ controller's read-back shows it, derives the programmed velocity honestly, and p
 on the cell's key (docs/contract.md).
 """
 
-__all__ = ["abb_rws", "bridge", "main", "program_model", "ur_rtde", "vendor"]
+__all__ = ["bridge", "main", "program_model"]

@@ -117,9 +117,9 @@ The bridge reports
 
 **Hostile answers.** A reading with the wrong joint count, a non-finite value, a fraction outside [0, 1] or a
 time not after the previous one is refused and counted by reason (as are the interface's own
-:class:`~controller_bridge.vendor.VendorError` reasons, through :meth:`Bridge.count_rejected`); nothing is published
-for it. With no valid reading for ``read_timeout_s`` the shell stops publishing (there is nothing to publish) and
-reconnects: the gateway's staleness check then stops the robot.
+:class:`~hrc_devices.controllers.vendor.VendorError` reasons, through :meth:`Bridge.count_rejected`); nothing is
+published for it. With no valid reading for ``read_timeout_s`` the shell stops publishing (there is nothing to publish)
+and reconnects: the gateway's staleness check then stops the robot.
 """
 
 from __future__ import annotations
@@ -135,9 +135,10 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from controller_bridge.vendor import ControllerReading
 from hrc_contract.messages import JointState, MessageError, Override, parse_message
 from hrc_contract.vocabulary import ControllerMode
+from hrc_devices.controllers.descriptor import SpeedInput
+from hrc_devices.controllers.vendor import ControllerReading
 from hrc_runtime.clocks import Clocks
 
 FloatArray = npt.NDArray[np.float64]
@@ -161,44 +162,6 @@ write's read-back, after which no older write's value can show again."""
 MODEL_STANDSTILL_RADPS = 0.01
 """Where the program model's velocity is below this on every joint, the ratio is not measured along it (U is
 reported instead): ``|qd − U · p| ≤ U · |p|`` stays within the gateway's absolute tolerance (0.01 rad/s) [rad/s]."""
-
-
-@dataclass(frozen=True)
-class SpeedInput:
-    """A vendor's speed input.
-
-    Attributes:
-        floor: the smallest value the input is written with; below it the bridge writes ``stop`` [1].
-        step: the resolution, rounded down to (None: continuous) [1].
-        stop: what is written below the floor, and why (for the documentation and the log).
-        dither_step: d, how far below δ a write moves to differ from the values it must not repeat (the module
-            docstring, "Every write provable"); a multiple of ``step`` [1].
-    """
-
-    floor: float
-    step: float | None
-    stop: str
-    dither_step: float
-
-
-SPEED_INPUTS: Mapping[str, SpeedInput] = MappingProxyType(
-    {
-        "ur_rtde": SpeedInput(
-            floor=0.01,
-            step=None,
-            stop="speed slider 0.0: the robot stands still (some versions then end in a protective stop, the safe "
-            "side); the ROS 2 driver refuses values below 0.01, and anything between is a crawl, not a stop",
-            dither_step=1e-4,
-        ),
-        "abb_rws": SpeedInput(
-            floor=0.01,
-            step=0.01,
-            stop="speed ratio 0 %: RWS accepts 0..100 (integer percent, rounded down, so any δ < 1 % is 0 %)",
-            dither_step=0.01,
-        ),
-    }
-)
-"""The speed input of each vendor interface (``kind`` of :class:`~controller_bridge.vendor.VendorInterface`)."""
 
 
 def quantise(delta: float, speed_input: SpeedInput) -> float:
@@ -694,7 +657,7 @@ class Bridge:
     # -- readings (the reader's loop) ------------------------------------------------------------
 
     def count_rejected(self, reason: str) -> None:
-        """Count a failed read or write (a :class:`~controller_bridge.vendor.VendorError` reason)."""
+        """Count a failed read or write (a :class:`~hrc_devices.controllers.vendor.VendorError` reason)."""
         with self._lock:
             self._rejected[reason] += 1
 

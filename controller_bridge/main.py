@@ -29,28 +29,26 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from urllib.parse import urlsplit
+from typing import Any
 
 import numpy as np
 import zenoh
 
-from controller_bridge.bridge import SPEED_INPUTS, Bridge, BridgeSettings, BridgeStats, FloatArray, Locate
-from controller_bridge.vendor import VendorError, VendorInterface
+from controller_bridge.bridge import Bridge, BridgeSettings, BridgeStats, FloatArray, Locate
+from controller_bridge.program_model import load_model
 from hrc_contract import keys
-from hrc_contract.config import (
-    AbbRwsInterfaceConfig,
-    CellConfig,
-    ConfigError,
-    UrRtdeInterfaceConfig,
-)
+from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import JointState, to_payload
+from hrc_devices.controllers.descriptor import BridgedConfig, Vendor
+from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.vendor import VendorError, VendorInterface
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
 from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import StopEvent, stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
@@ -58,8 +56,6 @@ from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_
 PROG = "hrc-controller-bridge"
 
 log = logging.getLogger(PROG)
-
-BridgeInterfaceConfig = UrRtdeInterfaceConfig | AbbRwsInterfaceConfig
 
 STATS_EVERY_S = 1.0
 PROGRESS_EVERY_S = 5.0
@@ -76,20 +72,22 @@ def select_robot(config: CellConfig, robot: str | None) -> str:
     Raises:
         ConfigError: unknown name; no name and not exactly one bridged robot; a robot on the ``zenoh`` interface.
     """
-    bridged = sorted(name for name, r in config.robots.items() if r.interface.kind != "zenoh")
+    bridged = sorted(name for name, r in config.robots.items() if r.interface.kind in VENDORS)
+    kinds = " or ".join(sorted(VENDORS))
     if robot is None:
         if len(bridged) == 1:
             return bridged[0]
         raise ConfigError(
             f"cell {config.cell!r} has {len(bridged)} robots with a bridged interface; allowed: --robot with one of "
-            f"{', '.join(bridged) or '(none: set [robots.<name>.interface] kind = ur_rtde or abb_rws)'}"
+            f"{', '.join(bridged) or f'(none: set [robots.<name>.interface] kind = {kinds})'}"
         )
     if robot not in config.robots:
         raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(sorted(config.robots))}")
-    if config.robots[robot].interface.kind == "zenoh":
+    if config.robots[robot].interface.kind not in VENDORS:
         raise ConfigError(
-            f"robot {robot!r} has interface kind 'zenoh' (its controller speaks the cell's contract itself: no "
-            f"bridge); allowed: a robot with kind ur_rtde or abb_rws: {', '.join(bridged) or 'none in this cell'}"
+            f"robot {robot!r} has interface kind {config.robots[robot].interface.kind!r} (its controller speaks the "
+            f"cell's contract itself: no bridge); allowed: a robot with kind {kinds}: "
+            f"{', '.join(bridged) or 'none in this cell'}"
         )
     return robot
 
@@ -103,12 +101,10 @@ def braking_time_of(model: RobotModel) -> float:
 
 def bridge_settings(config: CellConfig, name: str, model: RobotModel) -> BridgeSettings:
     """The core's settings for robot ``name`` of the cell."""
-    interface = config.robots[name].interface
-    if not isinstance(interface, UrRtdeInterfaceConfig | AbbRwsInterfaceConfig):
-        raise ConfigError(f"robot {name!r}: interface {interface.kind!r} needs no bridge")
+    vendor, interface = vendor_of(name, config.robots[name].interface)
     return BridgeSettings(
         robot=name,
-        speed_input=SPEED_INPUTS[interface.kind],
+        speed_input=vendor.speed_input,
         velocity_limit_radps=tuple(float(v) for v in model.velocity_limit_radps),
         braking_time_s=braking_time_of(model),
         watchdog_s=interface.watchdog_s,
@@ -116,48 +112,33 @@ def bridge_settings(config: CellConfig, name: str, model: RobotModel) -> BridgeS
         min_scaling=max(config.streams.qd_tolerance_ratio, 1e-3),
         max_diff_gap_s=interface.read_timeout_s,
         rise_time_s=interface.rise_time_s,
-        sample_jitter_s=interface.sample_jitter_s if isinstance(interface, AbbRwsInterfaceConfig) else 0.0,
+        sample_jitter_s=vendor.sample_jitter_s(interface),
     )
 
 
-def make_interface(
-    interface: BridgeInterfaceConfig, n_joints: int, environ: Mapping[str, str] | None = None
-) -> VendorInterface:
+def vendor_of(name: str, interface: object) -> tuple[Vendor[Any], BridgedConfig]:
+    """The registered vendor of robot ``name``'s interface, and the interface.
+
+    Raises:
+        ConfigError: its kind is reached without a bridge (``zenoh``).
+    """
+    kind = getattr(interface, "kind", None)
+    vendor = VENDORS.get(kind) if isinstance(kind, str) else None
+    if vendor is None or not isinstance(interface, vendor.config) or not isinstance(interface, BridgedConfig):
+        raise ConfigError(f"robot {name!r}: interface {kind!r} needs no bridge")
+    return vendor, interface
+
+
+def make_interface(interface: Any, n_joints: int, environ: Mapping[str, str] | None = None) -> VendorInterface:
     """The vendor interface the cell file asks for (not yet connected).
 
     Raises:
-        ConfigError: the interface's module is missing, the password variable is unset, or the URL is not served.
+        ConfigError: not a bridged interface, the password variable is unset, or the URL is not served.
     """
-    env = os.environ if environ is None else environ
-    if isinstance(interface, AbbRwsInterfaceConfig):
-        password = env.get(interface.password_env)
-        if password is None:
-            raise ConfigError(
-                f"environment variable {interface.password_env} (interface.password_env) is not set; allowed: set it "
-                "to the RWS password"
-            )
-        url = urlsplit(interface.url)
-        if url.scheme != "http" or url.hostname is None:
-            raise ConfigError(
-                f"interface.url = {interface.url!r}: this bridge speaks RWS 1.0 over plain HTTP only; allowed: "
-                "http://HOST[:PORT] (RWS 2.0 over HTTPS is not supported yet)"
-            )
-        from controller_bridge.abb_rws import AbbRwsInterface
-
-        return AbbRwsInterface(
-            url.hostname,
-            url.port or 80,
-            interface.user,
-            password,
-            n_joints=n_joints,
-            timeout_s=interface.read_timeout_s,
-        )
-    try:
-        from controller_bridge import ur_rtde  # type: ignore[attr-defined,unused-ignore]
-    except ImportError as exc:
-        raise ConfigError(f"interface ur_rtde is not available in this installation ({exc})") from None
-    made: VendorInterface = ur_rtde.UrRtdeInterface(interface.host, frequency_hz=float(interface.frequency_hz))
-    return made
+    vendor = VENDORS.get(getattr(interface, "kind", ""))
+    if vendor is None:
+        raise ConfigError(f"interface {getattr(interface, 'kind', None)!r} needs no bridge")
+    return vendor.interface(interface, n_joints, os.environ if environ is None else environ)
 
 
 def model_locator(path: Path, robot: str, joint_names: Sequence[str]) -> Locate:
@@ -166,8 +147,6 @@ def model_locator(path: Path, robot: str, joint_names: Sequence[str]) -> Locate:
     Raises:
         ConfigError: the file is not a program model of this robot.
     """
-    from controller_bridge.program_model import load_model
-
     model = load_model(path, robot, list(joint_names))
     previous: list[int | None] = [None]
 
@@ -468,12 +447,11 @@ def main(
     settings = bridge_settings(config, name, model)
     locate = None if program_model is None else model_locator(program_model, name, model.joint_names)
     interface_config = robot_config.interface
-    if not isinstance(interface_config, UrRtdeInterfaceConfig | AbbRwsInterfaceConfig):
-        raise ConfigError(f"robot {name!r} needs no bridge")
+    vendor, _ = vendor_of(name, interface_config)
     interface = make_interface(interface_config, model.n_joints)
     if not listen and not connect:
         connect = [DEFAULT_ENDPOINT]
-    poll_s = 1.0 / interface_config.poll_rate_hz if isinstance(interface_config, AbbRwsInterfaceConfig) else 0.0
+    poll_s = vendor.poll_interval_s(interface_config)
     run_bridge(
         config.cell,
         Bridge(settings, locate),

@@ -38,6 +38,7 @@ import argparse
 import datetime
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Iterable, Sequence
@@ -49,9 +50,10 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from controller_bridge.vendor import ControllerReading, VendorError, VendorInterface
-from hrc_contract.config import AbbRwsInterfaceConfig, ConfigError, UrRtdeInterfaceConfig
+from hrc_contract.config import ConfigError
 from hrc_contract.errors import HrcError
+from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.vendor import ControllerReading, VendorError, VendorInterface
 from hrc_runtime.config import load_cell_config
 
 FloatArray = npt.NDArray[np.float64]
@@ -599,15 +601,14 @@ def open_vendor_interface(config_path: str | None, robot: str) -> tuple[VendorIn
         raise ProgramModelError(f"robot {robot!r} is not in the cell; allowed: {', '.join(cell.robots)}")
     robot_config = cell.robots[robot]
     joints = tuple(robot_config.model.joints)
-    if not isinstance(robot_config.interface, UrRtdeInterfaceConfig | AbbRwsInterfaceConfig):
+    vendor = VENDORS.get(robot_config.interface.kind)
+    if vendor is None:
         raise ProgramModelError(
             f"the cell gives robot {robot!r} no vendor interface (interface = {robot_config.interface.kind!r}); "
-            "allowed: ur_rtde or abb_rws. The emulator's Zenoh face reports qd_nominal itself: no model needed"
+            f"allowed: {' or '.join(sorted(VENDORS))}. The emulator's Zenoh face reports qd_nominal itself: no model "
+            "needed"
         )
-    # imported here: the bridge's process module may itself use this one
-    from controller_bridge.main import make_interface
-
-    return make_interface(robot_config.interface, len(joints)), joints
+    return vendor.interface(robot_config.interface, len(joints), os.environ), joints
 
 
 def record_command(config_path: str | None, robot: str, out: Path, seconds: float) -> ProgramModel:

@@ -5,7 +5,6 @@ __all__ = [
     "controller",
     "main",
     "node",
-    "program",
     "rtde_face",
     "rws_face",
 ]

@@ -35,14 +35,14 @@ from pydantic import ValidationError
 
 from controller_emu.controller import check_braking_time
 from controller_emu.node import ControllerNode
-from controller_emu.program import Trajectory, load_trajectory
 from hrc_contract.config import ConfigError, ControllerConfig, RobotConfig, RobotModelConfig
 from hrc_contract.errors import HrcError
 from hrc_contract.messages import JointState, Override, to_payload
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config, one_line, read_toml, resolve_urdf
 from hrc_runtime.locate import find_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 
 FloatArray = npt.NDArray[np.float64]
 

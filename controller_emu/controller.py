@@ -28,11 +28,11 @@ from typing import Literal
 
 import numpy as np
 
-from controller_emu.program import Trajectory
 from hrc_contract.config import ConfigError, ControllerConfig
 from hrc_contract.messages import JointState, Override
 from hrc_contract.vocabulary import ControllerMode
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import Trajectory
 
 Mode = ControllerMode
 

@@ -29,12 +29,13 @@ import zenoh
 
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
-from controller_emu.program import Trajectory, load_trajectory
 from controller_emu.rtde_face import RtdeFace
 from controller_emu.rws_face import RwsFace
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
 from hrc_contract.messages import to_payload
+from hrc_devices.robots.model import load_robot_model
+from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
@@ -43,7 +44,6 @@ from hrc_runtime.memory import configure_heap
 from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import freeze_startup_heap
-from hrc_runtime.robot_model import load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config

@@ -34,9 +34,9 @@ from controller_emu.controller import (
     joint_state,
     step,
 )
-from controller_emu.program import Trajectory
 from hrc_contract.config import ControllerConfig
 from hrc_contract.messages import JointState, MessageError, Override, parse_message
+from hrc_devices.robots.program import Trajectory
 from hrc_runtime.clocks import Clocks
 
 

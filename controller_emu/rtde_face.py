@@ -6,8 +6,8 @@
     face.close()
 
 What a client sees is what an e-Series controller (software 5.x) shows its RTDE clients, for the variables this
-project uses (:data:`hrc_runtime.rtde.OUTPUT_TYPES`): protocol version 2 only; output setups at 0 < f <= 500 Hz
-(a frequency outside that gets recipe id 0 and the start is refused); names the emulator does not have are
+project uses (:data:`hrc_devices.controllers.ur_rtde.codec.OUTPUT_TYPES`): protocol version 2 only; output setups at 0
+< f <= 500 Hz (a frequency outside that gets recipe id 0 and the start is refused); names the emulator does not have are
 answered ``NOT_FOUND`` in the type list, as the real controller does (ur-rtde then raises naming them); input
 recipes numbered 1, 2, 3… per connection in arrival order (ur-rtde's IO interface sets up 16 and writes the slider
 with id 4). Inputs: a writable input set up by one connection is ``IN_USE`` for every other connection until the
@@ -78,9 +78,9 @@ from typing import NamedTuple
 from controller_emu.node import PENDING_KEPT, ControllerNode, ControllerOutput
 from hrc_contract.config import ConfigError
 from hrc_contract.messages import Override, to_payload
-from hrc_runtime import rtde
+from hrc_devices.controllers.ur_rtde import codec as rtde
+from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe, RtdeError
 from hrc_runtime.clocks import Clocks, read_clocks
-from hrc_runtime.rtde import MessageType, Recipe, RtdeError
 
 log = logging.getLogger("hrc-controller-emu.rtde")
 

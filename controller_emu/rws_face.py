@@ -16,8 +16,8 @@ Resources (JSON only: ``json=1`` is required on GETs; the XML a real controller 
 
 Anything else is 404, a bad form 400, both with the RWS 1.0 error body ``{"_embedded": {"status": {"code", "msg"}}}``
 (the codes are this emulator's own, not ABB's). Every request needs HTTP Digest (MD5, ``qop=auth``,
-:mod:`hrc_runtime.http_digest`), else 401 with a challenge; after a success the ``-http-session-`` and ``ABBCX``
-cookies are issued as a real controller does, but they are not accepted instead of Digest.
+:mod:`hrc_devices.controllers.abb_rws.http_digest`), else 401 with a challenge; after a success the ``-http-session-``
+and ``ABBCX`` cookies are issued as a real controller does, but they are not accepted instead of Digest.
 
 A speed-ratio write becomes an override of the node, ``delta = ratio / 100``, stamped with the emulator's wall
 clock and numbered by this face. The node's watchdog then stops the robot when writes stop arriving. **A real IRC5
@@ -67,8 +67,7 @@ from urllib.parse import parse_qsl, urlsplit
 from controller_emu.controller import Mode
 from controller_emu.node import ControllerNode, ControllerOutput
 from hrc_contract.messages import Override, to_payload
-from hrc_runtime.clocks import Clocks, read_clocks
-from hrc_runtime.http_digest import (
+from hrc_devices.controllers.abb_rws.http_digest import (
     NONCE_LIFETIME_S,
     Credentials,
     DigestChallenge,
@@ -78,6 +77,7 @@ from hrc_runtime.http_digest import (
     nonce_issued_ns,
     parse_authorization,
 )
+from hrc_runtime.clocks import Clocks, read_clocks
 
 log = logging.getLogger("hrc-controller-emu.rws")
 

@@ -1,9 +1,12 @@
 """The safety gateway: delay-aware speed override for a closed robot controller."""
 
 __all__ = [
+    "bridge_view",
+    "contact",
     "core",
     "delay",
     "events",
+    "handoff",
     "http",
     "inputs",
     "iso15066",
@@ -15,7 +18,10 @@ __all__ = [
     "node",
     "recording",
     "reference",
+    "ros2_face",
+    "ros2_trackers",
     "separation",
+    "stalls",
     "status",
     "tracks",
     "zones",

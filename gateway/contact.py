@@ -11,7 +11,7 @@ contact is
     v_max = F_max / sqrt(μ k)          (force form)
     v_max = sqrt(2 E_max / μ)          (energy form; the same when E_max = F_max² / (2 k))
 
-The robot's effective mass m_R per link (:mod:`hrc_runtime.effective_mass`): the largest reflected mass
+The robot's effective mass m_R per link (:mod:`hrc_devices.robots.effective_mass`): the largest reflected mass
 1 / (uᵀ J M(q)⁻¹ Jᵀ u) of any point of the link's capsule in any direction u (the largest eigenvalue of the
 translational operational-space inertia Λ), over the program's path and a box of configurations around it, plus a
 margin; computed once at start-up and used as a constant per link (no cost per decision). Where a point of the link
@@ -40,7 +40,7 @@ import pinocchio as pin
 
 from hrc_contract.config import BodyRegion, Box
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.effective_mass import moving_mass_kg
+from hrc_devices.robots.effective_mass import moving_mass_kg
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -88,7 +88,7 @@ def region_contact_speed_mps(region: BodyRegion, robot_mass_kg: float) -> float:
 
 def simple_robot_mass_kg(model: pin.Model, payload_kg: float) -> float:
     """m_R = M / 2 + m_payload (ISO/TS 15066 eq. (A.6)) [kg]: for comparison only (it understates the reflected mass
-    of the links near the base many times over; the decision uses :mod:`hrc_runtime.effective_mass`)."""
+    of the links near the base many times over; the decision uses :mod:`hrc_devices.robots.effective_mass`)."""
     return 0.5 * moving_mass_kg(model) + payload_kg
 
 

@@ -28,8 +28,8 @@ from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_th
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 from hrc_contract.vocabulary import Zone
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 Fault = TopicFault
 """A fault of one decision: ``code`` (machine-readable, listed in docs/contract.md) and ``reason`` (for people)."""

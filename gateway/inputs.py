@@ -58,8 +58,8 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules, capsules_from_message, implausible_detail
 from hrc_contract.messages import Humans, JointState, MessageError, parse_message
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

@@ -9,7 +9,7 @@ Two compiled calls per robot and cycle instead of ~100 numpy calls and ~20 Pinoc
   ones, safety-math.md §2).
 - :func:`build_rows`: what :func:`gateway.reference.separation.build_rows` (the numpy reference)
   returns — segment distances
-  (Ericson 2005, §5.1.9, the steps of :mod:`hrc_runtime.segments`), surface distance, clearance Δ (eq. (10)–(12),
+  (Ericson 2005, §5.1.9, the steps of :mod:`hrc_devices.robots.segments`), surface distance, clearance Δ (eq. (10)–(12),
   ISO 13855 close-speed switch), f = max(0, d − Δ)², e = (h − r)ᵀ v of the 4 corners and the bounds of
   eq. (15) (safety-math.md §2–§4) — with their minimum and the closest pair.
 - :class:`RobotKernels`: both for one robot, as :class:`gateway.core.SafetyCore` calls them. Building it checks
@@ -37,14 +37,15 @@ from gateway.reference.kinematics import link_kinematics as pinocchio_link_kinem
 from gateway.separation import ConstraintRows
 from hrc_contract.config import ConfigError, SafetyConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.robot_model import RobotModel
-from hrc_runtime.segments import SegmentDistances
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.segments import SegmentDistances
 
 FloatArray = npt.NDArray[np.float64]
 
 _EPS = 1e-12
 _PARALLEL_SIN2 = 1e-14
-"""As in :mod:`hrc_runtime.segments`: degenerate below a squared length of 1e-12 m², parallel below sin² 1e-14."""
+"""As in :mod:`hrc_devices.robots.segments`: degenerate below a squared length of 1e-12 m², parallel below sin²
+1e-14."""
 
 CHECK_TOLERANCE = 1e-9
 """Largest difference to Pinocchio of a link-end position [m] or velocity [m/s] for the kinematics to be used."""
@@ -227,7 +228,7 @@ def _segment_pair(
     """Distance [m] and closest-point abscissas (s, t) of a link segment and a capsule segment.
 
     Args: the link's direction d1 = p_b − p_a and a = ‖d1‖², the capsule's d2 = h_b − h_a and e = ‖d2‖²,
-    and r = p_a − h_a. The same steps as :func:`hrc_runtime.segments.segment_distances`, for one pair: the
+    and r = p_a − h_a. The same steps as :func:`hrc_devices.robots.segments.segment_distances`, for one pair: the
     unclamped s (0 for parallel segments), then t clamped, then s from that t clamped; a point segment
     projects the other's point. Without branches (selects only), so that the loop over capsules vectorises.
     """
@@ -287,7 +288,7 @@ def _segment_distances(p_a: Any, p_b: Any, h_a: Any, h_b: Any) -> Any:
 
 
 def segment_distances(p_a: FloatArray, p_b: FloatArray, h_a: FloatArray, h_b: FloatArray) -> SegmentDistances:
-    """Compiled :func:`hrc_runtime.segments.segment_distances`:
+    """Compiled :func:`hrc_devices.robots.segments.segment_distances`:
 
     L links ``[p_a, p_b]`` (L, 3) × H capsules (H, 3)."""
     distance, s, t = _segment_distances(*(np.ascontiguousarray(x, float) for x in (p_a, p_b, h_a, h_b)))

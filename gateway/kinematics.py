@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from hrc_contract.config import ConfigError
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import zenoh
 from pydantic import TypeAdapter
@@ -40,11 +40,12 @@ from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
 from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
 from gateway.stalls import Phase, StallMonitor
-from gateway.status import cycle_status, effective_config, loop_status
+from gateway.status import StatusJob, cycle_status, effective_config, loop_status
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import Override, to_payload
-from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus, LoopStatus
+from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
@@ -53,7 +54,6 @@ from hrc_runtime.mcap_sink import RecordingError
 from hrc_runtime.memory import configure_heap
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_realtime_scheduling
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import StopEvent, stop_on_signals
 from hrc_runtime.zenoh_session import (
@@ -229,22 +229,6 @@ def status_json(doc: GatewayStatus) -> bytes:
         for k in range(0, len(capsules), STATUS_CAPSULES_PER_CHUNK)
     ]
     return head.replace(empty, b'"human_capsules":[' + b",".join(chunks) + b"]")
-
-
-class StatusJob(NamedTuple):
-    """One cycle to show, with what the loop took for it on its own thread (cheap: references and small counts).
-
-    Attributes:
-        cycle: the cycle the document shows.
-        counters: ``(rejected, received)`` of the input store when the cycle was handed over.
-        loop: the loop's own timing then.
-        stamp_ns: when it was handed over, right after the decision [ns since the epoch].
-    """
-
-    cycle: GatewayCycle
-    counters: tuple[dict[str, dict[str, int]], dict[str, int]]
-    loop: LoopStatus
-    stamp_ns: int
 
 
 class StatusThread(LatestJobThread[StatusJob]):

@@ -42,7 +42,6 @@ while the commanded δ has stayed below ``replan_delta_below`` for ``replan_afte
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from typing import NamedTuple, Protocol
 
@@ -76,8 +75,9 @@ from gateway.separation import (
 from gateway.zones import Protection
 from hrc_contract.config import ConfigError, SafetyConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.effective_mass import LinkMassBounds, cached_link_mass_bounds, program_waypoints_rad
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.effective_mass import LinkMassBounds, cached_link_mass_bounds
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import program_waypoints_rad
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -340,7 +340,7 @@ class ContactAware(SpeedAware):
 
     The effective mass (``pfl_mass_model = "link_bound"``): per link a constant, the largest reflected mass of any
     point of its capsule in any direction over the program's path and a box around it, plus a margin
-    (:func:`hrc_runtime.effective_mass.link_mass_bounds`, once at start-up); ∞ (μ = m_H) for a link with a rigid
+    (:func:`hrc_devices.robots.effective_mass.link_mass_bounds`, once at start-up); ∞ (μ = m_H) for a link with a rigid
     direction, for every link while the robot is outside the sampled box, and for a robot without a program.
     ``"simple"`` (M/2 + m_payload; test-only, it understates the mass) is the documented comparison. Its safety
     exception: :class:`SpeedAware`'s δ thresholds, at no distance (contact is allowed): a bound at or below
@@ -368,7 +368,7 @@ class ContactAware(SpeedAware):
                 continue
             try:
                 waypoints = program_waypoints_rad(program)
-            except (OSError, ValueError, KeyError, TypeError, tomllib.TOMLDecodeError) as exc:
+            except ConfigError as exc:
                 raise ConfigError(f"robot {name!r}: program {program!r} unreadable (effective mass): {exc}") from exc
             self.mass_bounds[name] = cached_link_mass_bounds(robot, safety.pfl_payload_kg, waypoints)
         self._bounded_by: dict[str, str] = {}

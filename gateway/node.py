@@ -25,8 +25,8 @@ from hrc_contract.config import CellConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
 from hrc_contract.messages import MessageError, Override, parse_message
 from hrc_contract.messages import TrackReset as TrackResetMessage
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 RESET_TOPIC = "operator/track_reset"
 """The counters' topic of the operators' resets."""

@@ -33,18 +33,18 @@ from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import zenoh
 
 from gateway.handoff import LatestJobThread
 from gateway.ros2_trackers import tracker_topics, trackers_node_name
+from gateway.status import StatusJob
 from hrc_contract.config import CellConfig
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus
-from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
-from hrc_runtime.pki import default_pki_dir
-from hrc_runtime.rmw_zenoh import (
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.ros2.rmw_zenoh import (
     ADMIN_SPACE,
     Distro,
     Ros2Node,
@@ -58,7 +58,8 @@ from hrc_runtime.rmw_zenoh import (
     topic_key,
     topic_type,
 )
-from hrc_runtime.robot_model import RobotModel
+from hrc_runtime.access_control import ROS2_FACE, Ros2Policy, Ros2Rights
+from hrc_runtime.pki import default_pki_dir
 from hrc_runtime.zenoh_session import (
     PLAIN_TCP_LOOPBACK,
     SessionOptions,
@@ -68,9 +69,6 @@ from hrc_runtime.zenoh_session import (
     mutual_tls,
     session_config,
 )
-
-if TYPE_CHECKING:
-    from gateway.main import StatusJob
 
 log = logging.getLogger("hrc-gateway.ros2")
 

@@ -1,7 +1,7 @@
 """ROS 2 body trackers as trackers of the cell: rmw_zenoh samples → skeleton capsules → the very same door.
 
     ROS 2 session thread (Zenoh): a sample on ``<domain>/<topic>/<type>/<hash>``
-        ──judge_sample (type, hash, attachment)──▶ SkeletonAdapter.convert: decode (hrc_runtime.ros2_people)
+        ──judge_sample (type, hash, attachment)──▶ SkeletonAdapter.convert: decode (hrc_devices.trackers.ros2_people)
         ──people_capsules (placement, uncertainty, per-person memory)──▶ an ``hrc.humans/1`` frame
         ──door(hrc/<cell>/tracker/<name>/humans, frame, received)──▶ GatewayNode.on_message → InputStore.on_humans
     any refusal ──count_rejection(tracker/<name>, reason, received): counted by reason, the topic faulted (δ = 0)
@@ -16,17 +16,17 @@ the tracker marks SEARCHING or TERMINATE are left out of the frame: the gateway'
 Refused before the door, with these reasons: what rmw_zenoh itself drops (``no_attachment``,
 ``attachment_malformed``, ``too_large``) and a publisher of another type or distro (``wrong_type``,
 ``wrong_type_hash``); what the decoders refuse (``not_cdr``, ``bad_stamp``, ``non_finite``, ``absurd_keypoint``,
-``unknown_body_format`` … of :mod:`hrc_runtime.ros2_people` and :mod:`hrc_runtime.skeletons`); a message in
-another frame than configured (``wrong_frame``); anything else that raises (``internal_error``, logged).
+``unknown_body_format`` … of :mod:`hrc_devices.trackers.ros2_people` and :mod:`hrc_devices.trackers.skeletons`); a
+message in another frame than configured (``wrong_frame``); anything else that raises (``internal_error``, logged).
 
 ROS4HRI bodies (format ``ros4hri_bodies``, :class:`Ros4hriAdapter`): three streams feed one tracker. The tracked list
 (``hri_msgs/IdsList`` on the configured topic, e.g. ``/humans/bodies/tracked``) makes the frames: its sequence number,
 and as stamp the oldest capture stamp of what the frame uses. Each body's ``sensor_msgs/JointState`` on
 ``<the list's namespace>/<id>/joint_states`` and its ``body_<id>`` frame on the TF topic (``tf2_msgs/TFMessage``, in
-the configured ``frame_id``) are checked when they arrive and kept (:mod:`hrc_runtime.ros4hri_body`). A listed body
-without both, or with either older than ``max_body_age_s`` at the list's stamp (or older than the last frame's
-stamp), is left out of the frame: lost, not gone. A refused joint state or TF message faults the tracker as a refused
-frame does. Further reasons: ``wrong_topic``, ``joint_count_mismatch``, ``unknown_joint``, ``duplicate_joint``,
+the configured ``frame_id``) are checked when they arrive and kept (:mod:`hrc_devices.trackers.ros4hri_body`). A
+listed body without both, or with either older than ``max_body_age_s`` at the list's stamp (or older than the last
+frame's stamp), is left out of the frame: lost, not gone. A refused joint state or TF message faults the tracker as a
+refused frame does. Further reasons: ``wrong_topic``, ``joint_count_mismatch``, ``unknown_joint``, ``duplicate_joint``,
 ``joint_out_of_limits``, ``bad_quaternion``, ``bad_body_id``.
 
 Cost: the conversion runs on the ROS 2 session's receiving thread, never on the safety loop's (which it shares the
@@ -48,9 +48,8 @@ import zenoh
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2Config, Ros2TrackerInput
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
-from hrc_runtime import ros2_people, ros4hri_body
-from hrc_runtime.clocks import Clocks, read_clocks
-from hrc_runtime.rmw_zenoh import (
+from hrc_devices.robots.model import pose_to_rotation_translation
+from hrc_devices.ros2.rmw_zenoh import (
     Attachment,
     AttachmentError,
     Distro,
@@ -63,18 +62,14 @@ from hrc_runtime.rmw_zenoh import (
     topic_type,
     typestore,
 )
-from hrc_runtime.robot_model import pose_to_rotation_translation
-from hrc_runtime.skeletons import BodyCapsules, PersonMemory, PersonUnplacedError
+from hrc_devices.trackers import ros2_people, ros4hri_body
+from hrc_devices.trackers.registry import FORMATS
+from hrc_devices.trackers.skeletons import BodyCapsules, PersonMemory, PersonUnplacedError
+from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.zenoh_session import SecurityError, SessionOptions
 
 log = logging.getLogger("hrc-gateway.ros2-trackers")
 
-MSGTYPES = {
-    "zed_objects": ros2_people.ZED_OBJECTS,
-    "k4abt_markers": ros2_people.MARKER_ARRAY,
-    "ros4hri_bodies": ros2_people.IDS_LIST,
-}
-"""The ROS 2 message type of each tracker format (of its configured topic: ROS4HRI's tracked list)."""
 JOINT_STATES_TOPIC = "joint_states"
 """A ROS4HRI body's joint states: ``<the tracked list's namespace>/<id>/joint_states``."""
 
@@ -100,7 +95,10 @@ def tracker_wires(config: CellConfig) -> dict[str, tuple[str, TopicType]]:
     """
     ros2 = config.ros2
     return {
-        name: (fully_qualified_name(ros2.namespace, t.ros2.topic), topic_type(ros2.distro, MSGTYPES[t.ros2.format]))
+        name: (
+            fully_qualified_name(ros2.namespace, t.ros2.topic),
+            topic_type(ros2.distro, FORMATS[t.ros2.format].msgtype),
+        )
         for name, t in sorted(config.trackers.items())
         if t.ros2 is not None
     }
@@ -142,7 +140,7 @@ def tracker_topics(config: CellConfig) -> dict[str, tuple[TrackerTopic, ...]]:
     for name, tracker in sorted(config.trackers.items()):
         if tracker.ros2 is None:
             continue
-        if tracker.ros2.format == "ros4hri_bodies":
+        if FORMATS[tracker.ros2.format].decode is None:  # several streams: ROS4HRI's
             out[name] = ros4hri_topics(config.ros2, tracker.ros2)
         else:
             fq_name, wire = tracker_wires(config)[name]
@@ -233,8 +231,10 @@ class SkeletonAdapter:
     def __post_init__(self) -> None:
         self.placement = placement_of(self.source.sensor_pose_world)
         self._store = typestore(self.distro)
-        formats = {"zed_objects": ros2_people.decode_zed_objects, "k4abt_markers": ros2_people.decode_k4abt_markers}
-        self._decode = formats[self.source.format]
+        decode = FORMATS[self.source.format].decode
+        if decode is None:
+            raise ConfigError(f"tracker {self.tracker!r}: format {self.source.format!r} is not one of one stream")
+        self._decode = decode
 
     def convert(self, payload: bytes, attachment: Attachment) -> bytes:
         """One sample's frame: seq from the attachment, stamp from the header (the capture time).
@@ -458,9 +458,9 @@ def tracker_subscriptions(config: CellConfig, door: Door, reject: Rejection) -> 
     for name, tracker in sorted(config.trackers.items()):
         if tracker.ros2 is None:
             continue
-        wire = topic_type(distro, MSGTYPES[tracker.ros2.format])
+        wire = topic_type(distro, FORMATS[tracker.ros2.format].msgtype)
         adapter: SkeletonAdapter | Ros4hriAdapter
-        if tracker.ros2.format == "ros4hri_bodies":
+        if FORMATS[tracker.ros2.format].decode is None:  # several streams: ROS4HRI's
             adapter = Ros4hriAdapter(name, tracker.ros2, config.ros2)
         else:
             adapter = SkeletonAdapter(name, tracker.ros2, distro)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -37,13 +37,29 @@ from hrc_contract.status_models import (
     RobotStatus,
     TrackStatus,
 )
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.rate_loop import RateLoop
-from hrc_runtime.robot_model import RobotModel
 
 DIGITS = 4
 """Distances, times and δ are rounded to this many decimals (0.1 mm, 0.1 ms)."""
 LOOP_DIGITS = 6
 """The loop's timing (lateness, compute time) is rounded to this many decimals (1 µs)."""
+
+
+class StatusJob(NamedTuple):
+    """One cycle to show, with what the loop took for it on its own thread (cheap: references and small counts).
+
+    Attributes:
+        cycle: the cycle the document shows.
+        counters: ``(rejected, received)`` of the input store when the cycle was handed over.
+        loop: the loop's own timing then.
+        stamp_ns: when it was handed over, right after the decision [ns since the epoch].
+    """
+
+    cycle: GatewayCycle
+    counters: tuple[dict[str, dict[str, int]], dict[str, int]]
+    loop: LoopStatus
+    stamp_ns: int
 
 
 def _rounded(x: float, digits: int = DIGITS) -> float:

@@ -199,7 +199,8 @@ class SafetyConfig(_Frozen):
     pfl_mass_model: Literal["link_bound", "simple"] = Field(
         "link_bound",
         description="m_R of the decision: per link the largest reflected mass over the program's path, every point "
-        "and direction, plus a margin (hrc_runtime/effective_mass.py, once at start-up). 'simple' (M/2 + m_payload) "
+        "and direction, plus a margin (hrc_devices/robots/effective_mass.py, once at start-up). 'simple' "
+        "(M/2 + m_payload) "
         f"understates it and is refused unless {UNSAFE_ENV_VAR}=pfl_simple_mass_for_tests (comparison only).",
     )
     pfl_speed_fraction: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
@@ -820,11 +821,11 @@ class Ros2Config(_Frozen):
 
 Ros2TrackerFormat = Literal["zed_objects", "k4abt_markers", "ros4hri_bodies"]
 """What a ROS 2 body tracker publishes: ``zed_msgs/ObjectsStamped`` (ZED body tracking), the Azure Kinect
-driver's ``visualization_msgs/MarkerArray`` (``hrc_runtime/ros2_people.py``), or ROS4HRI bodies (REP 155: the tracked
-list, per body ``sensor_msgs/JointState`` of the human model and its ``body_<id>`` frame on /tf;
-``hrc_runtime/ros4hri_body.py``)."""
+driver's ``visualization_msgs/MarkerArray`` (``hrc_devices/trackers/ros2_people.py``), or ROS4HRI bodies (REP 155: the
+tracked list, per body ``sensor_msgs/JointState`` of the human model and its ``body_<id>`` frame on /tf;
+``hrc_devices/trackers/ros4hri_body.py``)."""
 MAX_ROS4HRI_BODY_HEIGHT_M = 1.87
-"""Tallest ROS4HRI human model [m]: the P95 stature of ``hrc_runtime/skeletons.py``; a taller model's segments
+"""Tallest ROS4HRI human model [m]: the P95 stature of ``hrc_devices/trackers/skeletons.py``; a taller model's segments
 outgrow the reach spheres that stand for a body part whose joint is missing."""
 MAX_SKELETON_CAPSULE_RADIUS_M = 2.0
 """Largest radius a skeleton tracker's capsules may be allowed [m]: the contract's ``Capsule.radius`` limit."""
@@ -832,7 +833,8 @@ MAX_SKELETON_CAPSULE_RADIUS_M = 2.0
 
 class Ros2TrackerInput(_Frozen):
     """A body tracker of the cell read over ROS 2 (``[ros2]``'s session, distro and domain): its keypoints become
-    the gateway's capsules (``hrc_runtime/skeletons.py``), then one ``hrc.humans/1`` frame through the same door.
+    the gateway's capsules (``hrc_devices/trackers/skeletons.py``), then one ``hrc.humans/1`` frame through the same
+    door.
 
     Plausibility: a part the tracker did not see becomes a sphere reaching as far as it can be (a foot unseen down
     to the pelvis: 1.55 m, P95) plus the uncertainty, which the cell's ``max_capsule_radius_m`` (at most 1 m, sized

@@ -12,16 +12,18 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     │   └── SecurityError  (hrc_runtime.zenoh_session)     a Zenoh session cannot be secured as asked
     ├── MessageError       (hrc_contract.messages)         a payload that is not a valid message: count it, fail
     │   │                                                  closed
-    │   ├── SkeletonError  (hrc_runtime.skeletons)         keypoints that cannot describe a person
-    │   ├── Ros2MessageError (hrc_runtime.ros2_people)     a ROS 2 tracker message that does not decode or is absurd
+    │   ├── SkeletonError  (hrc_devices.trackers.skeletons)   keypoints that cannot describe a person
+    │   ├── Ros2MessageError (hrc_devices.trackers.ros2_people) a ROS 2 tracker message that does not decode
+    │   │                                                  or is absurd
     │   └── Ros2TrackerError (gateway.ros2_trackers)       a ROS 2 tracker sample refused before it is decoded
-    ├── DigestError        (hrc_runtime.http_digest)       an HTTP Digest header that does not parse: refuse it (401)
-    ├── AttachmentError    (hrc_runtime.rmw_zenoh)         an rmw_zenoh sample attachment that rmw_zenoh would drop
+    ├── DigestError        (hrc_devices.controllers.abb_rws.http_digest) an HTTP Digest header that does not
+    │                                                      parse: refuse it (401)
+    ├── AttachmentError    (hrc_devices.ros2.rmw_zenoh)    an rmw_zenoh sample attachment that rmw_zenoh would drop
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
-    ├── RtdeError          (hrc_runtime.rtde)              bytes that are not a valid RTDE package
+    ├── RtdeError          (hrc_devices.controllers.ur_rtde.codec) bytes that are not a valid RTDE package
     ├── RuleError          (hrc_tools.faultinject.rules)   a fault-injection rule that does not parse
     ├── RelayError         (hrc_tools.faultinject.relay)   the fault relay cannot run
-    ├── VendorError        (controller_bridge.vendor)      a controller's vendor interface failed or answered
+    ├── VendorError        (hrc_devices.controllers.vendor) a controller's vendor interface failed or answered
     │                                                      something invalid
     └── BenchError         (hrc_tools.cell.procs)          a benchmark or process test could not run
         └── StartupError   (hrc_tools.cell.procs)          a program did not start

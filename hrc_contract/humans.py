@@ -15,15 +15,13 @@ e.g. a capsule kilometres long passing a hand's width from the tool, lose all pr
 from __future__ import annotations
 
 import itertools
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 
+from hrc_contract.config import PlausibilityConfig
 from hrc_contract.messages import Humans
-
-if TYPE_CHECKING:
-    from hrc_contract.config import PlausibilityConfig
 
 FloatArray = npt.NDArray[np.float64]
 

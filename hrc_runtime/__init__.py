@@ -1,7 +1,7 @@
-"""How any program runs: configuration finding and loading, robot model, clocks, the rate loop, command-line helpers,
-logging, signals, real-time scheduling, sd_notify, the Zenoh session, access control, PKI, MCAP writing, and the
-geometry every side shares (the robot's link capsules from its URDF: :mod:`link_motion`; segment distances in
-numpy: :mod:`segments`).
+"""How any program runs, and nothing else: configuration finding and loading, clocks, the rate loop, the newest-wins
+ring, command-line helpers, logging, signals, real-time scheduling, memory, sd_notify, the Zenoh session, access
+control, PKI, MCAP writing. What programs know of the devices (robots, controllers, trackers, ROS 2) is
+``hrc_devices``.
 
 Imports only hrc_contract of the project.
 """
@@ -11,16 +11,15 @@ __all__ = [
     "cli",
     "clocks",
     "config",
-    "link_motion",
     "locate",
     "logs",
     "mcap_sink",
+    "memory",
+    "newest_wins",
     "pki",
     "rate_loop",
     "realtime",
-    "robot_model",
     "sd_notify",
-    "segments",
     "signals",
     "zenoh_session",
 ]

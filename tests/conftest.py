@@ -7,8 +7,8 @@ import os
 import pytest
 
 from hrc_contract.config import CellConfig
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.zenoh_session import PLAIN_TCP_ENV_VAR
 
 # The loopback tests run the programs over plain TCP (development mode; every program they start inherits this);

@@ -6,6 +6,7 @@ __all__ = [
     "main",
     "occlusion",
     "robot_links",
+    "ros2_zed",
     "scenario",
     "sensor",
 ]

@@ -27,12 +27,12 @@ import zenoh
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, TrackerConfig
 from hrc_contract.messages import to_payload
+from hrc_devices.robots.model import load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
 from hrc_runtime.memory import configure_heap
 from hrc_runtime.realtime import freeze_startup_heap
-from hrc_runtime.robot_model import load_robot_model
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config

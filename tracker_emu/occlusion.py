@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hrc_runtime.segments import segment_distances
+from hrc_devices.robots.segments import segment_distances
 from tracker_emu.scenario import Fixture, TrackedHuman
 
 FloatArray = npt.NDArray[np.float64]

@@ -1,7 +1,7 @@
 """The robots as the tracker emulator's sensors see them: link capsules from the true joint positions.
 
 The link end points come from the auditor's forward kinematics
-(:func:`hrc_runtime.link_motion.link_motion`, Pinocchio on
+(:func:`hrc_devices.robots.link_motion.link_motion`, Pinocchio on
 the URDF the cell names), the radii from the robot model; no gateway code. The process learns the joint positions
 from the controller emulators' ground truth (``hrc/<cell>/truth/robot/<robot>/state``, :class:`RobotPoses`); the
 simulated cell passes its controllers' true positions.
@@ -18,8 +18,8 @@ import numpy.typing as npt
 
 from hrc_contract import keys
 from hrc_contract.messages import JointState, MessageError, parse_message
-from hrc_runtime.link_motion import link_motion
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.link_motion import link_motion
+from hrc_devices.robots.model import RobotModel
 from tracker_emu.occlusion import Blockers, join_blockers
 
 FloatArray = npt.NDArray[np.float64]

@@ -41,11 +41,11 @@ import zenoh
 
 from hrc_contract.config import CellConfig, ConfigError, Ros2TrackerInput, TrackerConfig
 from hrc_contract.messages import Human, Humans
-from hrc_runtime import ros2_people
+from hrc_devices.robots.model import pose_to_rotation_translation
+from hrc_devices.ros2.rmw_zenoh import Distro, Qos, Ros2Node, Ros2Publisher, typestore
+from hrc_devices.trackers import ros2_people
+from hrc_devices.trackers.skeletons import ZED_34_NAMES, ZED_38_NAMES
 from hrc_runtime.pki import default_pki_dir
-from hrc_runtime.rmw_zenoh import Distro, Qos, Ros2Node, Ros2Publisher, typestore
-from hrc_runtime.robot_model import pose_to_rotation_translation
-from hrc_runtime.skeletons import ZED_34_NAMES, ZED_38_NAMES
 from hrc_runtime.zenoh_session import (
     SecurityError,
     SessionOptions,

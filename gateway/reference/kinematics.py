@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 
 from gateway.kinematics import FloatArray, LinkKinematics, _frame_layout
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 
 def link_kinematics(robot: RobotModel, data: pin.Data, q_rad: FloatArray, qd_radps: FloatArray) -> LinkKinematics:

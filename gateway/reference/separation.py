@@ -10,7 +10,7 @@ from gateway.kinematics import LinkKinematics
 from gateway.separation import ConstraintRows, FloatArray, clearance_m
 from hrc_contract.config import SafetyConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.segments import segment_distances
+from hrc_devices.robots.segments import segment_distances
 
 
 def build_rows(

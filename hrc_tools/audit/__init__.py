@@ -1,10 +1,10 @@
 """Ground-truth auditor: judges what really happened to the robot and the people (safety-math.md §9).
 
-Independent of the gateway it audits: its kinematics (:mod:`hrc_runtime.link_motion`, Pinocchio) and distances
+Independent of the gateway it audits: its kinematics (:mod:`hrc_devices.robots.link_motion`, Pinocchio) and distances
 (:mod:`hrc_tools.audit.distance`, coal) are its own; no module of ``audit`` imports ``gateway``.
 """
 
-from hrc_runtime.link_motion import LinkMotion, link_motion
+from hrc_devices.robots.link_motion import LinkMotion, link_motion
 from hrc_tools.audit.checks import (
     MOVING_EPS_MPS,
     AuditAccumulator,
@@ -23,6 +23,11 @@ __all__ = [
     "LinkMotion",
     "audit_cycle",
     "audit_links",
+    "bounded",
+    "checks",
+    "contact",
+    "distance",
     "link_motion",
+    "main",
     "merge_summaries",
 ]

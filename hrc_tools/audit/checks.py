@@ -18,7 +18,7 @@ The smallest margin over a run is the run's safety margin. :class:`AuditAccumula
 of a run into a frozen :class:`AuditSummary`. No I/O here.
 
 The auditor is independent of what it audits: it uses no code of ``gateway``. Link end points and velocities
-come from Pinocchio directly (:mod:`hrc_runtime.link_motion`),
+come from Pinocchio directly (:mod:`hrc_devices.robots.link_motion`),
 surface distances from coal (:mod:`hrc_tools.audit.distance`).
 """
 
@@ -36,8 +36,8 @@ import numpy.typing as npt
 import pinocchio as pin
 
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.link_motion import LinkMotion, link_motion
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.link_motion import LinkMotion, link_motion
+from hrc_devices.robots.model import RobotModel
 from hrc_tools.audit.bounded import LargestN, largest_in_order
 from hrc_tools.audit.contact import Contact
 from hrc_tools.audit.distance import CapsulePairs, CapsuleSet

@@ -15,7 +15,7 @@ may fail by design: it lets the robot touch), by what the contacts were:
   F_max / sqrt(μ k) (or sqrt(2 E_max / μ)), μ = (1/m_H + 1/m_R)⁻¹.
 
 The limits are computed here from the cell's table, and the mass with the shared Pinocchio geometry of
-:mod:`hrc_runtime.effective_mass`, with no code of ``gateway`` (the auditor stays independent of what it audits).
+:mod:`hrc_devices.robots.effective_mass`, with no code of ``gateway`` (the auditor stays independent of what it audits).
 No I/O.
 """
 
@@ -31,15 +31,15 @@ import pinocchio as pin
 
 from hrc_contract.config import BodyRegion, Box
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.effective_mass import (
+from hrc_devices.robots.effective_mass import (
     capsule_point_jacobians,
     inverse_inertia,
     largest_reflected_mass_kg,
     reflected_mass_kg,
     with_payload,
 )
-from hrc_runtime.link_motion import LinkMotion
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.link_motion import LinkMotion
+from hrc_devices.robots.model import RobotModel
 from hrc_tools.audit.distance import CapsulePairs, CapsuleSet
 
 FloatArray = npt.NDArray[np.float64]

@@ -49,11 +49,11 @@ from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.humans import HumanCapsules, capsules_from_message
 from hrc_contract.messages import Humans, JointState, MessageError, parse_message
 from hrc_contract.status_models import GatewayStatus
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.logs import configure_logging
 from hrc_runtime.memory import configure_heap
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from hrc_tools.audit.bounded import DelayHistogram

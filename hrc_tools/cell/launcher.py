@@ -21,17 +21,14 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from urllib.parse import urlsplit
 
-from hrc_contract.config import AbbRwsInterfaceConfig, CellConfig, ConfigError, RobotConfig, UrRtdeInterfaceConfig
+from hrc_contract.config import CellConfig, ConfigError, RobotConfig
+from hrc_devices.controllers.registry import VENDORS
 from hrc_runtime.access_control import CellPolicy
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.pki import CellPki, default_pki_dir
 from hrc_runtime.signals import stop_on_signals
 from hrc_tools.cert.main import provision_cell
-
-EMULATOR_RWS_PASSWORD = "robotics"
-"""The RWS password the controller emulator serves, as an ABB controller is shipped (user ``Default User``)."""
 
 
 def _module_command(module: str, *args: str) -> list[str]:
@@ -42,34 +39,27 @@ def vendor_face_args(robot: RobotConfig) -> list[str]:
     """The emulator's options that serve the robot's vendor interface (none for ``zenoh``).
 
     Raises:
-        ConfigError: an ``abb_rws`` URL that is not ``http://HOST:PORT`` (the emulator serves RWS 1.0 only).
+        ConfigError: the emulator cannot serve the interface as configured (an ``abb_rws`` URL that is not
+            ``http://HOST:PORT``: the emulator serves RWS 1.0 only).
     """
-    interface = robot.interface
-    if isinstance(interface, UrRtdeInterfaceConfig):
-        return ["--rtde", interface.host]
-    if isinstance(interface, AbbRwsInterfaceConfig):
-        url = urlsplit(interface.url)
-        if url.scheme != "http" or url.hostname is None:
-            raise ConfigError(
-                f"interface.url = {interface.url!r}: the controller emulator serves RWS 1.0 over plain HTTP only; "
-                "allowed: http://HOST[:PORT]"
-            )
-        return ["--rws", f"{url.hostname}:{url.port or 80}"]
-    return []
+    vendor = VENDORS.get(robot.interface.kind)
+    return [] if vendor is None else vendor.emulator_args(robot.interface)
 
 
 def bridged_robots(config: CellConfig) -> list[str]:
-    """The robots reached through a controller bridge (interface ``ur_rtde`` or ``abb_rws``), sorted."""
-    return sorted(name for name, robot in config.robots.items() if robot.interface.kind != "zenoh")
+    """The robots reached through a controller bridge (an interface kind of the vendors' registry), sorted."""
+    return sorted(name for name, robot in config.robots.items() if robot.interface.kind in VENDORS)
 
 
 def bridge_environment(config: CellConfig, environ: dict[str, str] | None = None) -> dict[str, str]:
-    """The bridges' environment: the RWS password variables an ``abb_rws`` robot names, set to the emulator's
-    password where unset (the cell's controllers are emulators; a value already set is kept)."""
+    """The bridges' environment: what each bridged robot's vendor needs where unset (an ``abb_rws`` robot's RWS
+    password variable, set to the emulator's password; the cell's controllers are emulators; a value already set is
+    kept)."""
     env = dict(os.environ if environ is None else environ)
     for robot in config.robots.values():
-        if isinstance(robot.interface, AbbRwsInterfaceConfig):
-            env.setdefault(robot.interface.password_env, EMULATOR_RWS_PASSWORD)
+        vendor = VENDORS.get(robot.interface.kind)
+        if vendor is not None:
+            vendor.environment(robot.interface, env)
     return env
 
 

@@ -17,4 +17,5 @@ __all__ = [
     "ros2_cell",
     "ros2_mcap",
     "scene",
+    "topics",
 ]

@@ -60,9 +60,9 @@ from gateway.ros2_face import (
 from hrc_contract.config import CellConfig, Pose
 from hrc_contract.messages import Humans, JointState, Override
 from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus
-from hrc_runtime.rmw_zenoh import Distro, fully_qualified_name, new_message
-from hrc_tools.record.cell import RejectedPayload, receive
+from hrc_devices.ros2.rmw_zenoh import Distro, fully_qualified_name, new_message
 from hrc_tools.record.ros2_mcap import Ros2BagSink, Ros2Topic, qos
+from hrc_tools.record.topics import RejectedPayload, receive
 
 log = logging.getLogger("hrc-record.ros2")
 
@@ -215,7 +215,7 @@ def event_log(cell: Ros2Cell, event: Event) -> list[tuple[Ros2Topic, Any]]:
 
 
 def rejected(cell: Ros2Cell, payload: RejectedPayload) -> list[tuple[Ros2Topic, Any]]:
-    """``rejected``: the JSON of :class:`hrc_tools.record.cell.RejectedPayload` in a ``std_msgs/String``."""
+    """``rejected``: the JSON of :class:`hrc_tools.record.topics.RejectedPayload` in a ``std_msgs/String``."""
     return [(cell.topic("rejected", STRING), new_message(cell.distro, STRING, data=payload.model_dump_json()))]
 
 

@@ -9,8 +9,9 @@ MCAP storage plugin), so that ROS tools and ``rosbags`` read it as a bag:
   9 for Kilted; ``rosbags.rosbag2.Reader`` needs the YAML, an MCAP reader only the file);
 - in the MCAP file: profile ``ros2``; one schema per message type, encoding ``ros2msg``, its data the concatenated
   ``.msg`` definitions (the type's own, then each nested type after a ``====…`` line and ``MSG: <pkg>/<Type>``, as
-  rosbag2 stores them, from the distro's type store :func:`hrc_runtime.rmw_zenoh.typestore`); one channel per topic,
-  message encoding ``cdr``, with its ``offered_qos_profiles``; chunks compressed with zstd; the rosbag2 metadata record.
+  rosbag2 stores them, from the distro's type store :func:`hrc_devices.ros2.rmw_zenoh.typestore`); one channel per
+  topic, message encoding ``cdr``, with its ``offered_qos_profiles``; chunks compressed with zstd; the rosbag2 metadata
+  record.
 
 The caller hands over a value and a ``build`` function turning it into ``(topic, message)`` pairs; building and CDR
 serialisation run on the writer thread, so a Zenoh callback only pays for one ``put_nowait``. A full queue drops the
@@ -40,8 +41,8 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 from ruamel.yaml import YAML
 
+from hrc_devices.ros2.rmw_zenoh import Distro, serialize, typestore
 from hrc_runtime.mcap_sink import DEFAULT_MAX_QUEUED, QueuedWriter, RecordingError
-from hrc_runtime.rmw_zenoh import Distro, serialize, typestore
 
 log = logging.getLogger("hrc-recorder.ros2")
 
@@ -75,7 +76,8 @@ def qos(*, depth: int = 10, transient_local: bool = False) -> Qos:
 
 
 DEFAULT_QOS = qos()
-"""What the gateway's ROS 2 face offers (reliable, volatile, keep last 10: ``hrc_runtime.rmw_zenoh.DEFAULT_QOS``)."""
+"""What the gateway's ROS 2 face offers (reliable, volatile, keep last 10:
+``hrc_devices.ros2.rmw_zenoh.DEFAULT_QOS``)."""
 
 
 class Ros2Topic(NamedTuple):

@@ -11,4 +11,20 @@ from hrc_tools.sim.cell import EPOCH_NS, RunResult, simulate
 from hrc_tools.sim.links import LinkFault, LinkFaults
 from hrc_tools.sim.scenarios import SweepCase, generate_case
 
-__all__ = ["EPOCH_NS", "LinkFault", "LinkFaults", "RunResult", "SweepCase", "generate_case", "simulate"]
+__all__ = [
+    "EPOCH_NS",
+    "LinkFault",
+    "LinkFaults",
+    "RunResult",
+    "SweepCase",
+    "bridged",
+    "cell",
+    "generate_case",
+    "human_speed",
+    "links",
+    "ros2_adapter",
+    "scenarios",
+    "simulate",
+    "sweep",
+    "truth",
+]

@@ -12,17 +12,17 @@ What is real code and what is modelled:
   rate, woken at once by every override; a reader per output package or per poll);
 - the readings: built from the emulated controller's state by the faces' own functions and checked by the bridge's
   own parsers. UR (:func:`controller_emu.rtde_face.output_values`, then
-  :func:`controller_bridge.ur_rtde.reading_from_values`): on the face's 2 ms control ticks, every output period
-  (2 ms at 500 Hz, 8 ms at 125 Hz), a package of the controller's latest cycle if it is new (one per cycle), stamped
-  with the cycle's time, so ``target_speed_fraction`` shows a slider write in the first package of the first cycle
-  after it and ``speed_scaling × target_speed_fraction`` the applied override while it ramps up. ABB (the RWS
-  documents of :mod:`controller_emu.rws_face` parsed by :mod:`controller_bridge.abb_rws`): a poll every
+  :func:`hrc_devices.controllers.ur_rtde.client.reading_from_values`): on the face's 2 ms control ticks, every output
+  period (2 ms at 500 Hz, 8 ms at 125 Hz), a package of the controller's latest cycle if it is new (one per cycle),
+  stamped with the cycle's time, so ``target_speed_fraction`` shows a slider write in the first package of the first
+  cycle after it and ``speed_scaling × target_speed_fraction`` the applied override while it ramps up. ABB (the RWS
+  documents of :mod:`controller_emu.rws_face` parsed by :mod:`hrc_devices.controllers.abb_rws.client`): a poll every
   ``poll_rate_hz`` of three requests in sequence (speed ratio, execution state, joint target: q printed ``.7g`` in
   degrees), no velocities (the bridge differentiates q);
 - the writes: UR's slider is a double written as given (one package, no answer); ABB's speed ratio an integer
-  percent rounded down (:func:`controller_bridge.abb_rws.speed_ratio_pct`), a POST whose 204 returns after a round
-  trip. Reads and writes of ABB share one keep-alive HTTP connection (the interface holds a lock), so a write waits
-  for the request in progress and a poll for a write. Each face turns an accepted write into an override of the
+  percent rounded down (:func:`hrc_devices.controllers.abb_rws.client.speed_ratio_pct`), a POST whose 204 returns after
+  a round trip. Reads and writes of ABB share one keep-alive HTTP connection (the interface holds a lock), so a write
+  waits for the request in progress and a poll for a write. Each face turns an accepted write into an override of the
   controller node stamped with the controller's clock (stamps strictly increasing, a seq per face), as
   :class:`controller_emu.rtde_face.RtdeFace` and :class:`controller_emu.rws_face.RwsFace` do;
 - the vendor link (a dedicated cable next to the controller, :class:`VendorLink`): a fixed one-way latency each way,
@@ -46,19 +46,26 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 
-from controller_bridge.abb_rws import parse_execution_state, parse_joint_target, parse_speed_ratio, speed_ratio_pct
 from controller_bridge.bridge import Bridge, BridgeSettings
-from controller_bridge.ur_rtde import reading_from_values
-from controller_bridge.vendor import ControllerReading, VendorError
 from controller_emu.node import ControllerNode, ControllerOutput
 from controller_emu.rtde_face import CONTROL_PERIOD_S, output_values
 from controller_emu.rws_face import execution_document, jointtarget_document, speedratio_document
 from hrc_contract.config import AbbRwsInterfaceConfig, UrRtdeInterfaceConfig
 from hrc_contract.messages import JointState, Override, to_payload
+from hrc_devices.controllers.abb_rws.client import (
+    parse_execution_state,
+    parse_joint_target,
+    parse_speed_ratio,
+    reading_of,
+    speed_ratio_pct,
+)
+from hrc_devices.controllers.registry import VENDORS, bridged_kinds
+from hrc_devices.controllers.ur_rtde.client import reading_from_values
+from hrc_devices.controllers.vendor import VendorError
 from hrc_runtime.clocks import Clocks
 from hrc_tools.sim.links import NS_PER_S, SimLink
 
-INTERFACES = ("zenoh", "ur_rtde", "abb_rws")
+INTERFACES = ("zenoh", *bridged_kinds())
 """The ``--interface`` choices: the emulator's own Zenoh face (no bridge), or a bridge to the vendor's face."""
 
 BridgedInterface = UrRtdeInterfaceConfig | AbbRwsInterfaceConfig
@@ -101,13 +108,11 @@ DEFAULT_VENDOR_LINKS = {"ur_rtde": VendorLink(0.0005), "abb_rws": VendorLink(0.0
 
 def default_interface(kind: str) -> dict[str, Any]:
     """The cell file's ``[robots.<name>.interface]`` table for ``--interface KIND`` (the shipped cells' values)."""
-    if kind == "ur_rtde":
-        return {"kind": "ur_rtde", "host": "127.0.0.2"}
-    if kind == "abb_rws":
-        return {"kind": "abb_rws", "url": "http://127.0.0.3:8081", "password_env": "HRC_RWS_PASSWORD"}
     if kind == "zenoh":
         return {"kind": "zenoh"}
-    raise ValueError(f"interface {kind!r}; allowed: {', '.join(INTERFACES)}")
+    if kind not in VENDORS:
+        raise ValueError(f"interface {kind!r}; allowed: zenoh, {', '.join(bridged_kinds())}")
+    return dict(VENDORS[kind].sim_interface)
 
 
 # -- the faces' write side -----------------------------------------------------------------------------------------
@@ -384,18 +389,7 @@ class SimBridge:
         except VendorError as exc:
             self.core.count_rejected(exc.reason)
             return
-        now = self._clocks(t_ns)
-        reading = ControllerReading(
-            received_wall_ns=now.wall_ns,
-            received_mono_ns=now.mono_ns,
-            q_rad=q_rad,
-            qd_radps=None,
-            target_qd_radps=None,
-            speed_fraction=ratio_pct / 100.0,
-            speed_scaling=None,
-            running=execution == "running",
-            state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
-        )
+        reading = reading_of(ratio_pct, execution, q_rad, self._clocks(t_ns))
         self._publish(self.core.on_reading(reading), poll["truth"], t_ns)
 
     # -- readings ------------------------------------------------------------------------------------------------

@@ -33,16 +33,16 @@ import numpy as np
 from controller_bridge.main import bridge_settings
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode
-from controller_emu.program import Trajectory, load_trajectory
 from gateway.core import RobotDecision
 from gateway.node import GatewayNode
 from gateway.tracks import TrackEvent
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import to_payload
+from hrc_devices.robots.link_motion import link_motion
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.link_motion import link_motion
-from hrc_runtime.robot_model import RobotModel
 from hrc_tools.audit.checks import MOVING_EPS_MPS, AuditAccumulator, AuditSummary, audit_cycle, merge_summaries
 from hrc_tools.audit.contact import ContactMass, ContactRules, audit_contacts
 from hrc_tools.sim.bridged import SimBridge

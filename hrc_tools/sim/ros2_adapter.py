@@ -23,8 +23,8 @@ from typing import Any
 from gateway.ros2_trackers import Rejection, TrackerSubscription, tracker_subscriptions, tracker_wires
 from hrc_contract.config import CellConfig, ConfigError, Pose
 from hrc_contract.messages import Humans, to_payload
+from hrc_devices.ros2.rmw_zenoh import Attachment, encode_attachment, topic_key
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.rmw_zenoh import Attachment, encode_attachment, topic_key
 from tracker_emu.ros2_zed import ZedSensor
 
 GID = bytes(16)

@@ -42,8 +42,8 @@ from typing import Any
 from pydantic import ValidationError
 
 from hrc_contract.config import CellConfig, ConfigError
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config, read_toml, resolve_urdf
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.bridged import INTERFACES, default_interface
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m

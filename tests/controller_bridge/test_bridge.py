@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 
 from controller_bridge.bridge import (
-    SPEED_INPUTS,
     Bridge,
     BridgeSettings,
     FloatArray,
     quantise,
 )
-from controller_bridge.vendor import ControllerReading
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import JointState, Override, to_payload
+from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.vendor import ControllerReading
 from hrc_runtime.clocks import Clocks
 
 LIMITS = (3.0, 3.0, 3.0)
@@ -34,7 +34,7 @@ def settings(
 ) -> BridgeSettings:
     return BridgeSettings(
         robot="ur5",
-        speed_input=SPEED_INPUTS[kind],
+        speed_input=VENDORS[kind].speed_input,
         velocity_limit_radps=LIMITS,
         braking_time_s=T_B,
         watchdog_s=watchdog_s,
@@ -86,7 +86,7 @@ def consistent(state: JointState) -> bool:
 
 
 def test_abb_rounds_down_to_whole_percent_and_stops_below_one_percent() -> None:
-    abb = SPEED_INPUTS["abb_rws"]
+    abb = VENDORS["abb_rws"].speed_input
     assert quantise(0.299, abb) == pytest.approx(0.29)
     assert quantise(0.29, abb) == pytest.approx(0.29)  # 0.29 / 0.01 = 28.999…: still 29 %
     assert quantise(0.0099, abb) == 0.0
@@ -94,7 +94,7 @@ def test_abb_rounds_down_to_whole_percent_and_stops_below_one_percent() -> None:
 
 
 def test_ur_writes_the_slider_as_is_above_its_floor_and_zero_below() -> None:
-    ur = SPEED_INPUTS["ur_rtde"]
+    ur = VENDORS["ur_rtde"].speed_input
     assert quantise(0.537, ur) == 0.537
     assert quantise(0.009, ur) == 0.0
     assert quantise(float("nan"), ur) == 0.0
@@ -103,7 +103,7 @@ def test_ur_writes_the_slider_as_is_above_its_floor_and_zero_below() -> None:
 
 def test_quantised_value_is_never_above_delta() -> None:
     rng = random.Random(19)
-    for kind, speed_input in SPEED_INPUTS.items():
+    for kind, speed_input in ((k, v.speed_input) for k, v in VENDORS.items()):
         for _ in range(5000):
             delta = rng.random()
             value = quantise(delta, speed_input)
@@ -334,7 +334,7 @@ def _slow_link(kind: str, link_s: float) -> _Link:
     heartbeat = 8 if kind == "ur_rtde" else 40
     bridge_settings = BridgeSettings(
         robot="ur5",
-        speed_input=SPEED_INPUTS[kind],
+        speed_input=VENDORS[kind].speed_input,
         velocity_limit_radps=LIMITS,
         braking_time_s=T_B,
         watchdog_s=0.1,
@@ -365,7 +365,7 @@ def test_with_a_steady_delta_every_echo_proves_the_slow_link(kind: str) -> None:
 def test_a_write_is_never_above_delta_and_every_echo_is_proven_above_the_floor(kind: str) -> None:
     """Seeded random δ sequences (steps, ramps, zeros, the floor, silences) over random links."""
     rng = random.Random(1919 + len(kind))
-    floor = SPEED_INPUTS[kind].floor
+    floor = VENDORS[kind].speed_input.floor
     for _ in range(12):
         sim = _slow_link(kind, rng.choice([0.0, 0.003, 0.02, 0.1]))
         deltas: list[float | None] = []
@@ -841,7 +841,7 @@ def test_at_the_floor_and_at_zero_the_bridge_writes_delta_and_still_confirms(kin
     the next reading confirms it (the old rule; the robot crawls or stands, the next raise is measured)."""
     sim = _slow_link(kind, 0.02)
     sim.run([delta] * 250)
-    expected = quantise(delta, SPEED_INPUTS[kind])
+    expected = quantise(delta, VENDORS[kind].speed_input)
     assert {round(value, 9) for _, value, _ in sim.writes} == {round(expected, 9)}
     assert sim.echoes, "overrides at the floor are still confirmed"
     assert sim.echoes[-1][0] >= 240
@@ -859,7 +859,7 @@ def test_the_dither_costs_about_half_a_step_of_speed(kind: str) -> None:
         sim = _slow_link(kind, 0.001)
         sim.run([delta] * 500)
         settled = sim.in_force[200:]
-        reductions.append(quantise(delta, SPEED_INPUTS[kind]) - sum(settled) / len(settled))
+        reductions.append(quantise(delta, VENDORS[kind].speed_input) - sum(settled) / len(settled))
     assert all(-1e-12 <= r <= 0.7 * DITHER[kind] for r in reductions), reductions
 
 

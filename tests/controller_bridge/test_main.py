@@ -15,12 +15,13 @@ import zenoh
 from support.cell_files import CONFIGS, replace_once, write_cell
 from support.paths import REPO_ROOT
 
-from controller_bridge.bridge import SPEED_INPUTS, Bridge, BridgeSettings
+from controller_bridge.bridge import Bridge, BridgeSettings
 from controller_bridge.main import _Reader, make_interface, select_robot
-from controller_bridge.vendor import VendorError
 from hrc_contract import keys
 from hrc_contract.config import AbbRwsInterfaceConfig, ConfigError, StreamsConfig
 from hrc_contract.messages import JointState, Override, parse_message, to_payload
+from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.vendor import VendorError
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_endpoint, start_program, stop_all, wait_or_fail
@@ -77,8 +78,8 @@ def test_a_bridge_watchdog_longer_than_the_controllers_is_refused(tmp_path: Path
 
 
 def _rtde_pieces_missing() -> str | None:
-    if importlib.util.find_spec("controller_bridge.ur_rtde") is None:
-        return "controller_bridge/ur_rtde.py is not there yet"
+    if importlib.util.find_spec("hrc_devices.controllers.ur_rtde.client") is None:
+        return "hrc_devices/controllers/ur_rtde/client.py is not there yet"
     help_text = subprocess.run(
         [sys.executable, "-m", "controller_emu", "--help"], cwd=REPO_ROOT, capture_output=True, text=True, check=False
     ).stdout
@@ -170,7 +171,7 @@ def test_a_polled_reader_never_reads_sooner_than_its_interval_after_a_late_read(
     differenced over less than the controller's cycle plus the request's jitter (qd above the joint's limit)."""
     settings = BridgeSettings(
         robot="ur5",
-        speed_input=SPEED_INPUTS["abb_rws"],
+        speed_input=VENDORS["abb_rws"].speed_input,
         velocity_limit_radps=(3.15,) * 6,
         braking_time_s=0.24,
         watchdog_s=0.1,

@@ -32,14 +32,14 @@ from controller_bridge.program_model import (
     record_program,
     save_model,
 )
-from controller_bridge.vendor import ControllerReading
 from controller_emu.node import ControllerNode
-from controller_emu.program import Trajectory, load_trajectory
 from hrc_contract.config import CellConfig, ControllerConfig
 from hrc_contract.messages import JointState, Override, to_payload
+from hrc_devices.controllers.vendor import ControllerReading
+from hrc_devices.robots.model import load_robot_model
+from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import load_robot_model
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -12,11 +12,11 @@ import pytest
 
 from controller_emu.controller import MAX_FUTURE_STAMP_S
 from controller_emu.node import ControllerNode, ControllerOutput
-from controller_emu.program import load_trajectory
 from hrc_contract.config import CellConfig, ControllerConfig
 from hrc_contract.messages import Override, to_payload
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 ROBOT = "ur5"
 T0_NS = 1_790_000_000_000_000_000

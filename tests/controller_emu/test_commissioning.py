@@ -29,9 +29,9 @@ from controller_emu.commissioning import (
     profile_text,
     run_stop_trial,
 )
-from controller_emu.program import Trajectory, load_trajectory
 from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import Trajectory, load_trajectory
 
 MEASURED = REPO_ROOT / "configs" / "robots" / "ur5_measured.toml"
 

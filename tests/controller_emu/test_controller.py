@@ -22,11 +22,11 @@ from controller_emu.controller import (
     joint_state,
     step,
 )
-from controller_emu.program import Trajectory, build_trajectory, parse_program
 from hrc_contract.config import ConfigError, ControllerConfig
 from hrc_contract.messages import JointState, Override, parse_message, to_payload
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import Trajectory, build_trajectory, parse_program
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 
 CONFIG = ControllerConfig(cycle_s=0.004, braking_time_s=0.24, accel_time_s=0.5, watchdog_s=0.1)
 DT_S = CONFIG.cycle_s

@@ -8,11 +8,11 @@ import threading
 import pytest
 
 from controller_emu.node import ControllerNode, ModeChange
-from controller_emu.program import Trajectory, load_trajectory
 from hrc_contract.config import CellConfig, ControllerConfig
 from hrc_contract.messages import JointState, Override, parse_message, to_payload
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 ROBOT = "ur5"
 T0_NS = 1_790_000_000_000_000_000

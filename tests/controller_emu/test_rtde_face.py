@@ -21,13 +21,13 @@ from pathlib import Path
 import pytest
 
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from controller_emu.rtde_face import RtdeFace, output_values
 from hrc_contract.config import CellConfig, ControllerConfig
-from hrc_runtime import rtde
+from hrc_devices.controllers.ur_rtde import codec as rtde
+from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
-from hrc_runtime.rtde import MessageType, Recipe
 
 OUTPUTS = [
     "timestamp",
@@ -48,12 +48,12 @@ CYCLE_S = ControllerConfig().cycle_s
 _SERVER = r"""
 import json, sys, threading
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
+from hrc_devices.robots.program import load_trajectory
 from controller_emu.rtde_face import RtdeFace
 from hrc_contract.config import ControllerConfig
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import load_robot_model
+from hrc_devices.robots.model import load_robot_model
 
 robot = load_cell_config(None).robots["ur5"]
 trajectory = load_trajectory(robot.program, load_robot_model("ur5", robot))

@@ -17,12 +17,12 @@ import requests
 from abb_robot_client.rws import RWS, ABBException
 
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from controller_emu.rws_face import MAX_CONNECTIONS, FormError, RwsFace, parse_speed_ratio_form
 from hrc_contract.config import CellConfig
+from hrc_devices.controllers.abb_rws.http_digest import Credentials, authorization_header, parse_challenge
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import read_clocks
-from hrc_runtime.http_digest import Credentials, authorization_header, parse_challenge
-from hrc_runtime.robot_model import RobotModel
 
 HOST = "127.0.0.31"
 ROBOT = "ur5"

@@ -28,12 +28,12 @@ import pytest
 import zenoh
 
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from hrc_contract import keys
 from hrc_contract.messages import JointState, to_payload
+from hrc_devices.robots.model import load_robot_model
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import load_robot_model
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import Cell, running_cell, stop_program
 

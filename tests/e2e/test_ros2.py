@@ -17,7 +17,7 @@ import pytest
 import zenoh
 from support.cell_files import CONFIGS, replace_once, write_cell
 
-from hrc_runtime.rmw_zenoh import (
+from hrc_devices.ros2.rmw_zenoh import (
     ADMIN_SPACE,
     HUMBLE_TYPE_HASH,
     Distro,

@@ -24,8 +24,8 @@ UNFITTED_ZONES = ["autonomous", "guarded_distance", "safety_exception", "autonom
 samples, or none (measured at 3d80349: 0.05 s, against 0.24 s in the capsule cell; 0.20-0.28 s in three runs at
 2c4fa55, after the radii check): the person's legs, hidden behind the table
 from the front sensor, are NaN, so reach spheres around the pelvis (a hidden foot can be anywhere a leg reaches:
-hrc_runtime/skeletons.py), which come within the protective distance of the pedestal as soon as the person is within
-the reduced-speed distance of the moving links: the robot stops almost from guarded distance, never faster than
+hrc_devices/trackers/skeletons.py), which come within the protective distance of the pedestal as soon as the person is
+within the reduced-speed distance of the moving links: the robot stops almost from guarded distance, never faster than
 allowed. Whether a status sample catches the short step depends on timing, so it is not asserted either way."""
 
 

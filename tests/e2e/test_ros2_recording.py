@@ -20,7 +20,7 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 
-from hrc_runtime.rmw_zenoh import typestore
+from hrc_devices.ros2.rmw_zenoh import typestore
 from hrc_tools.cell.procs import Cell, free_endpoint, free_port, stop_program
 from hrc_tools.record.ros2_mcap import bag_custom_data, bag_file
 

@@ -23,8 +23,8 @@ from support.paths import REPO_ROOT
 
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import Capsule, Human, Humans
+from hrc_devices.ros2.rmw_zenoh import liveliness_keys
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import liveliness_keys
 from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
 from hrc_tools.cell.procs import free_endpoint, free_port, program_env, record, running_cell, wait_for
 from tracker_emu.body import BodyPose, body_capsules

@@ -37,8 +37,8 @@ from support.paths import DEFAULT_CELL_PATH
 from hrc_contract import keys
 from hrc_contract.messages import Capsule, Human, Humans, JointState, to_payload
 from hrc_contract.status_models import GatewayStatus
+from hrc_devices.robots.model import load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import load_robot_model
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import Cell, free_endpoint, free_port, stop_all
 

@@ -28,8 +28,8 @@ from gateway.contact import (
 )
 from hrc_contract.config import BodyRegion, Box, CellConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.effective_mass import moving_mass_kg, reflected_mass_kg, with_payload
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.effective_mass import moving_mass_kg, reflected_mass_kg, with_payload
+from hrc_devices.robots.model import RobotModel
 
 HAND = BodyRegion(capsules=["hand_r"], max_force_n=280.0, spring_constant_n_per_m=75_000.0, mass_kg=0.6)
 CHEST = BodyRegion(capsules=["torso"], max_force_n=280.0, spring_constant_n_per_m=25_000.0, mass_kg=40.0)

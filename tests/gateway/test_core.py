@@ -14,7 +14,7 @@ from gateway.core import RobotDecision
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.vocabulary import Zone
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 HOLD_MS = 500  # streams.fault_hold_s of the default cell
 

@@ -1,7 +1,7 @@
 """segment_distances: hand-computed known answers, then a seeded comparison against coal capsules of radius 0.
 
-Every test runs on both implementations: the numpy one (hrc_runtime.segments: the reference, and what the ISO/TS 15066
-method and the auditor use) and the compiled one of the gateway's loop (gateway.kernels).
+Every test runs on both implementations: the numpy one (hrc_devices.robots.segments: the reference, and what the ISO/TS
+15066 method and the auditor use) and the compiled one of the gateway's loop (gateway.kernels).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pinocchio as pin
 import pytest
 
 from gateway import kernels
-from hrc_runtime import segments as reference_geometry
+from hrc_devices.robots import segments as reference_geometry
 
 IMPLEMENTATIONS = {"numpy": reference_geometry.segment_distances, "compiled": kernels.segment_distances}
 

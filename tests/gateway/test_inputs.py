@@ -15,8 +15,8 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import capsules_from_message
 from hrc_contract.messages import Humans
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 CELL = "demo"
 NOW = 1_790_000_000_000_000_000

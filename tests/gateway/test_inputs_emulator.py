@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from gateway.inputs import InputStore
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import Override, to_payload
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 EPOCH_NS = 1_790_000_000_000_000_000
 MS = 1_000_000

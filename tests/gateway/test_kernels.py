@@ -22,8 +22,8 @@ from gateway.reference.kinematics import link_kinematics
 from gateway.separation import ConstraintRows, override_from_rows
 from hrc_contract.config import CellConfig, ConfigError, SafetyConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
-from hrc_runtime import segments as reference_geometry
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots import segments as reference_geometry
+from hrc_devices.robots.model import RobotModel
 
 SAFETY_VARIANTS = (
     SafetyConfig(),

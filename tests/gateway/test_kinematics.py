@@ -9,7 +9,7 @@ import pytest
 
 from gateway import kernels
 from gateway.kinematics import REVOLUTE, kinematic_chain
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 
 def test_ur5_chain_layout(ur5: RobotModel) -> None:

@@ -32,7 +32,7 @@ from gateway.reference.kinematics import link_kinematics
 from gateway.reference.separation import build_rows
 from hrc_contract.config import SAFETY_METHODS, ConfigError, SafetyConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 POINT_2M = point_hands([(2, 0, 0)], 0.0)
 """A point (radius 0) on the x axis, 2 m from the origin."""

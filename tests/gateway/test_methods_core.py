@@ -24,8 +24,8 @@ from hrc_contract import keys
 from hrc_contract.config import SAFETY_METHODS, CellConfig, ConfigError
 from hrc_contract.humans import HumanCapsules, merge_humans
 from hrc_contract.vocabulary import Zone
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 
 
 def with_safety(config: CellConfig, **fields: object) -> CellConfig:

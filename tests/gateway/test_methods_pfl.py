@@ -19,7 +19,7 @@ from gateway.contact import contact_bounds
 from gateway.reference.kinematics import link_kinematics
 from gateway.separation import speed_aware_bounds
 from hrc_contract.config import Box, CellConfig
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 K = 1.6
 C = 0.05
@@ -219,7 +219,7 @@ def test_delta_with_the_mass_bound_is_never_above_delta_with_the_simple_form(
     """A chest and a hand ahead of the tool at the known case's configuration (outside the program's box: every link
     counts as rigid, μ = m_H): never more than with M/2 + m_payload = 9.5 kg, and for the chest strictly less (its
     contact speed falls with the robot's mass). Inside the box the bound is ≥ 9.5 kg per link
-    (tests/hrc_runtime/test_effective_mass.py), so the same order holds there."""
+    (tests/hrc_devices/robots/test_effective_mass.py), so the same order holds there."""
     monkeypatch.setenv("HRC_ALLOW_UNSAFE", "pfl_simple_mass_for_tests")
     pfl = _pfl(cell_config, pfl_clamping_surfaces=[])
     simple = _pfl(cell_config, pfl_clamping_surfaces=[], pfl_mass_model="simple")

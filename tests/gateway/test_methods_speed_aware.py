@@ -22,7 +22,7 @@ from gateway.zones import Protection, next_zone, zone_thresholds
 from hrc_contract.config import CellConfig, SafetyConfig
 from hrc_contract.humans import NO_HUMANS
 from hrc_contract.vocabulary import Zone
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 K = 1.6
 C = 0.05

@@ -36,8 +36,9 @@ from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.mcap_sink import SUMMARY_METADATA, McapSink, RecordingError, identity, model_channel
 from hrc_tools.record import scene
-from hrc_tools.record.cell import SCENE, CellRecorder, topic_of
+from hrc_tools.record.cell import CellRecorder
 from hrc_tools.record.replay import apply_settings, format_replay_report, replay
+from hrc_tools.record.topics import SCENE, topic_of
 
 MS = 1_000_000
 T0_WALL_NS = 1_790_000_000_000_000_000

@@ -10,7 +10,7 @@ from support.status_examples import STALE_TRACKER, gateway_status, near_robot_st
 
 from gateway import ros2_face as face
 from hrc_contract.status_models import CapsuleStatus, GatewayStatus, HumanCapsuleStatus
-from hrc_runtime.rmw_zenoh import Distro, deserialize, serialize
+from hrc_devices.ros2.rmw_zenoh import Distro, deserialize, serialize
 
 LINK = CapsuleStatus(name="tool", a_m=[0.0, 0.0, 1.0], b_m=[0.0, 0.3, 1.0], radius_m=0.07)
 

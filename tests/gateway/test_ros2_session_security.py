@@ -21,11 +21,11 @@ from gateway.ros2_face import Ros2Face, ros2_policy, ros2_session_options
 from gateway.ros2_trackers import running_ros2_trackers, tracker_topics
 from hrc_contract.config import CellConfig, Ros2TrackerInput
 from hrc_contract.messages import Capsule, Human, Humans
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.ros2.rmw_zenoh import endpoint_token, liveliness_keys, topic_key
 from hrc_runtime.access_control import ROS2_FACE, may_declare_token, may_put
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import endpoint_token, liveliness_keys, topic_key
-from hrc_runtime.robot_model import RobotModel
 from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
 from hrc_tools.cell.procs import free_port, wait_or_fail
 from tracker_emu.body import BodyPose, body_capsules

@@ -26,10 +26,8 @@ from gateway.ros2_trackers import (
 )
 from hrc_contract.config import CellConfig, ConfigError, Pose, Ros2TrackerInput
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime import ros4hri_body
-from hrc_runtime.clocks import Clocks
-from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import (
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.ros2.rmw_zenoh import (
     HUMBLE_TYPE_HASH,
     Attachment,
     Distro,
@@ -38,10 +36,12 @@ from hrc_runtime.rmw_zenoh import (
     topic_type,
     typestore,
 )
-from hrc_runtime.robot_model import RobotModel
-from hrc_runtime.ros2_people import IDS_LIST, ZED_OBJECTS
-from hrc_runtime.ros4hri_body import JOINT_NAMES, JOINT_STATE, TF_MESSAGE
-from hrc_runtime.skeletons import COMPILED, ZED_34_NAMES
+from hrc_devices.trackers import ros4hri_body
+from hrc_devices.trackers.ros2_people import IDS_LIST, ZED_OBJECTS
+from hrc_devices.trackers.ros4hri_body import JOINT_NAMES, JOINT_STATE, TF_MESSAGE
+from hrc_devices.trackers.skeletons import COMPILED, ZED_34_NAMES
+from hrc_runtime.clocks import Clocks
+from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, SecurityError, SessionOptions
 
 NOW = 1_790_000_000_000_000_000

@@ -32,7 +32,7 @@ from gateway.reference.kinematics import link_kinematics
 from gateway.separation import ConstraintRows, clearance_m, decision_clearance_m, override_from_rows
 from hrc_contract.config import SafetyConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 # Every test of the rows runs on both implementations: the numpy reference and the compiled rows of the loop.
 IMPLEMENTATIONS = {"numpy": reference_separation.build_rows, "compiled": kernels.build_rows}

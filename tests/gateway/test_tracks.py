@@ -19,7 +19,7 @@ from hrc_contract import keys
 from hrc_contract.config import Box, CellConfig
 from hrc_contract.humans import HumanCapsules
 from hrc_contract.vocabulary import Zone
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 S = 1_000_000_000
 FRAME_NS = 33 * MS

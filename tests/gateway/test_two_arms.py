@@ -10,13 +10,13 @@ import pytest
 from support.paths import DEFAULT_CELL_PATH
 
 from controller_emu.controller import check_braking_time
-from controller_emu.program import load_trajectory
 from gateway.core import SafetyCore
 from gateway.kinematics import PRISMATIC, REVOLUTE, kinematic_chain
 from gateway.reference.kinematics import link_kinematics
 from hrc_contract.config import CellConfig
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.cell.launcher import program_commands
 from hrc_tools.sim.cell import RunResult, simulate
 from hrc_tools.sim.links import LinkFaults

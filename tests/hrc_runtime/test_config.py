@@ -27,8 +27,8 @@ from hrc_contract.config import (
     ZonesConfig,
     unsafe_allowed,
 )
+from hrc_devices.robots.model import load_robot_model
 from hrc_runtime.config import load_cell_config, one_line
-from hrc_runtime.robot_model import load_robot_model
 from hrc_tools.sim.scenarios import generate_case
 from hrc_tools.sim.sweep import CellVariant
 from hrc_tools.sim.sweep import cli as sweep_cli

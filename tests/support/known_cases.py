@@ -24,8 +24,8 @@ from gateway.kinematics import LinkKinematics
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, SafetyConfig
 from hrc_contract.humans import HumanCapsules
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 ArrayLike = npt.ArrayLike
 

@@ -1,11 +1,12 @@
 """Known keypoints of one standing person (≈1.80 m, arms hanging, facing +x) by keypoint name, for every format of
-``hrc_runtime.skeletons``: the tests of the skeleton and ROS 2 people decoders build their inputs from these."""
+``hrc_devices.trackers.skeletons``: the tests of the skeleton and ROS 2 people decoders build their inputs from
+these."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from hrc_runtime.skeletons import CompiledFormat
+from hrc_devices.trackers.skeletons import CompiledFormat
 
 _SIDE = {"left": 1.0, "right": -1.0}
 

@@ -10,8 +10,8 @@ from support.paths import REPO_ROOT
 
 from hrc_contract.config import CellConfig, TrackerConfig
 from hrc_contract.messages import Humans
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel
 from tracker_emu.body import CAPSULE_NAMES
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.robot_links import link_capsules

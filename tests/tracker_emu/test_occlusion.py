@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hrc_contract.messages import JointState, to_payload
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 from tracker_emu.body import CAPSULE_NAMES, BodyPose, body_capsules
 from tracker_emu.occlusion import NO_BLOCKERS, Blockers, fixture_blockers, human_blockers, occlude, visible_capsules
 from tracker_emu.robot_links import RobotPoses, link_capsules

@@ -14,10 +14,10 @@ from support.paths import REPO_ROOT
 
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import Capsule, Human, Humans
+from hrc_devices.ros2.rmw_zenoh import decode_attachment, liveliness_keys, parse_endpoint_token, topic_type, typestore
+from hrc_devices.trackers.ros2_people import IDENTITY, ZED_OBJECTS, decode_zed_objects, people_capsules
+from hrc_devices.trackers.skeletons import ZED_34_NAMES, ZED_38_NAMES, covers
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import decode_attachment, liveliness_keys, parse_endpoint_token, topic_type, typestore
-from hrc_runtime.ros2_people import IDENTITY, ZED_OBJECTS, decode_zed_objects, people_capsules
-from hrc_runtime.skeletons import ZED_34_NAMES, ZED_38_NAMES, covers
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_endpoint, wait_for
 from tracker_emu.body import BodyPose, body_capsules

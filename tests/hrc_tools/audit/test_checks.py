@@ -11,8 +11,8 @@ import pytest
 from support.known_cases import LINK_UP, moving_links, point_hands
 
 from hrc_contract.humans import NO_HUMANS
-from hrc_runtime.link_motion import LinkMotion, link_motion
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.link_motion import LinkMotion, link_motion
+from hrc_devices.robots.model import RobotModel
 from hrc_tools.audit.checks import (
     MAX_ONSET_SPEEDS,
     AuditAccumulator,

@@ -10,8 +10,8 @@ from support.known_cases import moving_links
 
 from hrc_contract.config import BodyRegion, Box
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.link_motion import LinkMotion, link_motion
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.link_motion import LinkMotion, link_motion
+from hrc_devices.robots.model import RobotModel
 from hrc_tools.audit.checks import AuditAccumulator, merge_summaries
 from hrc_tools.audit.contact import ContactMass, ContactRules, audit_contacts, contact_limit_mps
 

@@ -18,11 +18,11 @@ import pytest
 from support.paths import REPO_ROOT
 
 import gateway.kernels
-import hrc_runtime.segments
+import hrc_devices.robots.segments
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules
-from hrc_runtime.link_motion import LinkMotion, link_motion
-from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_devices.robots.link_motion import LinkMotion, link_motion
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_tools.audit.checks import audit_links
 from hrc_tools.audit.distance import LOWER_BOUND_SLACK_M, CapsulePairs, CapsuleSet
 from hrc_tools.sim.cell import RunResult, simulate
@@ -333,7 +333,7 @@ def _inflate_gateway_distances(monkeypatch: pytest.MonkeyPatch, by_m: float) -> 
     - What the gateway runs: :meth:`gateway.kernels.RobotKernels.cycle` (kinematics, distances and the rows of
       eq. (15) in one compiled call) is wrapped so that it sees every capsule radius ``by_m`` smaller, i.e. every
       surface distance ``by_m`` larger, consistently through d, Δ, f, the bounds and the closest pair.
-    - Its numpy reference, :func:`hrc_runtime.segments.segment_distances`, wherever a module bound it by name, so
+    - Its numpy reference, :func:`hrc_devices.robots.segments.segment_distances`, wherever a module bound it by name, so
       that an auditor that used the gateway's distance code would be fooled as well.
     """
     real_cycle = gateway.kernels.RobotKernels.cycle
@@ -344,7 +344,7 @@ def _inflate_gateway_distances(monkeypatch: pytest.MonkeyPatch, by_m: float) -> 
         return real_cycle(self, q, qd, shifted, t_delay_s)
 
     monkeypatch.setattr(gateway.kernels.RobotKernels, "cycle", cycle)
-    real_segments = hrc_runtime.segments.segment_distances
+    real_segments = hrc_devices.robots.segments.segment_distances
 
     def segment_distances(*args: Any) -> Any:
         found = real_segments(*args)

@@ -20,7 +20,7 @@ from support.paths import REPO_ROOT
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import Capsule, Human, Humans, JointState, to_payload
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.zenoh_session import SessionOptions, session_config
 from hrc_tools.audit.main import (
     EXIT_INCONCLUSIVE,

@@ -18,8 +18,8 @@ from gateway import ros2_face as face
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import Capsule, Human, Humans, JointState, Override
 from hrc_contract.status_models import CapsuleStatus, Event
+from hrc_devices.ros2.rmw_zenoh import Distro, typestore
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rmw_zenoh import Distro, typestore
 from hrc_tools.record.ros2_cell import LOG_INFO, LOG_WARN, Ros2Cell, Ros2CellRecorder, key_token, quaternion_of_rpy
 from hrc_tools.record.ros2_mcap import Ros2BagSink
 

@@ -9,8 +9,8 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader
 
+from hrc_devices.ros2.rmw_zenoh import Distro, new_message, typestore
 from hrc_runtime.mcap_sink import RecordingError
-from hrc_runtime.rmw_zenoh import Distro, new_message, typestore
 from hrc_tools.record.ros2_mcap import BAG_VERSION, Ros2BagSink, Ros2Topic, bag_custom_data, bag_file, qos
 
 FLOAT64 = Ros2Topic("/ur5/speed_override", "std_msgs/msg/Float64")

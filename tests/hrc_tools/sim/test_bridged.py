@@ -10,12 +10,12 @@ import pytest
 
 from controller_bridge.main import bridge_settings
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, TrackerConfig
 from hrc_contract.messages import Override, to_payload
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 from hrc_tools.sim.bridged import SimBridge, VendorLink, default_interface
 from hrc_tools.sim.cell import EPOCH_NS, RunResult, simulate
 from hrc_tools.sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from controller_emu.program import load_trajectory
 from hrc_contract.config import CellConfig, TrackerConfig
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_tools.sim.cell import simulate
 from hrc_tools.sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
 from hrc_tools.sim.scenarios import (

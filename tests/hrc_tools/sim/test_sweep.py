@@ -14,7 +14,7 @@ import pytest
 from support.paths import REPO_ROOT
 
 from hrc_contract.config import UNSAFE_ENV_VAR, CellConfig, ConfigError
-from hrc_runtime.robot_model import load_robot_model
+from hrc_devices.robots.model import load_robot_model
 from hrc_tools.sim.sweep import (
     CaseResult,
     CellVariant,

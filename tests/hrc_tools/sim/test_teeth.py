@@ -26,7 +26,7 @@ import pytest
 import gateway.methods
 from gateway.separation import ConstraintRows
 from hrc_contract.config import UNSAFE_ENV_VAR, CellConfig
-from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import RunResult, simulate
 from hrc_tools.sim.links import LinkFault, LinkFaults
 from hrc_tools.sim.sweep import CellVariant

@@ -16,7 +16,7 @@ import math
 import pytest
 
 from hrc_contract.config import UNSAFE_ENV_VAR, CellConfig
-from hrc_runtime.robot_model import RobotModel, load_robot_model
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import RunResult, simulate
 from hrc_tools.sim.links import LinkFaults
 from hrc_tools.sim.sweep import CellVariant, run_case

@@ -16,8 +16,8 @@ import pytest
 from support.paths import DEFAULT_CELL_PATH
 
 from hrc_contract.config import UNSAFE_ENV_VAR, CellConfig
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 from hrc_tools.sim.cell import RunResult, simulate
 from hrc_tools.sim.links import LinkFault, LinkFaults
 from hrc_tools.sim.sweep import CellVariant

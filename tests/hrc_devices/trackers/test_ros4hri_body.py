@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from hrc_contract.messages import MessageError
-from hrc_runtime.rmw_zenoh import typestore
-from hrc_runtime.ros2_people import IDENTITY, Placement
-from hrc_runtime.ros4hri_body import (
+from hrc_devices.ros2.rmw_zenoh import typestore
+from hrc_devices.trackers.ros2_people import IDENTITY, Placement
+from hrc_devices.trackers.ros4hri_body import (
     DEFAULT_HEIGHT_M,
     JOINT_NAMES,
     JOINT_STATE,
@@ -36,7 +36,7 @@ from hrc_runtime.ros4hri_body import (
     human_joints,
     rotation_of_quaternion,
 )
-from hrc_runtime.skeletons import BodyCapsules, PersonUnplacedError, covers
+from hrc_devices.trackers.skeletons import BodyCapsules, PersonUnplacedError, covers
 
 STORE = typestore("jazzy")
 T = STORE.types

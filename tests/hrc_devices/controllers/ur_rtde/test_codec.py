@@ -10,8 +10,8 @@ from collections.abc import Callable
 
 import pytest
 
-from hrc_runtime import rtde
-from hrc_runtime.rtde import MessageType, Recipe, RtdeError
+from hrc_devices.controllers.ur_rtde import codec as rtde
+from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe, RtdeError
 
 
 def test_header_is_big_endian_size_including_itself_then_type() -> None:

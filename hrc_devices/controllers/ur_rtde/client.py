@@ -12,9 +12,9 @@ accepted and holds the robot at standstill with the program playing); which δ m
 The controller answers a slider another client holds with ``IN_USE``: :meth:`UrRtdeInterface.connect` then fails
 with reason ``refused`` instead of sharing it.
 
-Every value read is checked before it becomes a :class:`~controller_bridge.vendor.ControllerReading`: a package
+Every value read is checked before it becomes a :class:`~hrc_devices.controllers.vendor.ControllerReading`: a package
 of the wrong size, a non-finite number, a scaling outside [0, 1] or an unknown state code raises
-:class:`~controller_bridge.vendor.VendorError` (``malformed``). ``running`` is true only while the program plays
+:class:`~hrc_devices.controllers.vendor.VendorError` (``malformed``). ``running`` is true only while the program plays
 (``runtime_state`` 2), the robot runs (``robot_mode`` 7) and safety is normal or reduced (``safety_mode`` 1, 2).
 """
 
@@ -28,10 +28,10 @@ import time
 from collections.abc import Callable
 from typing import TypeVar
 
-from controller_bridge.vendor import ControllerReading, VendorError
-from hrc_runtime import rtde
+from hrc_devices.controllers.ur_rtde import codec as rtde
+from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe, RtdeError
+from hrc_devices.controllers.vendor import ControllerReading, VendorError
 from hrc_runtime.clocks import Clocks, read_clocks
-from hrc_runtime.rtde import MessageType, Recipe, RtdeError
 
 log = logging.getLogger("hrc-bridge.ur_rtde")
 

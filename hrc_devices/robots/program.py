@@ -29,8 +29,8 @@ import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hrc_contract.config import ConfigError
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.config import one_line, read_toml
-from hrc_runtime.robot_model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -192,6 +192,16 @@ def load_program(path: Path | str) -> Program:
     path = Path(path)
     raw = read_toml(path)
     return parse_program(raw, str(path))
+
+
+def program_waypoints_rad(path: Path | str) -> FloatArray:
+    """The joint positions of a program's waypoints (``[[waypoints]] q_rad``), shape (W, n) [rad]: the program file
+    read by :func:`load_program`, as the controller reads it.
+
+    Raises:
+        ConfigError: see :func:`load_program`.
+    """
+    return np.array([w.q_rad for w in load_program(path).waypoints], dtype=float)
 
 
 def _label(index: int, waypoint: Waypoint) -> str:

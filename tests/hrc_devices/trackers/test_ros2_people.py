@@ -9,8 +9,8 @@ import pytest
 from support.skeleton_poses import standing_keypoints
 
 from hrc_contract.messages import MessageError
-from hrc_runtime.rmw_zenoh import typestore
-from hrc_runtime.ros2_people import (
+from hrc_devices.ros2.rmw_zenoh import typestore
+from hrc_devices.trackers.ros2_people import (
     IDENTITY,
     IDS_LIST,
     MARKER_ARRAY,
@@ -23,7 +23,7 @@ from hrc_runtime.ros2_people import (
     decode_zed_objects,
     people_capsules,
 )
-from hrc_runtime.skeletons import COMPILED, covers
+from hrc_devices.trackers.skeletons import COMPILED, covers
 
 STORE = typestore("humble")
 T = STORE.types

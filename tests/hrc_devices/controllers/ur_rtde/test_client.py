@@ -10,15 +10,15 @@ from collections.abc import Iterator
 
 import pytest
 
-from controller_bridge.ur_rtde import OUTPUTS, UrRtdeInterface, reading_from_values
-from controller_bridge.vendor import VendorError, VendorInterface
 from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
 from controller_emu.rtde_face import RtdeFace
 from hrc_contract.config import CellConfig, ControllerConfig
-from hrc_runtime import rtde
+from hrc_devices.controllers.ur_rtde import codec as rtde
+from hrc_devices.controllers.ur_rtde.client import OUTPUTS, UrRtdeInterface, reading_from_values
+from hrc_devices.controllers.vendor import VendorError, VendorInterface
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
-from hrc_runtime.robot_model import RobotModel
 
 _HOSTS = itertools.count(10)  # a loopback address per face: port 30004 is fixed
 

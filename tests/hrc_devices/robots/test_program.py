@@ -9,10 +9,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from controller_emu.program import Trajectory, build_trajectory, load_program, load_trajectory, parse_program
 from hrc_contract.config import ConfigError
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import Trajectory, build_trajectory, load_program, load_trajectory, parse_program
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.robot_model import RobotModel, load_robot_model
 
 LINK_FRAMES = ("upper_arm_link", "forearm_link", "wrist_1_link", "wrist_2_link", "wrist_3_link", "ee_link", "tool0")
 

@@ -13,20 +13,20 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from controller_bridge.abb_rws import (
+from controller_emu.node import ControllerNode
+from controller_emu.rws_face import RwsFace
+from hrc_contract.config import CellConfig
+from hrc_devices.controllers.abb_rws.client import (
     AbbRwsInterface,
     parse_execution_state,
     parse_joint_target,
     parse_speed_ratio,
     speed_ratio_pct,
 )
-from controller_bridge.vendor import VendorError
-from controller_emu.node import ControllerNode
-from controller_emu.program import load_trajectory
-from controller_emu.rws_face import RwsFace
-from hrc_contract.config import CellConfig
+from hrc_devices.controllers.vendor import VendorError
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import read_clocks
-from hrc_runtime.robot_model import RobotModel
 
 HOST = "127.0.0.32"
 ROBOT = "ur5"

@@ -1,4 +1,4 @@
-"""ABB Robot Web Services 1.0 (IRC5) as a :class:`~controller_bridge.vendor.VendorInterface`: the speed ratio.
+"""ABB Robot Web Services 1.0 (IRC5) as a :class:`~hrc_devices.controllers.vendor.VendorInterface`: the speed ratio.
 
     rws = AbbRwsInterface("192.168.125.1")          # port 80, "Default User" / "robotics" as shipped
     rws.connect()                                   # the Digest handshake (one 401, then authenticated)
@@ -6,11 +6,12 @@
     reading = rws.read(timeout_s=0.05)              # GET speed ratio, execution state, joint target
     rws.close()
 
-Standard library only: one keep-alive :class:`http.client.HTTPConnection` and :mod:`hrc_runtime.http_digest`. The
-first request is answered 401 with a challenge; every later one carries an Authorization for that nonce with the
-next nonce count, so a steady write costs one round trip and a steady read three (speed ratio, execution state,
-joint target: RWS 1.0 has no resource holding all three). A stale or refused nonce costs one more round trip; a
-second 401 in a row is an authentication failure. A keep-alive connection the controller closed is reopened once.
+Standard library only: one keep-alive :class:`http.client.HTTPConnection` and
+:mod:`hrc_devices.controllers.abb_rws.http_digest`. The first request is answered 401 with a challenge; every later one
+carries an Authorization for that nonce with the next nonce count, so a steady write costs one round trip and a steady
+read three (speed ratio, execution state, joint target: RWS 1.0 has no resource holding all three). A stale or refused
+nonce costs one more round trip; a second 401 in a row is an authentication failure. A keep-alive connection the
+controller closed is reopened once.
 
 What RWS 1.0 does not offer, the reading says so: no joint velocities (``qd_radps`` None: the bridge differentiates
 ``q``), no target velocities, no further scaling. The speed ratio is an integer percent: a fraction is written
@@ -30,9 +31,15 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from controller_bridge.vendor import ControllerReading, VendorError
+from hrc_devices.controllers.abb_rws.http_digest import (
+    Credentials,
+    DigestChallenge,
+    DigestError,
+    authorization_header,
+    parse_challenge,
+)
+from hrc_devices.controllers.vendor import ControllerReading, VendorError
 from hrc_runtime.clocks import Clocks, read_clocks
-from hrc_runtime.http_digest import Credentials, DigestChallenge, DigestError, authorization_header, parse_challenge
 
 MAX_RESPONSE_BYTES = 65536
 """A response body longer than this is malformed [bytes]."""
@@ -123,6 +130,23 @@ def parse_execution_state(body: bytes) -> str:
     if text not in ("running", "stopped"):
         raise VendorError("malformed", f"ctrlexecstate {str(text)[:20]!r}; allowed: running, stopped")
     return str(text)
+
+
+def reading_of(ratio_pct: int, execution: str, q_rad: tuple[float, ...], now: Clocks) -> ControllerReading:
+    """The bridge's reading of one poll: the speed ratio [%], the execution state and the joint target [rad], as
+    parsed by :func:`parse_speed_ratio`, :func:`parse_execution_state` and :func:`parse_joint_target`, received at
+    ``now``. RWS 1.0 offers no joint velocities, no target velocities and no further scaling: those are None."""
+    return ControllerReading(
+        received_wall_ns=now.wall_ns,
+        received_mono_ns=now.mono_ns,
+        q_rad=q_rad,
+        qd_radps=None,
+        target_qd_radps=None,
+        speed_fraction=ratio_pct / 100.0,
+        speed_scaling=None,
+        running=execution == "running",
+        state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
+    )
 
 
 def _error_message(body: bytes) -> str:
@@ -218,18 +242,7 @@ class AbbRwsInterface:
         status, body = self._request("GET", self._jointtarget, None, deadline_s)
         now = self._clock()
         self._expect(status, 200, body, "GET jointtarget")
-        q_rad = parse_joint_target(body, self.n_joints)
-        return ControllerReading(
-            received_wall_ns=now.wall_ns,
-            received_mono_ns=now.mono_ns,
-            q_rad=q_rad,
-            qd_radps=None,
-            target_qd_radps=None,
-            speed_fraction=ratio_pct / 100.0,
-            speed_scaling=None,
-            running=execution == "running",
-            state_text=f"ctrlexecstate={execution} speedratio={ratio_pct}",
-        )
+        return reading_of(ratio_pct, execution, parse_joint_target(body, self.n_joints), now)
 
     def close(self) -> None:
         """Close the connection (a later call reconnects)."""

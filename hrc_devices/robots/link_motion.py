@@ -1,7 +1,7 @@
 """The auditor's own link kinematics: end points and velocities of the link segments, from Pinocchio directly.
 
 Independent of the gateway (safety-math.md §9): no code of ``gateway`` is used, only the URDF model that
-:class:`hrc_runtime.robot_model.RobotModel` loaded. Positions come from forward kinematics
+:class:`hrc_devices.robots.model.RobotModel` loaded. Positions come from forward kinematics
 (``data.oMf`` after :func:`pinocchio.updateFramePlacements`), velocities from the frame Jacobians,
 ``v = J_frame q̇`` with the LOCAL_WORLD_ALIGNED Jacobian (the velocity of the frame's origin in world-aligned
 axes, safety-math.md §2); both are then moved from the robot's base frame to the cell's world frame.
@@ -16,7 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.intp]

@@ -1,4 +1,4 @@
-"""The per-link effective-mass bound (hrc_runtime/effective_mass.py, safety-math.md §12): it is never below the
+"""The per-link effective-mass bound (hrc_devices/robots/effective_mass.py, safety-math.md §12): it is never below the
 reflected mass of any point of a link's capsule in any direction, computed independently (a frame added at the point,
 forward dynamics under a unit force), at fresh random configurations of the program's box; the points that cannot move
 in every direction get ∞; and the method's δ with the bound is never above δ with the simple form M/2 + m_payload."""
@@ -12,14 +12,14 @@ import pinocchio as pin
 import pytest
 
 from hrc_contract.config import CellConfig
-from hrc_runtime.effective_mass import (
+from hrc_devices.robots.effective_mass import (
     MASS_BOUND_MARGIN,
     cached_link_mass_bounds,
     path_samples,
-    program_waypoints_rad,
     with_payload,
 )
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import program_waypoints_rad
 
 PAYLOAD_KG = 1.0
 

@@ -26,23 +26,22 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tomllib
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
 import pinocchio as pin
 
-from hrc_runtime.robot_model import RobotModel
+from hrc_devices.robots.model import RobotModel
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 MASS_BOUND_MARGIN = 0.15
 """The per-link bound is the largest sampled value times 1 + this: the margin for the configurations between samples
-(the largest value over 20 000 extra random samples of the box exceeds the sampled one by at most 4 % for the UR5,
-tests/hrc_runtime/test_effective_mass.py holds the bound above 2000 fresh random configurations and directions)."""
+(the largest value over 20 000 extra random samples of the box exceeds the sampled one by at most 4 % for the UR5;
+tests/hrc_devices/robots/test_effective_mass.py holds the bound above 2000 fresh random configurations and
+directions)."""
 MASS_CAP_KG = 150.0
 """A link whose sampled mass bound exceeds this gets ∞ (the region's own mass decides): near a singularity the bound
 grows without limit, and a large finite number would pretend a precision it does not have [kg]."""
@@ -121,20 +120,6 @@ def capsule_point_jacobians(
     cross = _SURFACE_SKEWS * radius_m @ J_a[3:]  # (7, 3, n)
     points = axis[:, None, :, :] - cross[None, :, :, :]  # (S, 7, 3, n)
     return points.reshape(-1, *axis.shape[1:])
-
-
-def program_waypoints_rad(program_path: str | Path) -> FloatArray:
-    """The joint positions of a controller program's waypoints (``[[waypoints]] q_rad``), shape (W, n) [rad].
-
-    Raises:
-        OSError, tomllib.TOMLDecodeError, KeyError, ValueError: the file cannot be read as a program.
-    """
-    with Path(program_path).open("rb") as f:
-        raw = tomllib.load(f)
-    waypoints = np.array([w["q_rad"] for w in raw["waypoints"]], dtype=float)
-    if waypoints.ndim != 2 or len(waypoints) < 2 or not np.isfinite(waypoints).all():
-        raise ValueError(f"{program_path}: not a program of at least two waypoints of finite joint positions")
-    return waypoints
 
 
 def path_samples(waypoints_rad: FloatArray, step_rad: float = PATH_STEP_RAD) -> FloatArray:

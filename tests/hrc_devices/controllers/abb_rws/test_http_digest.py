@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 import requests
 
-from hrc_runtime.http_digest import (
+from hrc_devices.controllers.abb_rws.http_digest import (
     MAX_HEADER_CHARS,
     NONCE_LIFETIME_S,
     Credentials,

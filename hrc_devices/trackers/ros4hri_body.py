@@ -9,7 +9,7 @@ Pure (no transport, no clock). What a ROS4HRI body tracker (``ros4hri/hri_fullbo
     JointState ──decode_joint_state──▶ BodyJoints (angles by joint, checked against the model's limits)
     TFMessage  ──decode_body_poses──▶ BodyPose per ``body_<id>`` (parent frame checked)
     BodyJoints + BodyPose + Placement ──body_keypoints (Pinocchio FK)──▶ keypoints in the world
-        ──hrc_runtime.skeletons.body_capsules (format :data:`ROS4HRI_BODY`)──▶ BodyCapsules
+        ──hrc_devices.trackers.skeletons.body_capsules (format :data:`ROS4HRI_BODY`)──▶ BodyCapsules
 
 The model. :func:`human_joints` is our own generator of the template's kinematic structure (the same joint names,
 axes, origins and limits, as functions of the body's height), written from ``urdf/human-tpl.xacro`` of
@@ -34,10 +34,10 @@ segments are no longer than those P95 lengths for a model up to :data:`MAX_HEIGH
 built), so the sphere covers wherever the model's part can be. The hands and feet the model lacks are spheres of a P95
 hand and foot around the wrists and ankles (the skeleton formats without hands do the same). A missing ``waist``
 leaves the torso unplaced: a body placed within the memory time is left out of the frame (lost at the gateway,
-:class:`hrc_runtime.skeletons.PersonUnplacedError`), else it is a whole body
-(:func:`hrc_runtime.skeletons.whole_body_capsules`).
+:class:`hrc_devices.trackers.skeletons.PersonUnplacedError`), else it is a whole body
+(:func:`hrc_devices.trackers.skeletons.whole_body_capsules`).
 
-Hostile input raises :class:`~hrc_runtime.ros2_people.Ros2MessageError` (a
+Hostile input raises :class:`~hrc_devices.trackers.ros2_people.Ros2MessageError` (a
 :class:`~hrc_contract.messages.MessageError`, counted like any refused input) with a short ``reason``:
 ``too_large``, ``not_cdr``, ``bad_stamp``, ``joint_count_mismatch`` (names and positions of unequal length),
 ``unknown_joint`` (a name that is not ``<joint>_<id>`` of the model), ``duplicate_joint``, ``non_finite`` (an angle,
@@ -59,8 +59,8 @@ import numpy.typing as npt
 import pinocchio as pin
 from rosbags.typesys.store import Typestore
 
-from hrc_runtime.ros2_people import MAX_PEOPLE, Placement, Ros2MessageError, decode_cdr, stamp_ns
-from hrc_runtime.skeletons import (
+from hrc_devices.trackers.ros2_people import MAX_PEOPLE, Placement, Ros2MessageError, decode_cdr, stamp_ns
+from hrc_devices.trackers.skeletons import (
     ANTHROPOMETRY,
     MAX_COORDINATE_M,
     NECK_TO_SHOULDER_M,
@@ -82,9 +82,9 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 TEMPLATE_HEIGHT_M = 1.65
 """The template's default height, the one ``hri_fullbody`` builds its models at [m]."""
 DEFAULT_HEIGHT_M = STATURE_M
-"""Height of the model when the cell does not say: the P95 stature of :mod:`hrc_runtime.skeletons` [m]."""
+"""Height of the model when the cell does not say: the P95 stature of :mod:`hrc_devices.trackers.skeletons` [m]."""
 MAX_HEIGHT_M = STATURE_M
-"""Tallest model whose segments stay within the P95 lengths of :data:`hrc_runtime.skeletons.ANTHROPOMETRY` (the
+"""Tallest model whose segments stay within the P95 lengths of :data:`hrc_devices.trackers.skeletons.ANTHROPOMETRY` (the
 upper arm, 1.6 u, is the first to outgrow them) [m]."""
 MIN_HEIGHT_M = 1.0
 LIMIT_TOLERANCE_RAD = 0.01
@@ -467,14 +467,14 @@ def body_capsules_world(
     floor_z_m: float = 0.0,
 ) -> tuple[BodyCapsules, PersonMemory]:
     """One body's capsules in the world frame: FK in the body frame, the root pose into the parent (camera) frame,
-    the placement into the world, then :func:`hrc_runtime.skeletons.body_capsules`.
+    the placement into the world, then :func:`hrc_devices.trackers.skeletons.body_capsules`.
 
     Args:
         human: the model.
         joints: the body's angles.
         pose: its ``body_<id>`` frame in the parent frame.
         placement: the parent frame in the world.
-        stamp_ns, uncertainty_m, memory, memory_s, floor_z_m: see :func:`hrc_runtime.skeletons.body_capsules`.
+        stamp_ns, uncertainty_m, memory, memory_s, floor_z_m: see :func:`hrc_devices.trackers.skeletons.body_capsules`.
 
     Raises:
         SkeletonError: a keypoint beyond the world's bounds.

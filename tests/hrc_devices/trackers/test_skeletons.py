@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from support.skeleton_poses import standing_keypoints
 
-from hrc_runtime.skeletons import (
+from hrc_devices.trackers.skeletons import (
     ANTHROPOMETRY,
     COMPILED,
     NECK_TO_SHOULDER_M,
@@ -212,7 +212,7 @@ def test_a_placed_person_whose_torso_is_hidden_is_unplaced_never_a_smaller_whole
 
 
 # Men's 95th percentiles [mm] computed from ANSUR II's public per-person file (ANSUR_II_MALE_Public.csv, n = 4,082,
-# unweighted), 2026-12-02: the table of hrc_runtime/skeletons.py must never be smaller.
+# unweighted), 2026-12-02: the table of hrc_devices/trackers/skeletons.py must never be smaller.
 ANSUR_II_MEN_P95_MM = {
     "tragion_top_of_head": 141, "chest_breadth": 320, "biceps_circumference_flexed": 418,
     "forearm_circumference_flexed": 348, "hand_breadth": 96, "thigh_circumference": 723, "calf_circumference": 443,

@@ -1,7 +1,7 @@
 """Body trackers' ROS 2 messages (CDR bytes) → per-person keypoints and tracking state.
 
 Pure (no transport): the bytes of one sample in, a :class:`PeopleFrame` out, decoded by ``rosbags`` with the
-publishers' own message definitions (vendored in ``hrc_runtime/ros2_msgs``, see its README).
+publishers' own message definitions (vendored in ``hrc_devices/ros2/ros2_msgs``, see its README).
 
     ZED  zed_msgs/msg/ObjectsStamped      ──decode_zed_objects──▶ PeopleFrame ──people_capsules──▶ capsules per person
     K4A  visualization_msgs/msg/MarkerArray ──decode_k4abt_markers──▶ PeopleFrame
@@ -23,7 +23,8 @@ Hostile input raises :class:`Ros2MessageError` (a :class:`~hrc_contract.messages
 input) with a short ``reason``: ``too_large``, ``not_cdr`` (bytes that do not decode as the type: malformed, truncated,
 another type), ``too_many_people``, ``too_many_markers``, ``bad_stamp``, ``non_finite`` (a position or marker pose),
 ``absurd_keypoint``, ``unknown_body_format``, ``unknown_tracking_state``, ``bad_marker_id``, ``duplicate_joint``,
-``mixed_frames``. Nothing else escapes (``tests/hrc_runtime/test_ros2_people.py`` fuzzes random and truncated bytes).
+``mixed_frames``. Nothing else escapes (``tests/hrc_devices/trackers/test_ros2_people.py`` fuzzes random and
+truncated bytes).
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys.store import Typestore
 
 from hrc_contract.messages import MAX_PAYLOAD_BYTES, MessageError
-from hrc_runtime.skeletons import (
+from hrc_devices.trackers.skeletons import (
     COMPILED,
     MAX_COORDINATE_M,
     BodyCapsules,
@@ -306,12 +307,12 @@ def people_capsules(
         placement: the tracker's frame in the world.
         uncertainty_m: the tracker's stated keypoint uncertainty [m]; the ZED's stated position deviation (3σ) is
             added to it per person.
-        memory_s, floor_z_m: see :func:`hrc_runtime.skeletons.body_capsules`.
+        memory_s, floor_z_m: see :func:`hrc_devices.trackers.skeletons.body_capsules`.
 
     Returns:
         ``(person id, capsules)`` per detection (a detection placed recently whose torso is not seen now is left
-        out, :class:`hrc_runtime.skeletons.PersonUnplacedError`), and the memories to pass next time (detections and
-        searching people keep theirs; people the tracker no longer mentions lose it).
+        out, :class:`hrc_devices.trackers.skeletons.PersonUnplacedError`), and the memories to pass next time
+        (detections and searching people keep theirs; people the tracker no longer mentions lose it).
 
     Raises:
         SkeletonError: a keypoint beyond the bounds once in the world frame (see ``check_keypoints``).

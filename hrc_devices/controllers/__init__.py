@@ -1,0 +1,5 @@
+"""The controllers: the vendor base (:mod:`.vendor`: the reading, the interface protocol, its error;
+:mod:`.descriptor`: the speed input and the :class:`~.descriptor.Vendor` descriptor), one folder per vendor
+(:mod:`.ur_rtde`, :mod:`.abb_rws`) and the registry (:data:`.registry.VENDORS`)."""
+
+__all__ = ["abb_rws", "descriptor", "registry", "ur_rtde", "vendor"]

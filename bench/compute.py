@@ -57,7 +57,6 @@ HUMAN_RING_MAX_M = 4.8
 reach (beyond it every frame is rejected as ``outside_world`` and the cycle computes no rows)."""
 
 Q0_RAD = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
-QD_NOMINAL_RADPS = np.array([0.6, -0.4, 0.5, 0.3, 0.2, 0.1])
 
 TARGET_P50_US = 40.0
 TARGET_P99_US = 100.0
@@ -158,7 +157,8 @@ class Rig:
         for k, name in enumerate(self.robots):
             phase = 0.25 * 2 * math.pi * t_s + k
             q = Q0_RAD + 0.4 * np.sin(phase + np.arange(6))
-            qd = QD_NOMINAL_RADPS * np.cos(phase)
+            # q's own rate, so that the state agrees with itself (the door's q_motion_inconsistent)
+            qd = 0.4 * 0.25 * 2 * math.pi * np.cos(phase + np.arange(6)) / 0.8
             self.joint_seq += 1
             raw = {
                 "schema": "hrc.joint_state/1",

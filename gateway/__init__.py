@@ -1,6 +1,7 @@
 """The safety gateway: delay-aware speed override for a closed robot controller."""
 
 __all__ = [
+    "bodies",
     "bridge_view",
     "contact",
     "core",
@@ -10,6 +11,7 @@ __all__ = [
     "http",
     "inputs",
     "iso15066",
+    "joint_motion",
     "kernels",
     "kinematics",
     "link_ends",

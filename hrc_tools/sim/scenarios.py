@@ -24,7 +24,7 @@ it for some (the gateway must then see stale data and stop the robot).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -309,29 +309,84 @@ the same people, sensors, links and occlusion as without, plus what it adds."""
 COMPANION_GAP_M = (0.4, 2.0)
 """How far behind the first person (farther from the robot's base, on their path) their companion walks [m]: the
 first one hidden at the robot, the companion seen (the review's cases 1-3)."""
+HIDDEN_AT_M = (0.85, 1.2)
+"""Where the hidden person stands, from the robot's base [m]: their reach (1.0) puts a hand near the tool."""
 STAMP_LATE_S = (0.05, 0.14)
 """How late one tracker stamps its frames (within the data age limit with its latency capped) [s]."""
 
 
+def _companion_behind(
+    rng: np.random.Generator, first: HumanScript, duration_s: float
+) -> tuple[HumanScript | None, float]:
+    """Someone walking the first person's path :data:`COMPANION_GAP_M` farther from the base, and that gap [m]."""
+    gap_m = float(rng.uniform(*COMPANION_GAP_M))
+    closest = min(first.keyframes, key=lambda k: math.hypot(*k.xy_m))
+    norm = math.hypot(*closest.xy_m) or 1.0
+    out = (closest.xy_m[0] / norm * gap_m, closest.xy_m[1] / norm * gap_m)
+    frames = [k.model_copy(update={"xy_m": (k.xy_m[0] + out[0], k.xy_m[1] + out[1])}) for k in first.keyframes]
+    return _clip_to("h9", first.both_arms, frames, duration_s), gap_m
+
+
+def _hidden_at_the_robot(
+    rng: np.random.Generator, trackers: Mapping[str, TrackerConfig], duration_s: float, coverage: Box
+) -> tuple[HumanScript | None, list[Fixture], float]:
+    """Someone who walks up to the robot (:data:`HIDDEN_AT_M`), reaches toward it for the rest of the case, and
+    vanishes there behind a shelf from every sensor that saw them come in; and where they stand [m]."""
+    bearing = float(rng.uniform(-BEARING_LIMIT_RAD, BEARING_LIMIT_RAD))
+    x, y = _at(bearing, float(rng.uniform(*HIDDEN_AT_M)))
+    frames, t = _walk_in(rng, (x, y), 0.0, coverage)
+    facing = _heading_to_origin(x, y)
+    frames += [
+        Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing),
+        Keyframe(t_s=t + 0.8, xy_m=(x, y), heading_rad=facing, reach=1.0),
+        Keyframe(t_s=max(duration_s, t + 1.0), xy_m=(x, y), heading_rad=facing, reach=1.0),
+    ]
+    shelves = [
+        _hiding_cabinet(rng, (x, y), (t.position_m[0], t.position_m[1]))
+        for t in trackers.values()
+        if t.position_m is not None and x * t.position_m[0] + y * t.position_m[1] > 0
+    ]
+    return _clip_to("h8", False, frames, duration_s), shelves, math.hypot(x, y)
+
+
+def _hostile_trackers(rng: np.random.Generator, trackers: Mapping[str, TrackerConfig]) -> dict[str, dict[str, Any]]:
+    """Per tracker, what it does wrong: one stamps late (its latency capped), ids renewed, one joining late, now and
+    then one merging people or naming parts by kind."""
+    names = sorted(trackers)
+    updates: dict[str, dict[str, Any]] = {name: {} for name in names}
+    late = names[int(rng.integers(0, len(names)))]
+    updates[late]["stamp_late_s"] = float(rng.uniform(*STAMP_LATE_S))
+    updates[late]["latency_s"] = min(trackers[late].latency_s, 0.02)
+    for name in names:
+        updates[name]["id_renew_probability"] = float(rng.choice([0.0, rng.uniform(0.0, 0.02)]))
+    if rng.random() < 0.5:
+        updates[names[int(rng.integers(0, len(names)))]]["blind_until_s"] = float(rng.uniform(0.5, 4.0))
+    if rng.random() < 0.1:
+        updates[names[int(rng.integers(0, len(names)))]]["merge_within_m"] = 1.0
+    if rng.random() < 0.1:
+        updates[names[int(rng.integers(0, len(names)))]]["part_names_by_kind"] = True
+    return updates
+
+
 def with_hostile_tracking(
-    rng: np.random.Generator, humans: list[HumanScript], trackers: dict[str, TrackerConfig], duration_s: float
-) -> tuple[list[HumanScript], dict[str, TrackerConfig], dict[str, Any]]:
+    rng: np.random.Generator,
+    humans: list[HumanScript],
+    trackers: dict[str, TrackerConfig],
+    duration_s: float,
+    coverage: Box = DEFAULT_COVERAGE,
+) -> tuple[list[HumanScript], dict[str, TrackerConfig], list[Fixture], dict[str, Any]]:
     """The cases that broke the release rule before persons (issue 32): a companion walking behind the first person,
     a second tracker where there was one, one tracker stamping late, trackers renewing ids, one joining late, and
-    now and then one that merges people or names parts by kind (the door refuses those: the robots stop).
+    now and then one that merges people or names parts by kind (the door refuses those: the robots stop). In half
+    the cases someone walks up to the robot, reaches toward it and vanishes behind shelves there, from every sensor
+    that saw them come in (the one who must stay held).
 
     Returns:
-        The people, the trackers and what was drawn (for the case's parameters).
+        The people, the trackers, the hiding shelves and what was drawn (for the case's parameters).
     """
     drawn: dict[str, Any] = {}
     if humans and rng.random() < 0.7:
-        first = humans[0]
-        gap_m = float(rng.uniform(*COMPANION_GAP_M))
-        closest = min(first.keyframes, key=lambda k: math.hypot(*k.xy_m))
-        norm = math.hypot(*closest.xy_m) or 1.0
-        out = (closest.xy_m[0] / norm * gap_m, closest.xy_m[1] / norm * gap_m)  # behind them, farther from the base
-        frames = [k.model_copy(update={"xy_m": (k.xy_m[0] + out[0], k.xy_m[1] + out[1])}) for k in first.keyframes]
-        companion = _clip_to("h9", first.both_arms, frames, duration_s)
+        companion, gap_m = _companion_behind(rng, humans[0], duration_s)
         if companion is not None:
             humans = [*humans, companion]
             drawn["companion_behind_m"] = round(gap_m, 3)
@@ -342,25 +397,19 @@ def with_hostile_tracking(
         x_m, y_m = _at(bearing, float(rng.uniform(*SENSOR_DISTANCE_M)))
         position = (x_m, y_m, float(rng.uniform(*SENSOR_HEIGHT_M))) if only.position_m is not None else None
         trackers["side"] = only.model_copy(update={"position_m": position})
-    names = sorted(trackers)
-    late = names[int(rng.integers(0, len(names)))]
-    updates: dict[str, dict[str, Any]] = {name: {} for name in names}
-    updates[late]["stamp_late_s"] = float(rng.uniform(*STAMP_LATE_S))
-    updates[late]["latency_s"] = min(trackers[late].latency_s, 0.02)
-    for name in names:
-        updates[name]["id_renew_probability"] = float(rng.choice([0.0, rng.uniform(0.0, 0.02)]))
+    shelves: list[Fixture] = []
     if rng.random() < 0.5:
-        joins = names[int(rng.integers(0, len(names)))]
-        updates[joins]["blind_until_s"] = float(rng.uniform(0.5, 4.0))
-    if rng.random() < 0.1:
-        updates[names[int(rng.integers(0, len(names)))]]["merge_within_m"] = 1.0
-    if rng.random() < 0.1:
-        updates[names[int(rng.integers(0, len(names)))]]["part_names_by_kind"] = True
-    trackers = {n: TrackerConfig.model_validate(trackers[n].model_dump() | updates[n]) for n in names}
+        hidden, shelves, at_m = _hidden_at_the_robot(rng, trackers, duration_s, coverage)
+        if hidden is not None:
+            humans = [*humans, hidden]
+            drawn["hidden_at_m"] = round(at_m, 3)
+    updates = _hostile_trackers(rng, trackers)
+    trackers = {n: TrackerConfig.model_validate(trackers[n].model_dump() | u) for n, u in updates.items()}
+    drawn["shelves"] = len(shelves)
     drawn["trackers"] = {
         n: {k: round(v, 4) if isinstance(v, float) else v for k, v in u.items()} for n, u in updates.items()
     }
-    return humans, trackers, drawn
+    return humans, trackers, shelves, drawn
 
 
 def _spot_xy_m(person: dict[str, Any]) -> tuple[float, float] | None:
@@ -498,7 +547,8 @@ def generate_case(
     hostile: dict[str, Any] = {}
     if hostile_tracking:
         hostile_rng = np.random.default_rng([sweep_seed, index, PERSONS_STREAM])
-        humans, trackers, hostile = with_hostile_tracking(hostile_rng, humans, trackers, duration_s)
+        humans, trackers, shelves, hostile = with_hostile_tracking(hostile_rng, humans, trackers, duration_s, coverage)
+        fixtures = [*fixtures, *shelves]
     scenario = Scenario(
         description=f"generated case {index} of sweep {sweep_seed}",
         duration_s=duration_s,

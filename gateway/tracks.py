@@ -42,7 +42,7 @@ import numpy.typing as npt
 
 from gateway.bodies import covers, near, within
 from hrc_contract.config import CellConfig, TrackingConfig
-from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
+from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
 
 FloatArray = npt.NDArray[np.float64]
 NS_PER_S = 1_000_000_000
@@ -190,13 +190,6 @@ def centre(capsules: HumanCapsules) -> FloatArray:
     return np.concatenate((capsules.h_a_world, capsules.h_b_world)).mean(axis=0)  # type: ignore[no-any-return]
 
 
-def human_starts(capsules: HumanCapsules) -> list[int]:
-    """Index of each human's first capsule (a frame lists each human's capsules together), and the end."""
-    ids = capsules.human_ids
-    n = len(ids)
-    return [0, *(i for i in range(1, n) if ids[i] != ids[i - 1]), n] if n else [0]
-
-
 def part(capsules: HumanCapsules, start: int, end: int) -> HumanCapsules:
     """Capsules ``start:end`` of a frame (views of its arrays)."""
     c = capsules
@@ -292,7 +285,6 @@ class TrackSet:
         self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
         self._serial = 0
         self._person_serial = 0
-        self._frame_ns = 0
         self._frames: dict[str, object] = {}
         self._lost_cache: tuple[int, HumanCapsules] | None = None
         self._records: tuple[TrackRecord, ...] | None = None
@@ -358,7 +350,6 @@ class TrackSet:
         """
         margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
-        self._frame_ns = captured_ns
         starts = human_starts(capsules)
         prefix = len(tracker) + 1
         continued: list[Track | None] = (
@@ -446,7 +437,7 @@ class TrackSet:
         near_persons = {t.person.serial: t.person for t in near}
         person: Person | None = None
         if len(near_persons) == 1 and (
-            not touches_entry_band(body, self.tracking) or self._fragment_of(body, tracker, human_id, near)
+            not touches_entry_band(body, self.tracking) or self._fragment_of(body, tracker, human_id, captured_ns, near)
         ):
             (candidate,) = near_persons.values()
             # a tracker reports each body once: beside its own detection of this frame, this is another body
@@ -471,14 +462,16 @@ class TrackSet:
         self._records = None
         return track
 
-    def _fragment_of(self, body: HumanCapsules, tracker: str, human_id: str, near: Sequence[Track]) -> bool:
+    def _fragment_of(
+        self, body: HumanCapsules, tracker: str, human_id: str, captured_ns: int, near: Sequence[Track]
+    ) -> bool:
         """Whether a new track is the body its tracker lost a moment ago: the same tracker and id, lost at most
         :data:`REAPPEAR_MAX_S` before, and inside that track's last body grown by what a person moves meanwhile (a
         frame missed, a part out of view). At the entry band too: a newcomer from outside cannot stand inside the
         body of the person seen there a moment ago."""
         margin_m = self._margin_m(tracker, tracker)
         for t in near:
-            dt_s = (self._frame_ns - t.last_seen_mono_ns) / NS_PER_S
+            dt_s = (captured_ns - t.last_seen_mono_ns) / NS_PER_S
             if (
                 t.tracker == tracker
                 and t.human_id == human_id

@@ -132,10 +132,17 @@ def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig
     return _implausible_person(capsules, plausibility)
 
 
+def human_starts(capsules: HumanCapsules) -> list[int]:
+    """Index of each human's first capsule (a frame lists each human's capsules together), and the end."""
+    ids = capsules.human_ids
+    n = len(ids)
+    return [0, *(i for i in range(1, n) if ids[i] != ids[i - 1]), n] if n else [0]
+
+
 def _implausible_person(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> tuple[str, str] | None:
     """What no single body is, per reported person (each person's capsules are listed together)."""
     ids = capsules.human_ids
-    starts = [0, *(i for i in range(1, len(ids)) if ids[i] != ids[i - 1]), len(ids)]
+    starts = human_starts(capsules)
     if len(set(ids)) != len(starts) - 1:
         return "duplicate_human_id", "a human id listed twice in one frame"
     ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule

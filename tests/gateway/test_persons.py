@@ -10,9 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from support.known_cases import MS
+from support.track_feed import Feed
 
 from gateway.bodies import covers, near, within
-from gateway.tracks import TrackSet, TrackState, leaving_face
+from gateway.tracks import TrackState, leaving_face
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules
 
@@ -39,34 +40,6 @@ def person(
     return HumanCapsules(
         np.array(a, dtype=float), np.array(b, dtype=float), np.array(r), (f"{tracker}/{human}",) * len(r), capsule_names
     )
-
-
-def frame(*people: HumanCapsules) -> HumanCapsules:
-    if not people:
-        return HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
-    return HumanCapsules(
-        np.concatenate([p.h_a_world for p in people]),
-        np.concatenate([p.h_b_world for p in people]),
-        np.concatenate([p.radius_m for p in people]),
-        sum((p.human_ids for p in people), ()),
-        sum((p.capsule_names for p in people), ()),
-    )
-
-
-class Feed:
-    def __init__(self, config: CellConfig, *, by_id: bool = False) -> None:
-        self.tracks = TrackSet(config, release_by_id_unsafe=by_id)
-        self.frames: dict[str, tuple[object, HumanCapsules, int] | None] = dict.fromkeys(config.trackers)
-
-    def see(self, t_ns: int, tracker: str, *people: HumanCapsules, stamp_late_ns: int = 0) -> list[str]:
-        self.frames[tracker] = (object(), frame(*people), t_ns - stamp_late_ns)
-        return [f"{e.kind}:{e.track}:{e.cause}" for e in self.tracks.update(self.frames, t_ns)]
-
-    def state(self, label: str) -> TrackState | None:
-        for t in (*self.tracks.live, *self.tracks.released):
-            if t.label == label:
-                return t.state
-        return None
 
 
 @pytest.fixture(params=[False, True], ids=["persons", "by-id-UNSAFE"])

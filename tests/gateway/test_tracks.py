@@ -10,11 +10,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from support.known_cases import FAR_TORSO, MS, NEAR_HAND, NOW, Cell, at
+from support.track_feed import Feed
 
 from gateway.core import SafetyCore
 from gateway.inputs import InputStore
 from gateway.node import GatewayNode
-from gateway.tracks import MAX_LIVE_TRACKS, TrackSet, TrackState
+from gateway.tracks import MAX_LIVE_TRACKS, TrackState
 from hrc_contract import keys
 from hrc_contract.config import Box, CellConfig
 from hrc_contract.humans import HumanCapsules
@@ -32,36 +33,6 @@ def body(tracker: str, human: str, x: float, y: float, parts: tuple[str, ...] = 
     a = np.array([shapes[p][0] for p in names], dtype=float)
     b = np.array([shapes[p][1] for p in names], dtype=float)
     return HumanCapsules(a, b, np.full(len(names), 0.15), (f"{tracker}/{human}",) * len(names), names)
-
-
-def frame(*people: HumanCapsules) -> HumanCapsules:
-    if not people:
-        return HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
-    return HumanCapsules(
-        np.concatenate([p.h_a_world for p in people]),
-        np.concatenate([p.h_b_world for p in people]),
-        np.concatenate([p.radius_m for p in people]),
-        sum((p.human_ids for p in people), ()),
-        sum((p.capsule_names for p in people), ()),
-    )
-
-
-class Feed:
-    """Feeds a TrackSet tracker frames like the core does: each a new object, captured at ``t_ns``."""
-
-    def __init__(self, config: CellConfig) -> None:
-        self.tracks = TrackSet(config)
-        self.frames: dict[str, tuple[object, HumanCapsules, int] | None] = dict.fromkeys(config.trackers)
-
-    def see(self, t_ns: int, tracker: str, *people: HumanCapsules) -> list[str]:
-        self.frames[tracker] = (object(), frame(*people), t_ns)
-        return [f"{e.kind}:{e.track}:{e.cause}" for e in self.tracks.update(self.frames, t_ns)]
-
-    def state(self, label: str) -> TrackState | None:
-        for t in (*self.tracks.live, *self.tracks.released):
-            if t.label == label:
-                return t.state
-        return None
 
 
 @pytest.fixture
@@ -439,8 +410,8 @@ def test_a_partial_view_never_releases_a_whole_person_however_large_the_reach(fe
 
 
 def test_another_trackers_view_of_the_same_person_releases_them(feed: Feed) -> None:
-    """Both trackers see the person; front loses them (occluded), side keeps seeing them: side's track is their twin
-    and releases front's lost track when it covers it."""
+    """Both trackers see the person (one person of two tracks); front loses them (occluded), side keeps seeing them:
+    side's track, of the same person, releases front's lost track when it covers it."""
     feed.see(0, "front", body("front", "h1", 1.0, 0.0))
     feed.see(0, "side", body("side", "p3", 1.01, 0.0))
     feed.see(FRAME_NS, "front")  # front loses them
@@ -452,11 +423,13 @@ def test_another_trackers_view_of_the_same_person_releases_them(feed: Feed) -> N
 def test_the_fragments_a_person_left_while_parts_were_hidden_are_released_when_seen_whole(feed: Feed) -> None:
     """Collaborative suite case 2 with occlusion: a person walking behind the robot loses one part after another; each
     loss leaves the fuller track lost (never shrink a person). Seen whole again, the person releases every fragment of
-    theirs (same tracker and id) with one claim, and no one else's."""
+    theirs (each fragment joined their person) and no one else's."""
     feed.see(0, "front", body("front", "h1", 1.0, 0.0), body("front", "h2", 1.0, 2.0))
     feed.see(FRAME_NS, "front", body("front", "h1", 1.0, 0.0, ("legs",)))  # torso hidden; h2 hidden
     feed.see(2 * FRAME_NS, "front")  # all hidden: the legs fragment is lost too
-    feed.see(3 * FRAME_NS, "front", body("front", "h9", 1.0, 0.0, ("legs",)))  # legs seen, another id: a claim
+    feed.see(
+        3 * FRAME_NS, "front", body("front", "h9", 1.0, 0.0, ("legs",))
+    )  # legs seen, another id: joins h1's person
     feed.see(4 * FRAME_NS, "front", body("front", "h9", 1.0, 0.0))  # ... then seen whole
     released = [t.label for t in feed.tracks.released]
     assert sorted(released) == ["front/h1", "front/h1#3"], "both fragments of h1"

@@ -24,22 +24,23 @@ BoolArray = npt.NDArray[np.bool_]
 def _point_segment_distance_m(p: FloatArray, a: FloatArray, b: FloatArray) -> FloatArray:
     """Distance of each point ``p`` (n, 3) to each segment ``a``–``b`` (m, 3): an (n, m) array [m]."""
     d = b - a
-    dd = np.einsum("ij,ij->i", d, d)
+    dd = (d * d).sum(axis=1)
     rel = p[:, None, :] - a[None, :, :]
-    t = np.einsum("nmk,mk->nm", rel, d) / np.where(dd > 0.0, dd, 1.0)[None, :]
-    t = np.clip(t, 0.0, 1.0)
-    closest = a[None, :, :] + t[:, :, None] * d[None, :, :]
-    return np.linalg.norm(p[:, None, :] - closest, axis=2)  # type: ignore[no-any-return]
+    t = (rel * d[None, :, :]).sum(axis=2) / np.where(dd > 0.0, dd, 1.0)[None, :]
+    np.clip(t, 0.0, 1.0, out=t)
+    off = rel - t[:, :, None] * d[None, :, :]
+    return np.sqrt((off * off).sum(axis=2))  # type: ignore[no-any-return]
 
 
 def inside_matrix(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> BoolArray:
     """Whether capsule i of ``small`` lies inside capsule j of ``big`` grown by ``grow_m`` [m]: an (n, m) array."""
-    if small.n_capsules == 0 or big.n_capsules == 0 or not np.isfinite(grow_m):
-        return np.zeros((small.n_capsules, big.n_capsules), dtype=bool)
+    n = small.n_capsules
+    if n == 0 or big.n_capsules == 0 or not np.isfinite(grow_m):
+        return np.zeros((n, big.n_capsules), dtype=bool)
     limit = big.radius_m[None, :] + grow_m - small.radius_m[:, None]
-    da = _point_segment_distance_m(small.h_a_world, big.h_a_world, big.h_b_world)
-    db = _point_segment_distance_m(small.h_b_world, big.h_a_world, big.h_b_world)
-    return (da <= limit) & (db <= limit)
+    ends = np.concatenate((small.h_a_world, small.h_b_world))
+    dist = _point_segment_distance_m(ends, big.h_a_world, big.h_b_world)
+    return (dist[:n] <= limit) & (dist[n:] <= limit)
 
 
 def within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:

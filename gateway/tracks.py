@@ -171,13 +171,22 @@ class Track:
     def n_capsules(self) -> int:
         return self.end - self.start
 
-    def observe(self, frame: HumanCapsules, start: int, end: int, captured_ns: int, centre_m: FloatArray) -> None:
-        """Seen in ``frame[start:end]``, captured at ``captured_ns``, its centre at ``centre_m`` [m]."""
+    def observe(
+        self,
+        frame: HumanCapsules,
+        start: int,
+        end: int,
+        captured_ns: int,
+        centre_m: FloatArray,
+        box: tuple[FloatArray, FloatArray, float],
+    ) -> None:
+        """Seen in ``frame[start:end]``, captured at ``captured_ns``, its centre at ``centre_m`` [m], its capsules'
+        end points in the box ``(lower, upper corner [m], largest radius [m])``."""
         self.frame, self.start, self.end, self._capsules = frame, start, end, None
         self.last_seen_mono_ns = captured_ns
         self.state = TrackState.SEEN
         self.last_centre = centre_m
-        self.box_lo_m, self.box_hi_m, self.radius_max_m = _box(self.capsules)
+        self.box_lo_m, self.box_hi_m, self.radius_max_m = box
         centres = self.centres
         if not centres or captured_ns - centres[-1][0] >= CENTRE_SAMPLE_NS:
             centres.append((captured_ns, centre_m))
@@ -280,6 +289,7 @@ class TrackSet:
             config.tracking.unsafe_release_by_id_for_tests if release_by_id_unsafe is None else release_by_id_unsafe
         )
         self.live: list[Track] = []
+        self._table = _BoxTable()
         self._lost: list[Track] = []
         self._previous: dict[str, _Previous] = {}
         self.released: deque[Track] = deque(maxlen=RELEASED_KEPT)
@@ -361,6 +371,7 @@ class TrackSet:
             if len(starts) > 1
             else np.zeros((0, 3))
         )
+        boxes = _boxes(capsules, starts)
         if previous is not None and any(t is not None for t in continued):
             dt_s = (captured_ns - previous.captured_ns) / NS_PER_S
             ok = moved_within(previous.capsules, capsules, starts, self.reach_speed_mps * dt_s + margin_m)
@@ -388,7 +399,8 @@ class TrackSet:
             track = continued[k]
             if track is None:
                 track = self._new_track(tracker, capsules.human_ids[start][prefix:], capsules, start, end, captured_ns)
-            track.observe(capsules, start, end, captured_ns, centres[k])
+            track.observe(capsules, start, end, captured_ns, centres[k], (boxes[0][k], boxes[1][k], float(boxes[2][k])))
+            self._table.set(track)
             order.append(track)
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
         return events, order
@@ -459,6 +471,7 @@ class TrackSet:
         track = Track(self._serial, label, tracker, human_id, frame, start, end, captured_ns, person)
         person.tracks.append(track)
         self.live.append(track)
+        self._table.add(track, self._noise_m.get(tracker, 0.0))
         self._records = None
         return track
 
@@ -498,8 +511,37 @@ class TrackSet:
         """Every live track (seen or lost; those ``keep`` accepts; only ``among`` when given) whose last body ``body``
         could be, or be part of: one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both
         trackers' noise and margin. The cap makes a tight test for joining (a late stamp must not widen it)."""
-        pool = self.live if among is None else among
-        tracks = pool if keep is None else [t for t in pool if keep(t)]
+        if among is not None:
+            return self._near_among(body, tracker, stamp_ns, keep, max_dt_s, among)
+        table = self._table
+        if not table.tracks:
+            return []
+        lo, hi, r_max = _box(body)
+        dt_s = np.minimum(np.abs(table.stamp_ns[: len(table.tracks)] - stamp_ns) / NS_PER_S, max_dt_s)
+        grow = (
+            self.reach_speed_mps * dt_s
+            + self.tracking.association_margin_m
+            + self._noise_m.get(tracker, 0.0)
+            + table.noise_m[: len(table.tracks)]
+        )
+        maybe = table.may_nest(lo[None], hi[None], np.array([r_max]), grow[None])[0]
+        out = []
+        for k in np.flatnonzero(maybe):
+            t = table.tracks[k]
+            if (keep is None or keep(t)) and near(body, t.capsules, float(grow[k])):
+                out.append(t)
+        return sorted(out, key=lambda t: t.serial)
+
+    def _near_among(
+        self,
+        body: HumanCapsules,
+        tracker: str,
+        stamp_ns: int,
+        keep: Callable[[Track], bool] | None,
+        max_dt_s: float,
+        among: Sequence[Track],
+    ) -> list[Track]:
+        tracks = among if keep is None else [t for t in among if keep(t)]
         if not tracks:
             return []
         lo, hi, r_max = _box(body)
@@ -515,24 +557,30 @@ class TrackSet:
     def _seen_of_others_maybe_near(self, observed: Sequence[Track]) -> list[list[Track]]:
         """Per observed track, the seen tracks of other persons whose boxes could nest with its own (one matrix for
         the frame: most tracks are far from everybody else's and need no closer look)."""
-        seen = [t for t in self.live if t.state is TrackState.SEEN]
-        if len(seen) < 2:
+        table = self._table
+        n = len(table.tracks)
+        if n < 2 or not observed:
             return [[] for _ in observed]
-        lo = np.array([t.box_lo_m for t in seen])
-        hi = np.array([t.box_hi_m for t in seen])
-        r_max = np.array([t.radius_max_m for t in seen])
-        stamps = np.array([t.last_seen_mono_ns for t in seen], dtype=np.float64)
-        noise = np.array([self._noise_m.get(t.tracker, 0.0) for t in seen])
-        out = []
-        for track in observed:
-            grow = (
-                self.reach_speed_mps * np.abs(stamps - track.last_seen_mono_ns) / NS_PER_S
-                + self.tracking.association_margin_m
-                + noise
-                + self._noise_m.get(track.tracker, 0.0)
-            )
-            maybe = _boxes_may_nest(track.box_lo_m, track.box_hi_m, track.radius_max_m, lo, hi, r_max, grow)
-            out.append([seen[k] for k in np.flatnonzero(maybe) if seen[k].person is not track.person])
+        lo = np.array([t.box_lo_m for t in observed])
+        hi = np.array([t.box_hi_m for t in observed])
+        r_max = np.array([t.radius_max_m for t in observed])
+        stamps = np.array([t.last_seen_mono_ns for t in observed], dtype=np.float64)
+        noise = np.array([self._noise_m.get(t.tracker, 0.0) for t in observed])
+        grow = (
+            self.reach_speed_mps * np.abs(table.stamp_ns[None, :n] - stamps[:, None]) / NS_PER_S
+            + self.tracking.association_margin_m
+            + noise[:, None]
+            + table.noise_m[None, :n]
+        )
+        maybe = table.may_nest(lo, hi, r_max, grow)
+        rows = table.tracks
+        seen = np.array([t.state is TrackState.SEEN for t in rows])
+        person_of_row = np.array([t.person.serial for t in rows])
+        person_of_observed = np.array([t.person.serial for t in observed])
+        maybe &= seen[None, :] & (person_of_observed[:, None] != person_of_row[None, :])
+        out: list[list[Track]] = [[] for _ in observed]
+        for i, k in zip(*np.nonzero(maybe), strict=True):
+            out[i].append(rows[k])
         return out
 
     def _regroup(self, observed: Sequence[Track]) -> None:
@@ -664,6 +712,7 @@ class TrackSet:
         track.released_by = why
         track.released_mono_ns = now_mono_ns
         self.live.remove(track)
+        self._table.remove(track)
         self.released.append(track)
         person = track.person
         if track in person.tracks:
@@ -743,6 +792,19 @@ def _box(capsules: HumanCapsules) -> tuple[FloatArray, FloatArray, float]:
     return ends.min(axis=0), ends.max(axis=0), float(capsules.radius_m.max())
 
 
+def _boxes(capsules: HumanCapsules, starts: Sequence[int]) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Per person of a frame (``starts``: :func:`human_starts`): :func:`_box` of their capsules, as arrays."""
+    if len(starts) < 2:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    at = np.asarray(starts[:-1])
+    a, b = capsules.h_a_world, capsules.h_b_world
+    return (
+        np.minimum.reduceat(np.minimum(a, b), at, axis=0),
+        np.maximum.reduceat(np.maximum(a, b), at, axis=0),
+        np.maximum.reduceat(capsules.radius_m, at),
+    )
+
+
 def _boxes_may_nest(
     lo: FloatArray,
     hi: FloatArray,
@@ -760,6 +822,71 @@ def _boxes_may_nest(
     slack_own = (r_max + grow)[:, None]
     inside_it = ((los >= lo - slack_own) & (his <= hi + slack_own)).all(axis=1)
     return inside_them | inside_it  # type: ignore[return-value]
+
+
+class _BoxTable:
+    """The live tracks' boxes, radii, capture times and noise as arrays, one row per track (kept in step with
+    ``TrackSet.live``), so that "who could be near this body" is one vector test per body, not a loop over tracks."""
+
+    def __init__(self) -> None:
+        self.tracks: list[Track] = []
+        self._row: dict[int, int] = {}
+        self.lo_m = np.zeros((64, 3))
+        self.hi_m = np.zeros((64, 3))
+        self.radius_m = np.zeros(64)
+        self.stamp_ns = np.zeros(64)
+        self.noise_m = np.zeros(64)
+
+    def add(self, track: Track, noise_m: float) -> None:
+        n = len(self.tracks)
+        if n == len(self.radius_m):
+            self.lo_m, self.hi_m = np.resize(self.lo_m, (2 * n, 3)), np.resize(self.hi_m, (2 * n, 3))
+            self.radius_m, self.stamp_ns = np.resize(self.radius_m, 2 * n), np.resize(self.stamp_ns, 2 * n)
+            self.noise_m = np.resize(self.noise_m, 2 * n)
+        self.tracks.append(track)
+        self._row[track.serial] = n
+        self.noise_m[n] = noise_m
+        self.set(track)
+
+    def set(self, track: Track) -> None:
+        """The track's box and capture time changed (it was seen)."""
+        k = self._row[track.serial]
+        self.lo_m[k], self.hi_m[k], self.radius_m[k] = track.box_lo_m, track.box_hi_m, track.radius_max_m
+        self.stamp_ns[k] = track.last_seen_mono_ns
+
+    def remove(self, track: Track) -> None:
+        """The last row takes the removed one's place."""
+        k = self._row.pop(track.serial)
+        last = len(self.tracks) - 1
+        moved = self.tracks.pop()
+        if k != last:
+            self.tracks[k] = moved
+            self._row[moved.serial] = k
+            for a in (self.lo_m, self.hi_m, self.radius_m, self.stamp_ns, self.noise_m):
+                a[k] = a[last]
+
+    def may_nest(
+        self, lo_m: FloatArray, hi_m: FloatArray, radius_m: FloatArray, grow_m: FloatArray
+    ) -> npt.NDArray[np.bool_]:
+        """Per body given (rows of ``lo_m``, ``hi_m``, ``radius_m``) × per table row: whether one may lie inside the
+        other grown by ``grow_m`` (bodies × rows) [m]; see :func:`_boxes_may_nest`."""
+        n = len(self.tracks)
+
+        def gaps(axis: int) -> tuple[FloatArray, FloatArray]:
+            below = lo_m[:, axis, None] - self.lo_m[None, :n, axis]
+            above = self.hi_m[None, :n, axis] - hi_m[:, axis, None]
+            return np.minimum(below, above), np.maximum(below, above)
+
+        # per pair, the least and the most by which the others' box reaches past this one's: one (bodies × rows)
+        # matrix per axis, no 3-D temporaries
+        low_gap, high_gap = gaps(0)
+        for axis in (1, 2):
+            least, most = gaps(axis)
+            np.minimum(low_gap, least, out=low_gap)
+            np.maximum(high_gap, most, out=high_gap)
+        inside_them = low_gap + self.radius_m[None, :n] + grow_m >= 0.0
+        inside_it = radius_m[:, None] + grow_m - high_gap >= 0.0
+        return inside_them | inside_it
 
 
 class _Previous(NamedTuple):

@@ -52,6 +52,29 @@ def test_crowded_benchmark_runs(tmp_path: Path) -> None:
     assert set(phases) == set(crowded.PHASES)
     for phase in phases.values():
         assert phase["decisions"] > 0
-        assert phase["statuses"] > 0
-    assert phases["crowded"]["capsules_shown"]["max"] >= 2 * crowded.CAPSULES_PER_FRAME
+    assert phases["sparse"]["statuses"] > 0
+    # A loaded 2-core machine may leave the crowded gateway no time to publish a status in 2 s (issue 36: the door
+    # holds the interpreter lock while it parses); the crowd's arrival is then judged by the decisions alone.
+    if phases["crowded"]["statuses"]:
+        assert phases["crowded"]["capsules_shown"]["max"] >= 2 * crowded.CAPSULES_PER_FRAME
     assert {t["verdict"] for t in doc["targets"]} <= {"PASS", "MISS"}
+
+
+def test_a_phase_without_a_status_is_reported_as_a_miss_and_printed(capsys: pytest.CaptureFixture[str]) -> None:
+    # A gateway too busy to publish a status: decisions arrive, no status does (seen on a loaded 2-core CI machine).
+    decisions = [Decision(s, s * 4 * MS, 0.0, s * 4 * MS + 100_000) for s in range(1, 6)]
+    phases = {
+        "sparse": crowded.analyse(decisions, [_status(1, 4.0), _status(3, 4.0)], 0.004),
+        "crowded": crowded.analyse(decisions, [], 0.004),
+    }
+    found = crowded.targets(phases)
+    assert [(t.name, t.verdict) for t in found if "status" in t.name] == [
+        ("statuses published in the crowded phase", "MISS")
+    ]
+    doc = {
+        "results": {"phases": phases},
+        "targets": [t.as_dict() for t in found],
+        "load_average": {"start": [0.0], "end": [0.0]},
+    }
+    crowded.print_report(doc)
+    assert "compute max: no status in a phase" in capsys.readouterr().out

@@ -434,3 +434,47 @@ def test_the_fragments_a_person_left_while_parts_were_hidden_are_released_when_s
     released = [t.label for t in feed.tracks.released]
     assert sorted(released) == ["front/h1", "front/h1#3"], "both fragments of h1"
     assert [t.label for t in feed.tracks.lost()] == ["front/h2"], "h2 is someone else"
+
+
+def test_the_box_table_answers_as_the_pairwise_box_test_and_keeps_its_rows_through_removals() -> None:
+    from gateway.tracks import Person, Track, _boxes_may_nest, _BoxTable
+
+    rng = np.random.default_rng(7)
+    empty = HumanCapsules(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), (), ())
+    table = _BoxTable()
+    tracks = []
+    for serial in range(150):  # past the first capacity (64): the arrays grow
+        lo = rng.uniform(-3.0, 3.0, 3)
+        track = Track(
+            serial, f"t{serial}", "front", str(serial), empty, 0, 0, int(rng.integers(0, 10**8)), Person(serial)
+        )
+        track.box_lo_m, track.box_hi_m, track.radius_max_m = (
+            lo,
+            lo + rng.uniform(0.0, 1.5, 3),
+            float(rng.uniform(0.02, 0.2)),
+        )
+        table.add(track, float(rng.uniform(0.0, 0.05)))
+        tracks.append(track)
+    for gone in tracks[10:40:3] + tracks[-5:]:
+        table.remove(gone)
+        tracks.remove(gone)
+    assert sorted(t.serial for t in table.tracks) == [t.serial for t in tracks]
+    lo, hi = rng.uniform(-3.0, 3.0, (20, 3)), np.zeros((20, 3))
+    hi = lo + rng.uniform(0.0, 1.5, (20, 3))
+    radii = rng.uniform(0.02, 0.2, 20)
+    grow = rng.uniform(0.0, 0.6, (20, len(tracks)))
+    got = table.may_nest(lo, hi, radii, grow)
+    for i in range(20):
+        order = [table.tracks.index(t) for t in tracks]
+        want = _boxes_may_nest(
+            lo[i],
+            hi[i],
+            float(radii[i]),
+            np.array([t.box_lo_m for t in tracks]),
+            np.array([t.box_hi_m for t in tracks]),
+            np.array([t.radius_max_m for t in tracks]),
+            grow[i, order],
+        )
+        assert (got[i, order] == want).all()
+    assert got.any()  # the case is not trivial either way
+    assert not got.all()

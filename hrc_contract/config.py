@@ -358,6 +358,13 @@ class GatewayConfig(_Frozen):
 class ControllerConfig(_Frozen):
     """The emulated controller's own behaviour (a real controller's is fixed by its vendor)."""
 
+    control: Literal["closed", "open"] = Field(
+        "closed",
+        description='"closed": the controller runs its program and takes only a speed override (hrc.override/1); '
+        '"open": it follows joint references streamed every cycle (hrc.joint_command/1, e.g. ABB EGM) and the '
+        "gateway runs the program through LP (9)/(13) of paper 1.",
+    )
+
     cycle_s: Annotated[float, Field(ge=0.0005, le=0.1)] = 0.004
     braking_time_s: BrakingTime = Field(
         0.24,

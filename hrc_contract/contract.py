@@ -20,7 +20,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from hrc_contract.messages import Humans, JointState, Override, TrackReset
+from hrc_contract.messages import Humans, JointCommand, JointState, Override, TrackReset
 from hrc_contract.status_models import (
     EffectiveConfig,
     ErrorResponse,
@@ -45,6 +45,7 @@ MODELS: Mapping[str, type[BaseModel]] = {
     "joint_state": JointState,
     "humans": Humans,
     "override": Override,
+    "joint_command": JointCommand,
     "track_reset": TrackReset,
     # the status document (Zenoh hrc/<cell>/gateway/status and GET /api/v1/status)
     "gateway_status": GatewayStatus,

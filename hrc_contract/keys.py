@@ -11,6 +11,11 @@ def robot_override(cell: str, robot: str) -> str:
     return f"hrc/{cell}/robot/{robot}/override"
 
 
+def robot_joint_command(cell: str, robot: str) -> str:
+    """Joint references for an open controller (``control = "open"``), ``hrc.joint_command/1``."""
+    return f"hrc/{cell}/robot/{robot}/joint_command"
+
+
 def robot_emu_stats(cell: str, robot: str) -> str:
     """Controller emulator statistics (program cycles completed, rejections); not part of a real controller."""
     return f"hrc/{cell}/robot/{robot}/emu_stats"

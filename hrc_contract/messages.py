@@ -108,6 +108,30 @@ class Override(_Message):
     delta: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 
 
+class JointCommand(_Message):
+    """Joint reference for an *open* controller (``control = "open"``), gateway to controller, every cycle.
+
+    ``q`` is the reference position q_{k+1} [rad] and ``qd`` the reference velocity q̇_{k+1} [rad/s] of LP (9)/(13)
+    of paper 1, one entry per joint of the robot's model; ``delta`` is the δ_k the LP chose (for display; the
+    controller follows ``q`` and ``qd``). A controller follows them within its own velocity and acceleration limits
+    and stops on its own (within its braking time) when no valid command arrives for its watchdog time.
+    """
+
+    schema_: Literal["hrc.joint_command/1"] = Field(alias="schema", default="hrc.joint_command/1")
+    robot: Name
+    seq: Seq
+    stamp_ns: StampNs
+    q: JointVector
+    qd: JointVector
+    delta: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+
+    @model_validator(mode="after")
+    def _same_length(self) -> JointCommand:
+        if len(self.q) != len(self.qd):
+            raise ValueError(f"q has {len(self.q)} joints and qd {len(self.qd)}; they must be the same robot's")
+        return self
+
+
 class TrackReset(_Message):
     """An operator's reset of a lost person (docs/contract.md "Tracks"), put on ``hrc/<cell>/operator/track_reset``
     by the operator station (certificate role ``operator``) after checking the area.

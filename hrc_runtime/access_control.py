@@ -114,7 +114,11 @@ def grants(policy: CellPolicy) -> tuple[Grant, ...]:
     cell = policy.cell
     gateway = Grant(
         ("gateway",),
-        (*(keys.robot_override(cell, r) for r in policy.robots), keys.gateway_status(cell)),
+        (
+            *(keys.robot_override(cell, r) for r in policy.robots),
+            *(keys.robot_joint_command(cell, r) for r in policy.robots),
+            keys.gateway_status(cell),
+        ),
         (keys.alive(cell, "gateway"),),
     )
     controllers = tuple(

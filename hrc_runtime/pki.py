@@ -6,7 +6,7 @@ then grants rights by the certificate's common name (CN), which names a role (:m
 =============  =====================  ===========================================================
 role           CN                     may put (everything else: read only)
 =============  =====================  ===========================================================
-gateway        ``gateway``            overrides, gateway status; forwards to its clients what it let in
+gateway        ``gateway``            overrides, joint commands, gateway status; forwards to its clients what it let in
 controller     ``controller-<robot>`` that robot's joint state, ground truth and emulator stats
 tracker        ``tracker-<name>``     that tracker's humans
 tracker-emu    ``tracker-emu``        every tracker's humans and the humans' ground truth

@@ -1,0 +1,279 @@
+"""One open robot's task and reference between cycles: the program as a task, the CLIK, the LPs' inputs.
+
+The gateway runs an open robot's program itself (paper 1, Sec. III): the task is the tool's pose along the program,
+x(τ) = k(q_p(τ)), x'(τ) = J_tool(q_p(τ)) q̇_p(τ); τ advances by δ each cycle; the reference q_ref integrates the
+commanded q̇. The safety rows are built at the *measured* joints (what the robot is), the task and the joint limits
+at the reference (what it is told). :func:`gateway.open_control.decide` chooses the command.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from gateway import open_control
+from gateway.kinematics import LinkKinematics
+from gateway.open_control import Limits, SafetyRows, Solution, Task
+from gateway.separation import ConstraintRows
+from hrc_contract.humans import HumanCapsules
+from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import Trajectory
+
+FloatArray = npt.NDArray[np.float64]
+
+CLIK_GAIN_PER_S = 10.0
+"""K of (9c): the reference's pose error decays with this rate [1/s] (paper 1's CLIK; 10/s corrects in ~0.3 s)."""
+CLIK_MAX_MPS = 0.25
+"""The CLIK term's linear part is clipped to this [m/s] (a robot far from its path comes back slowly, not in a jump)."""
+CLIK_MAX_RADPS = 0.5
+"""… and its angular part to this [rad/s]."""
+POSTURE_GAIN_PER_S = 2.0
+"""q̇⁰ pulls the redundant joints back to the program's posture at this rate [1/s] when nobody is near."""
+AWAY_GAIN_RADPS = 1.0
+"""q̇⁰'s push away from people at full weight: the largest joint speed of that push [rad/s]."""
+AWAY_INFLUENCE_M = 1.0
+"""People nearer than this to a link (surface distance) push it away; the weight grows linearly to 1 at contact [m]."""
+RESYNC_RAD = 0.05
+"""A reference this far from the measured joints (the robot did not follow: a protective stop, a restart) starts
+again from the measured state [rad]."""
+
+
+class OpenCommand(NamedTuple):
+    """What the gateway sends an open robot this cycle, and why.
+
+    Attributes:
+        q_rad: the reference position for the next cycle, every joint of the model [rad].
+        qd_radps: the reference velocity, every joint [rad/s].
+        solution: the LPs' answer (active joints only) and how it was reached.
+        rows: the safety rows it kept (for the status: how many bound it).
+    """
+
+    q_rad: FloatArray
+    qd_radps: FloatArray
+    solution: Solution
+    rows: int
+    rows_dropped: int
+
+
+def active_joints(robot: RobotModel, tool_frame_id: int) -> npt.NDArray[np.intp]:
+    """The joints that move the tool or a link capsule (the rest, e.g. a gripper's fingers, are held still): the
+    ancestors of the tool's frame and of every link-end frame, as velocity indices."""
+    model = robot.model
+    joints: set[int] = set()
+    for frame_id in (tool_frame_id, *robot.frame_a_ids, *robot.frame_b_ids):
+        j = int(model.frames[frame_id].parentJoint)
+        while j > 0:
+            joints.add(j)
+            j = int(model.parents[j])
+    return np.array(sorted(int(model.joints[j].idx_v) for j in joints), dtype=np.intp)
+
+
+def pose_error(target: pin.SE3, current: pin.SE3) -> FloatArray:
+    """ε of (9c) in the world-aligned frame: position difference and the rotation vector from current to target."""
+    rotation = np.asarray(target.rotation @ current.rotation.T, dtype=float)
+    return np.concatenate(
+        (np.asarray(target.translation - current.translation, dtype=float), np.asarray(pin.log3(rotation), dtype=float))
+    )
+
+
+def clipped_correction(error: FloatArray) -> FloatArray:
+    """K ε with its linear and angular parts clipped to :data:`CLIK_MAX_MPS` and :data:`CLIK_MAX_RADPS`."""
+    out = CLIK_GAIN_PER_S * error
+    for part, limit in ((slice(0, 3), CLIK_MAX_MPS), (slice(3, 6), CLIK_MAX_RADPS)):
+        norm = float(np.linalg.norm(out[part]))
+        if norm > limit:
+            out[part] *= limit / norm
+    return out
+
+
+@dataclass
+class OpenRobot:
+    """An open robot's program time, reference and the LPs' fixed inputs."""
+
+    robot: RobotModel
+    trajectory: Trajectory
+    period_s: float
+    data: pin.Data = field(init=False)
+    tool_frame_id: int = field(init=False)
+    active: npt.NDArray[np.intp] = field(init=False)
+    limits: Limits = field(init=False)
+    tau_s: float = 0.0
+    q_ref_rad: FloatArray | None = None
+    qd_prev_radps: FloatArray | None = None
+    """q̇ of the previous command, every joint [rad/s]."""
+    delta_prev: float = 0.0
+    last_mono_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        robot = self.robot
+        self.data = robot.model.createData()
+        self.tool_frame_id = robot.frame_b_ids[-1]
+        self.active = active_joints(robot, self.tool_frame_id)
+        qd_max = np.asarray(robot.velocity_limit_radps, dtype=float)[self.active]
+        t_b = np.asarray(robot.braking_time_s, dtype=float)[self.active]
+        self.limits = Limits(
+            qd_max,
+            qd_max / t_b,
+            np.asarray(robot.model.lowerPositionLimit, dtype=float)[self.active],
+            np.asarray(robot.model.upperPositionLimit, dtype=float)[self.active],
+            float(t_b.max()),
+        )
+
+    # -- kinematics ------------------------------------------------------------------------------------
+
+    def _world(self, jacobian6: FloatArray) -> FloatArray:
+        r = self.robot.R_world_base
+        out = np.empty_like(jacobian6)
+        out[:3] = r @ jacobian6[:3]
+        out[3:] = r @ jacobian6[3:]
+        return out
+
+    def _tool(self, q_rad: FloatArray) -> tuple[pin.SE3, FloatArray]:
+        """The tool's world pose and its 6 × n world-aligned Jacobian at ``q_rad``."""
+        model, data = self.robot.model, self.data
+        pin.computeJointJacobians(model, data, q_rad)
+        pin.updateFramePlacements(model, data)
+        placement = data.oMf[self.tool_frame_id]
+        base = pin.SE3(self.robot.R_world_base, self.robot.p_world_base)
+        jac = pin.getFrameJacobian(model, data, self.tool_frame_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        return base * placement, self._world(np.asarray(jac, dtype=float))
+
+    def link_jacobians(self, q_rad: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Position Jacobians of every link's ends in the world frame at ``q_rad``, shape (L, 3, n_active) each."""
+        model, data = self.robot.model, self.data
+        pin.computeJointJacobians(model, data, q_rad)
+        pin.updateFramePlacements(model, data)
+        r = self.robot.R_world_base
+        frames = {f: None for f in (*self.robot.frame_a_ids, *self.robot.frame_b_ids)}
+        jac = {
+            f: r
+            @ np.asarray(pin.getFrameJacobian(model, data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:3], dtype=float)[
+                :, self.active
+            ]
+            for f in frames
+        }
+        return (
+            np.array([jac[f] for f in self.robot.frame_a_ids]).reshape(-1, 3, self.active.size),
+            np.array([jac[f] for f in self.robot.frame_b_ids]).reshape(-1, 3, self.active.size),
+        )
+
+    def task(self, q_ref_rad: FloatArray) -> tuple[Task, FloatArray]:
+        """The task equality at τ and the reference, and the program's joints at τ (for the posture pull)."""
+        q_prog, qd_prog = self.trajectory.sample(self.tau_s)
+        target, jac_prog = self._tool(q_prog)
+        x_rate = jac_prog @ qd_prog
+        current, jac_ref = self._tool(q_ref_rad)
+        return Task(jac_ref[:, self.active], x_rate, clipped_correction(pose_error(target, current))), q_prog
+
+    # -- the cycle -------------------------------------------------------------------------------------
+
+    def start_from(self, q_meas_rad: FloatArray, qd_meas_radps: FloatArray) -> None:
+        """The reference starts at the measured state (first cycle, or after the robot did not follow)."""
+        self.q_ref_rad = np.array(q_meas_rad, dtype=float)
+        qd = np.zeros_like(self.q_ref_rad)
+        qd[self.active] = np.clip(qd_meas_radps[self.active], -self.limits.qd_max_radps, self.limits.qd_max_radps)
+        self.qd_prev_radps = np.where(np.isfinite(qd), qd, 0.0)
+
+    def command(
+        self,
+        q_meas_rad: FloatArray,
+        qd_meas_radps: FloatArray,
+        now_mono_ns: int,
+        links: LinkKinematics,
+        rows: ConstraintRows | None,
+        humans: HumanCapsules,
+        closest_point_m: FloatArray | None,
+        link_distance_m: FloatArray | None,
+        delta_cap: float,
+    ) -> OpenCommand:
+        """This cycle's command.
+
+        Args:
+            q_meas_rad, qd_meas_radps: the measured joint state (every joint).
+            now_mono_ns: the decision time [ns].
+            links: the link ends at ``q_meas_rad`` (world) [m].
+            rows: eq. (15)'s rows at ``q_meas_rad`` (distances, f, horizons with the measured delay); None when the
+                inputs were not finite (then the ramp stop).
+            humans: the capsules those rows were built against.
+            closest_point_m, link_distance_m: per link, the nearest person's point and its surface distance (None
+                with nobody near) [m].
+            delta_cap: the most the zones and faults allow (0: the ramp stop).
+        """
+        if self.q_ref_rad is None or self.qd_prev_radps is None or not np.isfinite(self.q_ref_rad).all():
+            self.start_from(q_meas_rad, qd_meas_radps)
+        assert self.q_ref_rad is not None
+        assert self.qd_prev_radps is not None
+        elapsed_s = self.period_s if self.last_mono_ns is None else max(0.0, (now_mono_ns - self.last_mono_ns) / 1e9)
+        elapsed_s = min(elapsed_s, 1.0)
+        self.last_mono_ns = now_mono_ns
+        self.tau_s += elapsed_s * self.delta_prev
+        self.q_ref_rad = self.q_ref_rad + elapsed_s * self.qd_prev_radps
+        if float(np.max(np.abs(self.q_ref_rad - q_meas_rad)[self.active], initial=0.0)) > RESYNC_RAD:
+            self.start_from(q_meas_rad, qd_meas_radps)
+        q_ref = self.q_ref_rad
+        qd_prev = self.qd_prev_radps[self.active]
+        safety = self._rows(q_meas_rad, links, rows, humans)
+        if safety is None or not math.isfinite(delta_cap):
+            solution = Solution(open_control.ramp_stop(qd_prev, self.limits, self.period_s), 0.0, "ramp_stop:inputs")
+        else:
+            task, q_prog = self.task(q_ref)
+            jac_a, jac_b = self.link_jacobians(q_meas_rad)
+            away = np.zeros(self.active.size)
+            if closest_point_m is not None and link_distance_m is not None:
+                away = open_control.away_from_people(
+                    jac_a,
+                    jac_b,
+                    links.p_a_world,
+                    links.p_b_world,
+                    link_distance_m,
+                    closest_point_m,
+                    AWAY_INFLUENCE_M,
+                    AWAY_GAIN_RADPS,
+                )
+            posture = POSTURE_GAIN_PER_S * (q_prog - q_ref)[self.active]
+            qd_self = open_control.self_motion_reference(task, max(self.delta_prev, 0.0), posture, away)
+            solution = open_control.decide(
+                safety,
+                task,
+                qd_prev,
+                q_ref[self.active],
+                self.limits,
+                self.period_s,
+                qd_self,
+                delta_cap,
+                self.robot.link_names,
+            )
+        qd = np.zeros_like(q_ref)
+        qd[self.active] = solution.qd_radps
+        self.qd_prev_radps = qd
+        self.delta_prev = solution.delta
+        q_next = q_ref + self.period_s * qd
+        n_rows = 0 if safety is None else int(safety.f_m2.size)
+        dropped = 0 if safety is None else safety.dropped
+        return OpenCommand(q_next, qd, solution, n_rows, dropped)
+
+    def _rows(
+        self, q_meas_rad: FloatArray, links: LinkKinematics, rows: ConstraintRows | None, humans: HumanCapsules
+    ) -> SafetyRows | None:
+        if rows is None:
+            return None
+        if not humans.n_capsules:
+            n = self.active.size
+            return SafetyRows(np.zeros((0, n)), np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp), 0)
+        jac_a, jac_b = self.link_jacobians(q_meas_rad)
+        return open_control.safety_rows(
+            jac_a,
+            jac_b,
+            links.p_a_world,
+            links.p_b_world,
+            humans.h_a_world,
+            humans.h_b_world,
+            rows.f_m2,
+            rows.horizon_s,
+            self.limits.qd_max_radps,
+        )

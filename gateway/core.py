@@ -22,13 +22,15 @@ from gateway.inputs import HumanFrame, InputSnapshot, JointSample, TopicFault, a
 from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
 from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
-from gateway.separation import decision_clearance_m
+from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
+from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 from hrc_contract.vocabulary import Zone
 from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
 
 Fault = TopicFault
@@ -59,7 +61,10 @@ class RobotDecision(NamedTuple):
         delta_applied: the override the controller reported applying in its newest state, None before one.
         links: the link segments' end points this decision used (world frame) [m]; None before a joint state.
         bounded_by: what bounded ``delta_bound``, for the methods that say (``lucci2020_pfl``: ``separation:<region>``,
-            ``contact:<region>``, ``clamping:<region>`` or ``none``); None for the others.
+            ``contact:<region>``, ``clamping:<region>`` or ``none``; an open robot: ``safety:<link>/<capsule>``,
+            ``limits``, ``zone`` or ``none``); None for the others.
+        open_command: an open robot's joint command of this decision (LP (9)/(13) or the ramp stop); None for a
+            closed robot, and for an open robot before its first joint state (nothing to command from).
     """
 
     robot: str
@@ -78,6 +83,7 @@ class RobotDecision(NamedTuple):
     delta_applied: float | None = None
     links: LinkEnds | None = None
     bounded_by: str | None = None
+    open_command: OpenCommand | None = None
 
 
 class TrackReset(NamedTuple):
@@ -119,6 +125,8 @@ class RobotState:
     topic: str
     watchdog_s: float
     """The controller stops on its own when it hears no override for this long (``controller.watchdog_s``) [s]."""
+    open: OpenRobot | None = None
+    """An open robot's task and reference (``controller.control = "open"``); None for a closed one."""
     zone: Zone = Zone.SAFETY_EXCEPTION
     previous_delta: float = 0.0
 
@@ -160,6 +168,14 @@ def _until_next_decision_s(gateway_period_s: float, watchdog_s: float) -> float:
     return min(gateway_period_s, watchdog_s) if math.isfinite(gateway_period_s) else gateway_period_s
 
 
+def _open_robot(config: CellConfig, name: str, robot: RobotModel) -> OpenRobot | None:
+    """The open robot's task (its program, which the gateway runs) when its controller is open, else None."""
+    robot_config = config.robots.get(name)
+    if robot_config is None or robot_config.controller.control != "open":
+        return None
+    return OpenRobot(robot, load_trajectory(robot_config.program, robot), 1.0 / config.gateway.rate_hz)
+
+
 class SafetyCore:
     """Steps all robots from an input snapshot; holds one :class:`RobotState` per robot.
 
@@ -186,6 +202,7 @@ class SafetyCore:
                 ReplanMonitor(safety.replan_delta_below, safety.replan_after_s),
                 f"robot/{name}",
                 config.robots[name].controller.watchdog_s,
+                _open_robot(config, name, robot),
             )
             for name, robot in robots.items()
         }
@@ -308,6 +325,8 @@ class SafetyCore:
         t_delay_s = delay.total_s
         t_brake_max_s = state.kernels.t_brake_max_s
         clearance = decision_clearance_m(self.config.safety, t_brake_max_s, t_delay_s)
+        if state.open is not None:
+            return self._decide_open(state, state.open, joint, joint_age, faults, delay, clearance, humans, now)
         delta_bound, min_distance, closest, speed_mps, links = 0.0, None, None, 0.0, None
         if joint is not None:
             delta_bound, min_distance, closest, speed_mps, links = self._bound(
@@ -343,6 +362,97 @@ class SafetyCore:
             joint.override if joint else None,
             links,
             self._method.bounded_by(state.name) if isinstance(self._method, ContactAware) and joint else None,
+        )
+
+    def _decide_open(
+        self,
+        state: RobotState,
+        open_robot: OpenRobot,
+        joint: JointSample | None,
+        joint_age: float | None,
+        faults: list[Fault],
+        delay: DelayBudget,
+        clearance: float,
+        humans: HumansView,
+        now: Clocks,
+    ) -> RobotDecision:
+        """An open robot's decision: LP (9), the zones on its δ*, LP (13) at the zones' δ (docs/safety-math.md §13).
+
+        The rows are eq. (15)'s at the measured joints (the same people, Δ, delay and faults as a closed robot); the
+        zones and faults cap δ exactly as for a closed robot (a fault: the ramp stop). Without a joint state there is
+        nothing to command from: no command (the controller's watchdog stops it)."""
+        t_delay_s = delay.total_s
+        t_brake_max_s = state.kernels.t_brake_max_s
+        min_distance: float | None = None
+        closest: ClosestPair | None = None
+        speed_mps, links, command = 0.0, None, None
+        chosen = [0.0]  # δ* as the cap saw it
+        rows, usable = None, False
+        if joint is not None:
+            _, qd_program = open_robot.trajectory.sample(open_robot.tau_s)
+            kernel_links, speed_mps, rows, (i, j, distance_m), finite = state.kernels.cycle(
+                joint.q_rad, np.array(qd_program, dtype=np.float64), humans.columns, t_delay_s
+            )
+            usable = finite and math.isfinite(t_delay_s + clearance)
+            if i >= 0:
+                capsules = humans.capsules
+                min_distance = distance_m
+                closest = ClosestPair(capsules.human_ids[j], capsules.capsule_names[j], state.robot.link_names[i])
+        thresholds = zone_thresholds(
+            self.config.zones,
+            clearance,
+            t_brake_max_s + t_delay_s,
+            state.speed_hold.push(now.mono_ns, speed_mps if usable else 0.0),
+            self._method.protection(t_brake_max_s, t_delay_s, clearance),
+        )
+        if joint is not None and rows is not None:
+
+            def cap(delta_star: float) -> float:
+                chosen[0] = delta_star
+                if faults:
+                    state.zone = Zone.SAFETY_EXCEPTION
+                    return 0.0
+                state.zone = next_zone(state.zone, min_distance, delta_star, thresholds, self.config.zones)
+                return commanded_override(state.zone, delta_star)
+
+            near_points, near_m = nearest_people(
+                kernel_links, humans.capsules, rows.surface_distance_m if usable else None
+            )
+            command = open_robot.command(
+                joint.q_rad,
+                joint.override * joint.qd_nominal_radps,
+                now.mono_ns,
+                kernel_links,
+                rows if usable else None,
+                humans.capsules,
+                near_points,
+                near_m,
+                cap,
+                override_from_rows(rows) if usable else 0.0,
+            )
+            links = LinkEnds(kernel_links.p_a_world, kernel_links.p_b_world)
+        else:
+            state.zone = Zone.SAFETY_EXCEPTION
+        delta = 0.0 if command is None else command.solution.delta
+        state.previous_delta = delta
+        return RobotDecision(
+            state.name,
+            state.zone,
+            delta,
+            min(max(chosen[0], 0.0), 1.0) if chosen[0] == chosen[0] else 0.0,
+            min_distance,
+            closest,
+            delay,
+            clearance,
+            thresholds,
+            tuple(faults),
+            {"joint_state": joint_age, **humans.ages_s},
+            joint.mode if joint else None,
+            state.replan.update(now.mono_ns, delta, faulted=bool(faults)),
+            joint.override if joint else None,
+            links,
+            None if command is None else (command.solution.bounded_by or command.solution.how),
+            command,
         )
 
     def _bound(

@@ -43,7 +43,7 @@ from gateway.stalls import Phase, StallMonitor
 from gateway.status import StatusJob, cycle_status, effective_config, loop_status
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
-from hrc_contract.messages import Override, to_payload
+from hrc_contract.messages import JointCommand, Override, to_payload
 from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
@@ -330,12 +330,14 @@ class OverrideSenders:
             for name, publisher in publishers.items()
         }
 
-    def offer(self, messages: Mapping[str, Override]) -> None:
+    def offer(self, messages: Mapping[str, Override | JointCommand]) -> None:
         """Hand each robot's override to its sender (never blocks; a newer one replaces one not yet put)."""
         for name, message in messages.items():
             self._threads[name].offer(to_payload(message))
 
-    def last_word(self, messages: Mapping[str, Override], timeout_s: float = LAST_WORD_TIMEOUT_S) -> list[str]:
+    def last_word(
+        self, messages: Mapping[str, Override | JointCommand], timeout_s: float = LAST_WORD_TIMEOUT_S
+    ) -> list[str]:
         """Put these last overrides (δ = 0 on exit) after any put under way, and stop the senders; waits for all
         of them together at most ``timeout_s`` [s].
 
@@ -368,11 +370,11 @@ class _Outputs:
     def __post_init__(self) -> None:
         self.senders = OverrideSenders(self.overrides, self.io_realtime_priority)
 
-    def offer_overrides(self, messages: Mapping[str, Override]) -> None:
+    def offer_overrides(self, messages: Mapping[str, Override | JointCommand]) -> None:
         """Hand the overrides to the robots' senders (never waits for a put)."""
         self.senders.offer(messages)
 
-    def last_word(self, messages: Mapping[str, Override]) -> None:
+    def last_word(self, messages: Mapping[str, Override | JointCommand]) -> None:
         """Put ``messages`` (δ = 0 on exit) to every controller, waiting a bounded time; a warning names those
         not reached."""
         late = self.senders.last_word(messages)
@@ -414,17 +416,22 @@ def _declare_overrides(session: zenoh.Session, config: CellConfig) -> dict[str, 
     never on the safety loop: the other robots' decisions stay on time."""
     return {
         name: session.declare_publisher(
-            keys.robot_override(config.cell, name),
+            keys.robot_joint_command(config.cell, name)
+            if robot.controller.control == "open"
+            else keys.robot_override(config.cell, name),
             express=True,
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
-        for name in config.robots
+        for name, robot in config.robots.items()
     }
 
 
-def _moving(overrides: Mapping[str, Override]) -> bool:
-    return any(message.delta > 0.0 for message in overrides.values())
+def _moving(overrides: Mapping[str, Override | JointCommand]) -> bool:
+    return any(
+        message.delta > 0.0 or (isinstance(message, JointCommand) and any(v != 0.0 for v in message.qd))
+        for message in overrides.values()
+    )
 
 
 def _loop(config: CellConfig, node: GatewayNode, out: _Outputs, stop: StopEvent, wake: threading.Event | None) -> int:

@@ -23,7 +23,7 @@ from gateway.tracks import TrackEvent, TrackRecord
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
-from hrc_contract.messages import MessageError, Override, parse_message
+from hrc_contract.messages import JointCommand, MessageError, Override, parse_message
 from hrc_contract.messages import TrackReset as TrackResetMessage
 from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
@@ -41,7 +41,8 @@ class GatewayCycle(NamedTuple):
     Attributes:
         seq: the seq of this cycle's overrides.
         decisions: per robot, the decision (what the status shows).
-        overrides: per robot, the message to publish on ``hrc/<cell>/robot/<robot>/override``.
+        overrides: per robot, the message to publish: an ``Override`` on ``hrc/<cell>/robot/<robot>/override``, or for
+            an open robot a ``JointCommand`` on ``…/joint_command`` (none before its first joint state).
         inputs: the snapshot the decisions were made from.
         track_events: the tracks' changes this cycle (lost, released), in order.
         tracks: every track after this cycle (seen, lost, recently released).
@@ -51,7 +52,7 @@ class GatewayCycle(NamedTuple):
 
     seq: int
     decisions: dict[str, RobotDecision]
-    overrides: dict[str, Override]
+    overrides: dict[str, Override | JointCommand]
     inputs: InputSnapshot
     track_events: tuple[TrackEvent, ...] = ()
     tracks: tuple[TrackRecord, ...] = ()
@@ -98,6 +99,7 @@ class GatewayNode:
         self.config = config
         self.robots = dict(robots)
         self.core = SafetyCore(config, self.robots)
+        self._open = frozenset(name for name, state in self.core.states.items() if state.open is not None)
         self.inputs = InputStore(config, self.robots, on_tracker_change)
         self.seq = 0
         self._resets: list[TrackReset] = []
@@ -196,10 +198,23 @@ class GatewayNode:
                 resets, self._resets = tuple(self._resets), []
             decisions = self.core.step(snapshot, now, period_s, resets)
             self.seq += 1
-            overrides = {}
+            overrides: dict[str, Override | JointCommand] = {}
             for name, decision in decisions.items():
-                overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
-                self.inputs.on_override_sent(name, self.seq, decision.delta, now)
+                command = decision.open_command
+                if command is not None:
+                    overrides[name] = JointCommand(
+                        robot=name,
+                        seq=self.seq,
+                        stamp_ns=now.wall_ns,
+                        q=command.q_rad.tolist(),
+                        qd=command.qd_radps.tolist(),
+                        delta=decision.delta,
+                    )
+                    # an open controller applies no override: it reports 1 while it follows (the stop is in q̇)
+                    self.inputs.on_override_sent(name, self.seq, 1.0, now)
+                elif name not in self._open:
+                    overrides[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=decision.delta)
+                    self.inputs.on_override_sent(name, self.seq, decision.delta, now)
             cycle = GatewayCycle(
                 self.seq,
                 decisions,
@@ -214,7 +229,18 @@ class GatewayNode:
                 self._recorder.on_cycle(now, period_s, cycle)
         return cycle
 
-    def stop_overrides(self, now: Clocks) -> dict[str, Override]:
-        """δ = 0 for every robot: the last word on shutdown (their watchdogs would stop them anyway)."""
+    def stop_overrides(self, now: Clocks) -> dict[str, Override | JointCommand]:
+        """δ = 0 for every closed robot, q̇ = 0 at the reference for every open one: the last word on shutdown (their
+        watchdogs would stop them anyway)."""
         self.seq += 1
-        return {name: Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=0.0) for name in self.robots}
+        out: dict[str, Override | JointCommand] = {}
+        for name in self.robots:
+            open_robot = self.core.states[name].open
+            if open_robot is None:
+                out[name] = Override(robot=name, seq=self.seq, stamp_ns=now.wall_ns, delta=0.0)
+            elif open_robot.q_ref_rad is not None:
+                q = open_robot.q_ref_rad.tolist()
+                out[name] = JointCommand(
+                    robot=name, seq=self.seq, stamp_ns=now.wall_ns, q=q, qd=[0.0] * len(q), delta=0.0
+                )
+        return out

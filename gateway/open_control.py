@@ -28,6 +28,7 @@ row beyond the solver's tolerance is not sent; the ramp stop is. Pure numpy and 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import daqp
@@ -252,13 +253,18 @@ def ramp_stop(qd_prev_radps: FloatArray, limits: Limits, dt_s: float) -> FloatAr
     """The stop along the current direction: the speed fraction s = max_j |q̇_j| / q̇max_j falls by Δt / t_b,max each
     cycle (so from full speed the stop lasts the longest braking time, and no joint decelerates faster than its
     q̈max = q̇max / t_b,j, since t_b,max ≥ t_b,j). Zero when the velocity is not finite (the controller's own stop)."""
+    return ramp_stop_ratio(qd_prev_radps, limits, dt_s)[0]
+
+
+def ramp_stop_ratio(qd_prev_radps: FloatArray, limits: Limits, dt_s: float) -> tuple[FloatArray, float]:
+    """:func:`ramp_stop` and the factor it scaled the velocity by (0 for a velocity that is not finite)."""
     if not np.isfinite(qd_prev_radps).all():
-        return np.zeros_like(qd_prev_radps)
+        return np.zeros_like(qd_prev_radps), 0.0
     fraction = float(np.max(np.abs(qd_prev_radps) / limits.qd_max_radps, initial=0.0))
     if fraction <= 0.0:
-        return np.zeros_like(qd_prev_radps)
-    next_fraction = max(0.0, fraction - dt_s / limits.t_brake_max_s)
-    return np.asarray(qd_prev_radps * (next_fraction / fraction), dtype=float)
+        return np.zeros_like(qd_prev_radps), 0.0
+    ratio = max(0.0, fraction - dt_s / limits.t_brake_max_s) / fraction
+    return np.asarray(qd_prev_radps * ratio, dtype=float), ratio
 
 
 def bounded_by(rows: SafetyRows, qd_radps: FloatArray, delta: float, link_names: tuple[str, ...]) -> str:
@@ -283,28 +289,53 @@ def decide(
     limits: Limits,
     dt_s: float,
     qd_self_radps: FloatArray,
-    delta_cap: float,
+    cap: Callable[[float], float],
     link_names: tuple[str, ...],
+    delta_prev: float = 0.0,
+    bound_if_infeasible: float = 0.0,
 ) -> Solution:
-    """One cycle's command: LP (9), then LP (13) at min(δ*, ``delta_cap``) (the zones' and faults' cap: 0 is the ramp
-    stop), each answer checked against the rows; the ramp stop when a solve fails or an answer breaks a row."""
-    if not (delta_cap > 0.0):  # nan too
-        return Solution(ramp_stop(qd_prev_radps, limits, dt_s), 0.0, "ramp_stop:commanded")
+    """One cycle's command: LP (9), then LP (13) at min(δ*, ``cap(δ*)``), each answer checked against the rows; the
+    ramp stop when a solve fails, an answer breaks a row, or the cap is 0 (or not a number).
+
+    Args:
+        cap: the zones and faults: the most δ they allow given the LPs' δ* (called exactly once, so it may advance a
+            state machine).
+        delta_prev: δ of the previous command: a ramp stop scales it as it scales the velocity (the task's time keeps
+            pace with the motion along the path).
+        bound_if_infeasible: what ``cap`` is told when LP (9) has no solution: eq. (15)'s bound at the program's
+            velocity (the robot must slow faster than q̈max allows: a bound below the current speed, not a stop
+            demanded by the separation; the zones judge it as the closed mode would).
+    """
     lower, upper = velocity_bounds(qd_prev_radps, q_ref_rad, limits, dt_s)
     best = solve_lp9(rows, task, lower, upper)
+
+    def stop(why: str) -> Solution:
+        qd, ratio = ramp_stop_ratio(qd_prev_radps, limits, dt_s)
+        return Solution(qd, delta_prev * ratio if math.isfinite(delta_prev) else 0.0, f"ramp_stop:{why}")
+
     if best is None:
-        return Solution(ramp_stop(qd_prev_radps, limits, dt_s), 0.0, "ramp_stop:lp9_infeasible")
+        cap(bound_if_infeasible)
+        return stop("lp9_infeasible")
     qd9, delta_star = best
     if violated_rows(rows, qd9).size:
-        return Solution(ramp_stop(qd_prev_radps, limits, dt_s), 0.0, "ramp_stop:lp9_breaks_a_row")
-    delta = min(delta_star, delta_cap)
+        cap(0.0)
+        return stop("lp9_breaks_a_row")
+    allowed = cap(delta_star)
+    if not (allowed > 0.0):  # nan too
+        return stop("commanded")
+    delta = min(delta_star, allowed)
     why = bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
     second = solve_lp13(rows, task, delta, lower, upper, qd_self_radps)
     if second is not None and not violated_rows(rows, second[0]).size:
         return Solution(second[0], delta, "lp13", why, second[1])
     if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap
-        return Solution(ramp_stop(qd_prev_radps, limits, dt_s), 0.0, "ramp_stop:capped_infeasible")
+        return stop("capped_infeasible")
     return Solution(qd9, delta, "lp9", why)
+
+
+def fixed_cap(value: float) -> Callable[[float], float]:
+    """A cap that does not depend on δ* (tests, and a decision that is already faulted)."""
+    return lambda _delta_star: value
 
 
 def self_motion_reference(

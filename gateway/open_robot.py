@@ -8,7 +8,7 @@ at the reference (what it is told). :func:`gateway.open_control.decide` chooses 
 
 from __future__ import annotations
 
-import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -36,7 +36,7 @@ POSTURE_GAIN_PER_S = 2.0
 """q̇⁰ pulls the redundant joints back to the program's posture at this rate [1/s] when nobody is near."""
 AWAY_GAIN_RADPS = 1.0
 """q̇⁰'s push away from people at full weight: the largest joint speed of that push [rad/s]."""
-AWAY_INFLUENCE_M = 1.0
+AWAY_INFLUENCE_M = 2.0
 """People nearer than this to a link (surface distance) push it away; the weight grows linearly to 1 at contact [m]."""
 RESYNC_RAD = 0.05
 """A reference this far from the measured joints (the robot did not follow: a protective stop, a restart) starts
@@ -89,6 +89,24 @@ def clipped_correction(error: FloatArray) -> FloatArray:
         if norm > limit:
             out[part] *= limit / norm
     return out
+
+
+def nearest_people(
+    links: LinkKinematics, humans: HumanCapsules, surface_distance_m: FloatArray | None
+) -> tuple[FloatArray | None, FloatArray | None]:
+    """Per link, the nearest capsule's point nearest to the link's middle and the link's surface distance to it (from
+    eq. (15)'s distances, shape (L, H)); (None, None) with nobody or without distances. For the self-motion only:
+    the safety rows never use it."""
+    if surface_distance_m is None or not humans.n_capsules or not surface_distance_m.size:
+        return None, None
+    nearest = np.argmin(np.where(np.isfinite(surface_distance_m), surface_distance_m, np.inf), axis=1)
+    distance = surface_distance_m[np.arange(len(nearest)), nearest]
+    a, b = humans.h_a_world[nearest], humans.h_b_world[nearest]
+    middle = 0.5 * (links.p_a_world + links.p_b_world)
+    axis = b - a
+    length2 = (axis * axis).sum(axis=1)
+    t = np.clip(((middle - a) * axis).sum(axis=1) / np.where(length2 > 1e-12, length2, 1.0), 0.0, 1.0)
+    return a + t[:, None] * axis, np.asarray(distance, dtype=float)
 
 
 @dataclass
@@ -168,7 +186,10 @@ class OpenRobot:
         target, jac_prog = self._tool(q_prog)
         x_rate = jac_prog @ qd_prog
         current, jac_ref = self._tool(q_ref_rad)
-        return Task(jac_ref[:, self.active], x_rate, clipped_correction(pose_error(target, current))), q_prog
+        # the CLIK term scales with δ as the path's rate does: J q̇ = δ (x' + K ε), so that q̇ = 0, δ = 0 always
+        # satisfies (9c) and LP (9) always has the stop (paper 1's remark, which with δ-free K ε needs ε = 0)
+        correction = clipped_correction(pose_error(target, current))
+        return Task(jac_ref[:, self.active], x_rate + correction, np.zeros(6)), q_prog
 
     # -- the cycle -------------------------------------------------------------------------------------
 
@@ -189,7 +210,8 @@ class OpenRobot:
         humans: HumanCapsules,
         closest_point_m: FloatArray | None,
         link_distance_m: FloatArray | None,
-        delta_cap: float,
+        cap: Callable[[float], float],
+        bound_if_infeasible: float = 0.0,
     ) -> OpenCommand:
         """This cycle's command.
 
@@ -202,7 +224,8 @@ class OpenRobot:
             humans: the capsules those rows were built against.
             closest_point_m, link_distance_m: per link, the nearest person's point and its surface distance (None
                 with nobody near) [m].
-            delta_cap: the most the zones and faults allow (0: the ramp stop).
+            cap: the zones and faults: the most δ they allow given the LPs' δ* (:func:`gateway.open_control.decide`).
+            bound_if_infeasible: eq. (15)'s bound at the program's velocity, for the zones when LP (9) has none.
         """
         if self.q_ref_rad is None or self.qd_prev_radps is None or not np.isfinite(self.q_ref_rad).all():
             self.start_from(q_meas_rad, qd_meas_radps)
@@ -218,8 +241,10 @@ class OpenRobot:
         q_ref = self.q_ref_rad
         qd_prev = self.qd_prev_radps[self.active]
         safety = self._rows(q_meas_rad, links, rows, humans)
-        if safety is None or not math.isfinite(delta_cap):
-            solution = Solution(open_control.ramp_stop(qd_prev, self.limits, self.period_s), 0.0, "ramp_stop:inputs")
+        if safety is None:
+            cap(0.0)
+            qd_stop, ratio = open_control.ramp_stop_ratio(qd_prev, self.limits, self.period_s)
+            solution = Solution(qd_stop, self.delta_prev * ratio, "ramp_stop:inputs")
         else:
             task, q_prog = self.task(q_ref)
             jac_a, jac_b = self.link_jacobians(q_meas_rad)
@@ -245,8 +270,10 @@ class OpenRobot:
                 self.limits,
                 self.period_s,
                 qd_self,
-                delta_cap,
+                cap,
                 self.robot.link_names,
+                self.delta_prev,
+                bound_if_infeasible,
             )
         qd = np.zeros_like(q_ref)
         qd[self.active] = solution.qd_radps

@@ -235,8 +235,24 @@ def robot_status(
         "replan_request": decision.replan_request,
         "links": _link_entries(decision, link_names, link_radius_m),
         "bridge": bridge,
+        "open_command": _open_command(decision),
     }
     return RobotStatus.model_validate(entry)
+
+
+def _open_command(decision: RobotDecision) -> dict[str, object] | None:
+    command = decision.open_command
+    if command is None:
+        return None
+    gap = command.solution.self_motion_gap_radps
+    return {
+        "how": command.solution.how,
+        "self_motion_gap_radps": None if gap is None or not math.isfinite(gap) else max(0.0, _rounded(gap)),
+        "rows": command.rows,
+        "rows_dropped": command.rows_dropped,
+        "q_rad": [_rounded(v) for v in command.q_rad.tolist()],
+        "qd_radps": [_rounded(v) for v in command.qd_radps.tolist()],
+    }
 
 
 def status_document(

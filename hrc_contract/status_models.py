@@ -108,6 +108,25 @@ class HumanCapsuleStatus(CapsuleStatus):
     human: str = Field(description="Human id, prefixed with the tracker name (``<tracker>/<id>``).")
 
 
+class OpenCommandStatus(_Strict):
+    """An open robot's joint command of this decision (``controller.control = "open"``; docs/safety-math.md §13)."""
+
+    how: str = Field(
+        max_length=64,
+        description="``lp13`` (LP (9) then the self-motion of LP (13)), ``lp9`` (LP (13) had no answer) or "
+        "``ramp_stop:<why>`` (``commanded``: a fault or a zone at δ = 0; ``lp9_infeasible``; ``lp9_breaks_a_row``; "
+        "``capped_infeasible``; ``inputs``: not finite): the stop along the current direction within t_b.",
+    )
+    self_motion_gap_radps: NonNegative | None = Field(
+        description="LP (13)'s objective ‖q̇ − q̇⁰‖_∞: how far the self-motion is from its reference (away from the "
+        "nearest people, back to the program's posture); null without LP (13) [rad/s]."
+    )
+    rows: Count = Field(description="Safety rows (9b) in the LP: those some velocity within the limits could break.")
+    rows_dropped: Count = Field(description="Rows left out: no velocity within the limits reaches them.")
+    q_rad: list[Finite] = Field(description="The reference position sent for the next cycle [rad].")
+    qd_radps: list[Finite] = Field(description="The reference velocity sent [rad/s].")
+
+
 class BridgeStatus(_Strict):
     """The controller bridge of a robot whose ``interface`` is ``ur_rtde`` or ``abb_rws``, from the statistics it
     puts on ``hrc/<cell>/robot/<robot>/bridge_stats`` every second. For display only: no decision uses it (the
@@ -182,6 +201,11 @@ class RobotStatus(_Strict):
         None,
         description="The controller bridge (interface ``ur_rtde`` or ``abb_rws``); null for a controller that "
         "speaks the cell's Zenoh contract itself (interface ``zenoh``).",
+    )
+    open_command: OpenCommandStatus | None = Field(
+        None,
+        description="An open robot's joint command (LP (9)/(13)); null for a closed robot (it takes ``delta`` as its "
+        "override) and before an open robot's first joint state.",
     )
 
 

@@ -6,6 +6,8 @@ mode's eq. (15), and every fallback against the rows it must keep.
 
 from __future__ import annotations
 
+from typing import Any
+
 import highspy
 import numpy as np
 import pytest
@@ -43,7 +45,7 @@ def _random_problem(seed: int, n: int = 7, m: int = 40) -> tuple[SafetyRows, Tas
 def _highs_lp9(rows: SafetyRows, task: Task, lower: np.ndarray, upper: np.ndarray) -> float | None:
     """LP (9) by HiGHS (an independent simplex): the largest δ, None when infeasible."""
     n = lower.size
-    h = highspy.Highs()
+    h = highspy.Highs()  # type: ignore[no-untyped-call]
     h.setOptionValue("output_flag", False)
     inf = highspy.kHighsInf
     for j in range(n):
@@ -113,7 +115,9 @@ def test_an_lp9_that_cannot_stop_in_time_falls_back_to_the_ramp_stop() -> None:
     task = Task(np.zeros((0, n)), np.zeros(0), np.zeros(0))
     limits = _limits(n, qd_max=2.0, t_brake_s=0.5)
     qd_prev = np.array([1.5, 0.0])
-    solution = open_control.decide(rows, task, qd_prev, np.zeros(n), limits, DT_S, np.zeros(n), 1.0, ("l0",))
+    solution = open_control.decide(
+        rows, task, qd_prev, np.zeros(n), limits, DT_S, np.zeros(n), open_control.fixed_cap(1.0), ("l0",)
+    )
     assert solution.how == "ramp_stop:lp9_infeasible"
     assert solution.delta == 0.0
     # speed fraction 0.75 falls by Δt / t_b,max = 0.008 along the same direction
@@ -135,8 +139,10 @@ def test_the_ramp_stop_ends_within_the_longest_braking_time_and_never_brakes_a_j
 
 @pytest.mark.parametrize("cap", [0.0, float("nan"), -1.0])
 def test_a_zero_or_invalid_cap_commands_the_ramp_stop(cap: float) -> None:
-    rows, task, qd_prev, q_ref = _random_problem(1)
-    solution = open_control.decide(rows, task, qd_prev, q_ref, _limits(7), DT_S, qd_prev, cap, ("l",))
+    rows, task, qd_prev, q_ref = _random_problem(2)  # LP (9) has a solution
+    solution = open_control.decide(
+        rows, task, qd_prev, q_ref, _limits(7), DT_S, qd_prev, open_control.fixed_cap(cap), ("l",)
+    )
     assert solution.how == "ramp_stop:commanded"
     assert solution.qd_radps == pytest.approx(open_control.ramp_stop(qd_prev, _limits(7), DT_S))
 
@@ -147,8 +153,10 @@ def test_a_solver_answer_that_breaks_a_row_is_never_sent(monkeypatch: pytest.Mon
     def lying_solve(*args: object, **kwargs: object) -> tuple[np.ndarray, float, int, dict[str, object]]:
         return np.full(8, 2.0), -1.0, 1, {}  # "optimal", far beyond the rows
 
-    monkeypatch.setattr(open_control.daqp, "solve", lying_solve)
-    solution = open_control.decide(rows, task, qd_prev, q_ref, _limits(7), DT_S, qd_prev, 1.0, ("l",))
+    monkeypatch.setattr("gateway.open_control.daqp.solve", lying_solve)
+    solution = open_control.decide(
+        rows, task, qd_prev, q_ref, _limits(7), DT_S, qd_prev, open_control.fixed_cap(1.0), ("l",)
+    )
     assert solution.how == "ramp_stop:lp9_breaks_a_row"
 
 
@@ -169,14 +177,16 @@ def test_rows_that_no_velocity_within_the_limits_can_reach_are_left_out_and_coun
 
 
 @pytest.fixture(scope="module")
-def ur5() -> tuple[object, object, object]:
+def ur5() -> tuple[Any, Any, Any]:
     config = load_cell_config(None)
     robot = load_robot_model("ur5", config.robots["ur5"])
     return config, robot, load_trajectory(config.robots["ur5"].program, robot)
 
 
 @pytest.mark.parametrize(("tau_s", "hand_ahead_m"), [(0.5, 1.3), (0.5, 2.0), (2.8, 1.3), (2.8, 1.6), (4.8, 1.4)])
-def test_a_ur5_in_open_mode_gets_the_delta_of_the_closed_mode(ur5: tuple, tau_s: float, hand_ahead_m: float) -> None:
+def test_a_ur5_in_open_mode_gets_the_delta_of_the_closed_mode(
+    ur5: tuple[Any, Any, Any], tau_s: float, hand_ahead_m: float
+) -> None:
     """No redundancy (6 joints, a 6-D task): LP (9) reduces to eq. (15) (paper 1, Sec. III-C) on the same inputs."""
     config, robot, trajectory = ur5
     q, qd_nominal = trajectory.sample(tau_s)
@@ -191,6 +201,8 @@ def test_a_ur5_in_open_mode_gets_the_delta_of_the_closed_mode(ur5: tuple, tau_s:
     assert active_joints(robot, open_robot.tool_frame_id).tolist() == list(range(6))
     open_robot.tau_s, open_robot.q_ref_rad, open_robot.qd_prev_radps = tau_s, q.copy(), closed * qd_nominal
     open_robot.last_mono_ns = 0  # no time passes before this decision: τ and q_ref stay where they are
-    command = open_robot.command(q, closed * qd_nominal, 0, links, rows, humans, None, None, 1.0)
+    command = open_robot.command(
+        q, closed * qd_nominal, 0, links, rows, humans, None, None, open_control.fixed_cap(1.0)
+    )
     assert command.solution.delta == pytest.approx(closed, abs=1e-7)
     assert command.solution.qd_radps == pytest.approx(closed * qd_nominal, abs=1e-6)

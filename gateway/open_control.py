@@ -179,6 +179,20 @@ def velocity_bounds(
     return lower, upper
 
 
+def rows_within(rows: SafetyRows, lower: FloatArray, upper: FloatArray) -> SafetyRows:
+    """The rows some q̇ in the box ``lower``–``upper`` (the bounds (9d)–(9f)) could break: the largest left side over the
+    box, ``a·c + |a|·h`` (c the box's centre, h its half width), above ``f``. The others hold for every q̇ the LP may
+    choose, so leaving them out changes no solution (exact); within one cycle's acceleration window that is most
+    rows. Counted in ``dropped``."""
+    centre, half = 0.5 * (lower + upper), 0.5 * np.maximum(upper - lower, 0.0)
+    keep = ~(rows.a_s @ centre + np.abs(rows.a_s) @ half <= rows.f_m2)  # nan keeps the row
+    if keep.all():
+        return rows
+    return SafetyRows(
+        rows.a_s[keep], rows.f_m2[keep], rows.link[keep], rows.capsule[keep], rows.dropped + int((~keep).sum())
+    )
+
+
 def solve_lp9(rows: SafetyRows, task: Task, lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, float] | None:
     """LP (9): the largest δ and a q̇ with it, or None when infeasible (or the solver fails)."""
     n = lower.size
@@ -307,6 +321,8 @@ def decide(
             demanded by the separation; the zones judge it as the closed mode would).
     """
     lower, upper = velocity_bounds(qd_prev_radps, q_ref_rad, limits, dt_s)
+    every_row = rows  # every answer is checked against all of them
+    rows = rows_within(rows, lower, upper)
     best = solve_lp9(rows, task, lower, upper)
 
     def stop(why: str) -> Solution:
@@ -317,7 +333,7 @@ def decide(
         cap(bound_if_infeasible)
         return stop("lp9_infeasible")
     qd9, delta_star = best
-    if violated_rows(rows, qd9).size:
+    if violated_rows(every_row, qd9).size:
         cap(0.0)
         return stop("lp9_breaks_a_row")
     allowed = cap(delta_star)
@@ -326,7 +342,7 @@ def decide(
     delta = min(delta_star, allowed)
     why = bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
     second = solve_lp13(rows, task, delta, lower, upper, qd_self_radps)
-    if second is not None and not violated_rows(rows, second[0]).size:
+    if second is not None and not violated_rows(every_row, second[0]).size:
         return Solution(second[0], delta, "lp13", why, second[1])
     if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap
         return stop("capped_infeasible")

@@ -80,7 +80,7 @@ def run(samples: int, seed: int) -> dict[str, object]:
             config.safety,
             T_DELAY_S,
         )
-        open_robot = OpenRobot(robot, trajectory, 0.004)
+        open_robot = OpenRobot(robot, trajectory, 0.004, config.robots["panda"].controller.braking_time_s)
         open_robot.tau_s, open_robot.q_ref_rad = tau, np.array(q)
         open_robot.qd_prev_radps = float(rng.uniform(0.3, 1.0)) * np.asarray(qd_nominal)
         open_robot.delta_prev, open_robot.last_mono_ns = 1.0, 0

@@ -173,7 +173,12 @@ def _open_robot(config: CellConfig, name: str, robot: RobotModel) -> OpenRobot |
     robot_config = config.robots.get(name)
     if robot_config is None or robot_config.controller.control != "open":
         return None
-    return OpenRobot(robot, load_trajectory(robot_config.program, robot), 1.0 / config.gateway.rate_hz)
+    return OpenRobot(
+        robot,
+        load_trajectory(robot_config.program, robot),
+        1.0 / config.gateway.rate_hz,
+        robot_config.controller.braking_time_s,
+    )
 
 
 class SafetyCore:

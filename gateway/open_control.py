@@ -18,8 +18,8 @@ with q̇ free instead of δ q̇_nominal: the same distances, Δ, f and horizons,
 
 LP (9) can be infeasible (a robot moving faster than q̈max Δt that must stop: (9d) forbids it in one step). Then, and
 whenever an input fails closed, the command is :func:`ramp_stop`: the current joint velocity scaled down along its
-own direction at the rate that stops the slowest-braking joint within its braking time, the stop that ``t_b`` in
-the rows models (safety-math.md §13 proves that the previous cycle's rows bound it).
+own direction, to standstill within the controller's stop time T_c ≤ every t_b,→i, the stop the rows model
+(safety-math.md §13: the previous cycle's rows bound it).
 
 Every command is checked against the rows before it leaves (:func:`violated_rows`): a solver's answer that breaks a
 row beyond the solver's tolerance is not sent; the ramp stop is. Pure numpy and DAQP; no state, no I/O.
@@ -71,10 +71,11 @@ class Limits(NamedTuple):
 
     Attributes:
         qd_max_radps: velocity limits (URDF), shape (n,).
-        qdd_max_radps2: acceleration bound q̈max, shape (n,): the controller stops each joint from its velocity limit
-            within its braking time, so q̈max = q̇max / t_b,j.
+        qdd_max_radps2: acceleration bound q̈max, shape (n,): q̇max / T_c, so that the controller can stop every joint
+            from its velocity limit together within its stop time T_c (``controller.braking_time_s``).
         q_min_rad, q_max_rad: position limits (URDF), shape (n,).
-        t_brake_max_s: the longest braking time of the joints (the ramp stop's length from full speed) [s].
+        t_brake_max_s: T_c, the ramp stop's length from full speed [s]; at most every link's t_b,→i (checked at
+            start-up as for a closed controller).
     """
 
     qd_max_radps: FloatArray
@@ -264,9 +265,9 @@ def violated_rows(rows: SafetyRows, qd_radps: FloatArray) -> IntArray:
 
 
 def ramp_stop(qd_prev_radps: FloatArray, limits: Limits, dt_s: float) -> FloatArray:
-    """The stop along the current direction: the speed fraction s = max_j |q̇_j| / q̇max_j falls by Δt / t_b,max each
-    cycle (so from full speed the stop lasts the longest braking time, and no joint decelerates faster than its
-    q̈max = q̇max / t_b,j, since t_b,max ≥ t_b,j). Zero when the velocity is not finite (the controller's own stop)."""
+    """The stop along the current direction: the speed fraction s = max_j |q̇_j| / q̇max_j falls by Δt / T_c each cycle
+    (``limits.t_brake_max_s``), so from s the stop lasts s T_c and no joint decelerates faster than q̈max = q̇max / T_c.
+    Zero when the velocity is not finite (the controller's own stop)."""
     return ramp_stop_ratio(qd_prev_radps, limits, dt_s)[0]
 
 

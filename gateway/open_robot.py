@@ -20,6 +20,7 @@ from gateway import open_control
 from gateway.kinematics import LinkKinematics
 from gateway.open_control import Limits, SafetyRows, Solution, Task
 from gateway.separation import ConstraintRows
+from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import Trajectory
@@ -116,6 +117,10 @@ class OpenRobot:
     robot: RobotModel
     trajectory: Trajectory
     period_s: float
+    stop_time_s: float
+    """The controller's stop from full speed (``controller.braking_time_s``, at most every link's t_b,→i: checked at
+    start-up as for a closed controller): each joint's acceleration bound is q̇max / this, and the ramp stop lasts at
+    most this [s]."""
     data: pin.Data = field(init=False)
     tool_frame_id: int = field(init=False)
     active: npt.NDArray[np.intp] = field(init=False)
@@ -129,17 +134,23 @@ class OpenRobot:
 
     def __post_init__(self) -> None:
         robot = self.robot
+        moving = robot.t_brake_link_s[robot.t_brake_link_s > 0.0]
+        if moving.size and not self.stop_time_s <= float(moving.min()):
+            raise ConfigError(
+                f"robot {robot.name!r}: controller.braking_time_s = {self.stop_time_s} s is longer than the shortest "
+                f"t_b,→i of its links ({float(moving.min())} s), which the rows assume; allowed: <= it (an open "
+                "controller's ramp stop must end within every link's braking time)"
+            )
         self.data = robot.model.createData()
         self.tool_frame_id = robot.frame_b_ids[-1]
         self.active = active_joints(robot, self.tool_frame_id)
         qd_max = np.asarray(robot.velocity_limit_radps, dtype=float)[self.active]
-        t_b = np.asarray(robot.braking_time_s, dtype=float)[self.active]
         self.limits = Limits(
             qd_max,
-            qd_max / t_b,
+            qd_max / self.stop_time_s,
             np.asarray(robot.model.lowerPositionLimit, dtype=float)[self.active],
             np.asarray(robot.model.upperPositionLimit, dtype=float)[self.active],
-            float(t_b.max()),
+            self.stop_time_s,
         )
 
     # -- kinematics ------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from gateway.open_robot import OpenRobot, active_joints
 from gateway.reference.kinematics import link_kinematics
 from gateway.reference.separation import build_rows
 from gateway.separation import override_from_rows
+from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 from hrc_devices.robots.model import load_robot_model
 from hrc_devices.robots.program import load_trajectory
@@ -197,7 +198,7 @@ def test_a_ur5_in_open_mode_gets_the_delta_of_the_closed_mode(
         links, robot.link_radius_m, robot.t_brake_link_s, float(robot.braking_time_s.max()), humans, config.safety, 0.1
     )
     closed = override_from_rows(rows)
-    open_robot = OpenRobot(robot, trajectory, DT_S)
+    open_robot = OpenRobot(robot, trajectory, DT_S, config.robots["ur5"].controller.braking_time_s)
     assert active_joints(robot, open_robot.tool_frame_id).tolist() == list(range(6))
     open_robot.tau_s, open_robot.q_ref_rad, open_robot.qd_prev_radps = tau_s, q.copy(), closed * qd_nominal
     open_robot.last_mono_ns = 0  # no time passes before this decision: τ and q_ref stay where they are
@@ -206,3 +207,11 @@ def test_a_ur5_in_open_mode_gets_the_delta_of_the_closed_mode(
     )
     assert command.solution.delta == pytest.approx(closed, abs=1e-7)
     assert command.solution.qd_radps == pytest.approx(closed * qd_nominal, abs=1e-6)
+
+
+def test_an_open_controller_whose_stop_outlasts_a_links_braking_time_is_refused(ur5: tuple[Any, Any, Any]) -> None:
+    _, robot, trajectory = ur5
+    shortest = float(robot.t_brake_link_s.min())
+    OpenRobot(robot, trajectory, DT_S, shortest)  # at the limit: accepted
+    with pytest.raises(ConfigError, match="braking_time_s"):
+        OpenRobot(robot, trajectory, DT_S, shortest + 0.01)

@@ -29,7 +29,8 @@ def broken_rows(cell: OpenCell, step: Step, t_delay_s: float) -> np.ndarray:
     """The rows (9b) rebuilt independently (numpy reference rows, Pinocchio Jacobians) at the measured joints, with
     the people the decision saw and ``t_delay_s``; the indices the step's command breaks."""
     robot = cell.robot
-    helper = OpenRobot(robot, cell.node.core.states[cell.name].open.trajectory, 0.004)  # type: ignore[union-attr]
+    helper = cell.node.core.states[cell.name].open
+    assert helper is not None
     links = link_kinematics(robot, robot.model.createData(), step.q_rad, np.zeros_like(step.q_rad))
     humans = step.people
     rows = build_rows(

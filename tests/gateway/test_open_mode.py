@@ -11,7 +11,6 @@ import pytest
 from support.open_cell import OpenCell, Step, standing_person
 
 from gateway import open_control
-from gateway.open_robot import OpenRobot
 from gateway.reference.kinematics import link_kinematics
 from gateway.reference.separation import build_rows
 

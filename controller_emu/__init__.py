@@ -1,10 +1,12 @@
-"""Emulator of a closed industrial controller: runs a pre-planned program and accepts only a speed override δ."""
+"""Emulator of an industrial controller: closed (runs a pre-planned program and accepts only a speed override δ) or
+open (follows the joint references the gateway streams, as ABB's EGM)."""
 
 __all__ = [
     "commissioning",
     "controller",
     "main",
     "node",
+    "open_follower",
     "rtde_face",
     "rws_face",
 ]

@@ -307,20 +307,19 @@ def step_follower(state: FollowerState, limits: FollowerLimits, dt_s: float, now
 def follower_joint_state(state: FollowerState, robot_name: str, seq: int, stamp_ns: int) -> JointState:
     """The contract's joint state message of an open controller (docs/contract.md, "Joint command").
 
-    ``qd`` is the actual velocity; ``qd_nominal`` the velocity it follows (the command's ``qd`` while running, 0 in a
-    protective stop); ``override`` 1.0 while it follows, 0.0 in a protective stop; ``override_seq`` the accepted
-    command's ``seq`` (-1 before any).
+    An open controller applies no override: it reports ``override`` 1.0 and ``qd_nominal`` = ``qd``, the velocity it
+    has (so the gateway's door holds it to the same ``qd = override · qd_nominal`` and to its q's motion, in every
+    mode: a protective stop decelerates as it reports); ``override_seq`` the accepted command's ``seq`` (-1 before
+    any); ``mode`` ``running`` while it follows, ``protective_stop`` otherwise.
     """
-    running = state.mode == "running"
-    qd_nominal = state.qd_ref_radps if running else np.zeros_like(state.q_rad)
     return JointState(
         robot=robot_name,
         seq=seq,
         stamp_ns=stamp_ns,
         q=state.q_rad.tolist(),
         qd=state.qd_radps.tolist(),
-        qd_nominal=qd_nominal.tolist(),
-        override=1.0 if running else 0.0,
+        qd_nominal=state.qd_radps.tolist(),
+        override=1.0,
         override_seq=state.command_seq,
         mode=state.mode,
     )

@@ -432,18 +432,19 @@ def test_a_zero_step_moves_nothing(limits: FollowerLimits, q0: FloatArray) -> No
 # --- the joint state --------------------------------------------------------------------------------------
 
 
-def test_the_joint_state_reports_what_it_follows(limits: FollowerLimits, q0: FloatArray) -> None:
+def test_the_joint_state_reports_the_motion_it_has(limits: FollowerLimits, q0: FloatArray) -> None:
     sim = Sim(limits, q0)
     idle = follower_joint_state(sim.state, ROBOT, 0, T0_NS)
-    assert (idle.override, idle.override_seq, idle.mode, idle.qd_nominal) == (0.0, -1, "protective_stop", [0.0] * 9)
+    assert (idle.override, idle.override_seq, idle.mode, idle.qd_nominal) == (1.0, -1, "protective_stop", [0.0] * 9)
     sim.follow(_ramp(q0, 1, 0.4, 10))
     running = follower_joint_state(sim.state, ROBOT, 7, sim.now_ns)
     assert isinstance(running, JointState)
     assert (running.override, running.override_seq, running.mode) == (1.0, sim.seq - 1, "running")
-    assert running.qd_nominal[1] == 0.4
-    assert running.qd == sim.state.qd_radps.tolist()
+    assert running.qd_nominal == running.qd == sim.state.qd_radps.tolist()  # no override: it has what it reports
+    assert 0.0 < running.qd[1] <= 0.4  # accelerating toward the ramp's 0.4 rad/s
     assert running.q == sim.state.q_rad.tolist()
     sim.silent(round(WATCHDOG_S / DT_S) + 1)
     stopping = follower_joint_state(sim.state, ROBOT, 8, sim.now_ns)
-    assert (stopping.override, stopping.mode, stopping.qd_nominal) == (0.0, "protective_stop", [0.0] * 9)
+    assert (stopping.override, stopping.mode) == (1.0, "protective_stop")
+    assert stopping.qd_nominal == stopping.qd  # decelerating, as reported
     assert stopping.override_seq == sim.seq - 1, "the last accepted seq stays"

@@ -59,12 +59,18 @@ CONTACT_METHODS = ("lucci2020_pfl",)
 contact (safety-math.md §12); their separation violations are reported beside it (they touch by design)."""
 ZERO_DELAY = "zanchettin2016_zero_delay"
 NO_HUMAN = "no_human"
+OPEN = "zanchettin2016_open"
+"""Every robot behind an open controller (``control = "open"``): LP (9)/(13) with the measured delay (safety-math.md
+§13); run on request (``--variants``), e.g. with ``--config configs/cell_open_panda.toml``. Every other variant runs
+the robots behind closed controllers. An open robot's "mean δ" is its speed fraction max_j |q̇_j| / q̇max_j."""
 VARIANTS = (*METHODS, ZERO_DELAY, NO_HUMAN)
-"""Every variant run on every case, in table order."""
+"""Every variant run on every case by default, in table order."""
+ALL_VARIANTS = (*METHODS, OPEN, ZERO_DELAY, NO_HUMAN)
+"""Every variant that can be asked for, in table order."""
 RATIO_TARGETS = (("three_zones", 1.3), ("stop_only", 2.0), (NO_HUMAN, 0.85))
 """The eq. (15) methods must complete at least this many times the cycles per hour of these variants (issues 4, 10:
 the baselines, and the robot alone)."""
-RATIO_METHODS = ("zanchettin2016", "zanchettin2016_speed_aware", "lucci2020_pfl")
+RATIO_METHODS = ("zanchettin2016", "zanchettin2016_speed_aware", "lucci2020_pfl", OPEN)
 """The methods held to :data:`RATIO_TARGETS`: eq. (15) (default) and eq. (15) with the speed-aware stop."""
 SECONDS_PER_HOUR = 3600.0
 SUITES = ("stress", "collaborative")
@@ -146,6 +152,14 @@ def with_method(config: CellConfig, method: str) -> CellConfig:
     return CellConfig.model_validate(raw)
 
 
+def with_control(config: CellConfig, control: str) -> CellConfig:
+    """``config`` with every robot's controller ``control`` (``"open"`` or ``"closed"``, validated)."""
+    raw = config.model_dump()
+    for robot in raw["robots"].values():
+        robot["controller"]["control"] = control
+    return CellConfig.model_validate(raw)
+
+
 def _zero_delay(links: LinkFaults) -> LinkFaults:
     def zero(fault: LinkFault) -> LinkFault:
         return LinkFault(delay_s=0.0, jitter_s=0.0, loss=fault.loss, duplication=fault.duplication)
@@ -186,6 +200,8 @@ def run_variant(
     cell = case.config(config)
     scenario = case.scenario
     links = case.links
+    if variant != OPEN:  # every other variant is a closed controller's (a cell with open ones is compared so)
+        cell = with_control(cell, "closed")
     if variant in METHODS:
         cell = with_method(cell, variant)
     elif variant == ZERO_DELAY:
@@ -194,11 +210,13 @@ def run_variant(
             tracker["latency_s"] = 0.0
         cell = CellConfig.model_validate(raw)
         links = _zero_delay(links)
+    elif variant == OPEN:
+        cell = with_control(with_method(cell, "zanchettin2016"), "open")
     elif variant == NO_HUMAN:
         cell = with_method(cell, "zanchettin2016")
         scenario = Scenario(description=f"{scenario.description}, nobody", duration_s=duration_s, loop=False)
     else:
-        raise ValueError(f"unknown variant {variant!r}; allowed: {', '.join(VARIANTS)}")
+        raise ValueError(f"unknown variant {variant!r}; allowed: {', '.join(ALL_VARIANTS)}")
     result = simulate(cell, robots, scenario, links, duration_s, case.seed)
     audit = result.audit
     margin = audit.smallest_margin_moving_m
@@ -412,7 +430,7 @@ def _by_variant(runs: Sequence[VariantRun], keep: set[int] | None = None) -> dic
 def _present(runs: Sequence[VariantRun]) -> list[str]:
     """The variants that ran, in table order."""
     ran = {r.variant for r in runs}
-    return [v for v in VARIANTS if v in ran]
+    return [v for v in ALL_VARIANTS if v in ran]
 
 
 def _collect(runs: Iterator[VariantRun], total: int, suite: str, quiet: bool) -> list[VariantRun]:
@@ -464,7 +482,7 @@ def run(
         quiet,
     )
     wall_s = time.perf_counter() - started_s
-    runs.sort(key=lambda r: (r.index, VARIANTS.index(r.variant)))
+    runs.sort(key=lambda r: (r.index, ALL_VARIANTS.index(r.variant)))
     within = {r.index for r in runs if r.beyond_budget is None}
     figures = _by_variant(runs)
     figures_within = _by_variant(runs, within)
@@ -558,9 +576,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--variants",
         nargs="+",
-        choices=VARIANTS,
+        choices=ALL_VARIANTS,
         default=list(VARIANTS),
-        help="run only these variants (default all), e.g. lucci2020_pfl stop_only no_human",
+        help=f"run these variants (default all but {OPEN}), e.g. lucci2020_pfl stop_only no_human",
     )
     parser.add_argument(
         "--plot", type=Path, default=None, help="the PNG plot of cycles/h (default: next to the JSON, .png)"

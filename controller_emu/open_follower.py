@@ -122,13 +122,18 @@ class FollowerLimits:
         return int(self.velocity_limit_radps.shape[0])
 
 
-def follower_limits(robot: RobotModel, watchdog_s: float, gain_per_s: float = POSITION_GAIN_PER_S) -> FollowerLimits:
-    """The limits of ``robot``'s open controller: the URDF's velocity and position limits, a_j = v_max,j / t_b,j.
+def follower_limits(
+    robot: RobotModel, watchdog_s: float, gain_per_s: float = POSITION_GAIN_PER_S, stop_time_s: float | None = None
+) -> FollowerLimits:
+    """The limits of ``robot``'s open controller: the URDF's velocity and position limits, a_j = v_max,j / t_b,j, or
+    a_j = v_max,j / ``stop_time_s`` when given (the controller's ``braking_time_s``: every joint together from its
+    velocity limit to standstill in that time, the stop the gateway's ramp plans with; docs/safety-math.md §13).
 
     Args:
         robot: the robot model (URDF limits, per-joint ``braking_time_s``).
         watchdog_s: the controller's ``watchdog_s`` [s].
         gain_per_s: K of the law [1/s].
+        stop_time_s: the controller's stop from full speed [s]; None: each joint's own braking time.
 
     Raises:
         ConfigError: a joint whose URDF velocity limit is not positive (an open controller could not move it, and
@@ -143,7 +148,8 @@ def follower_limits(robot: RobotModel, watchdog_s: float, gain_per_s: float = PO
         )
     return FollowerLimits(
         velocity_limit_radps=v_max,
-        accel_limit_radps2=v_max / np.asarray(robot.braking_time_s, dtype=float),
+        accel_limit_radps2=v_max
+        / (np.asarray(robot.braking_time_s, dtype=float) if stop_time_s is None else np.full(v_max.shape, stop_time_s)),
         q_min_rad=np.asarray(robot.model.lowerPositionLimit, dtype=float).copy(),
         q_max_rad=np.asarray(robot.model.upperPositionLimit, dtype=float).copy(),
         gain_per_s=gain_per_s,

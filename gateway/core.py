@@ -26,7 +26,7 @@ from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
 from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
-from hrc_contract.config import CellConfig
+from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, merge_humans
 from hrc_contract.vocabulary import Zone
 from hrc_devices.robots.model import RobotModel
@@ -168,11 +168,21 @@ def _until_next_decision_s(gateway_period_s: float, watchdog_s: float) -> float:
     return min(gateway_period_s, watchdog_s) if math.isfinite(gateway_period_s) else gateway_period_s
 
 
+OPEN_METHOD = "zanchettin2016"
+"""The method an open robot's LPs implement (their rows are eq. (15)'s, §4): a cell with one must select it."""
+
+
 def _open_robot(config: CellConfig, name: str, robot: RobotModel) -> OpenRobot | None:
     """The open robot's task (its program, which the gateway runs) when its controller is open, else None."""
     robot_config = config.robots.get(name)
     if robot_config is None or robot_config.controller.control != "open":
         return None
+    if config.safety.method != OPEN_METHOD:
+        raise ConfigError(
+            f"robot {name!r} has an open controller, which the gateway drives with LP (9)/(13) on eq. (15)'s rows; "
+            f"safety.method = {config.safety.method!r} is for closed controllers; allowed with an open one: "
+            f"{OPEN_METHOD!r}"
+        )
     return OpenRobot(
         robot,
         load_trajectory(robot_config.program, robot),

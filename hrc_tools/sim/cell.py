@@ -1,7 +1,8 @@
 """The whole cell on a simulated clock, in one process, with the real pure parts of each program.
 
 - controllers: :class:`controller_emu.node.ControllerNode`, the process's own step object, given each override
-  at its arrival time and cycled every ``controller.cycle_s`` (simulated time is its monotonic clock);
+  at its arrival time and cycled every ``controller.cycle_s`` (simulated time is its monotonic clock); an open
+  controller (``control = "open"``) is :class:`controller_emu.open_node.OpenControllerNode`, given each joint command;
 - trackers: :class:`tracker_emu.emulator.TrackerEmulator` playing the scenario (rate, noise, drops, latency);
 - gateway: :class:`gateway.node.GatewayNode`, the process's own step object, given every message at its arrival
   time and cycled at ``gateway.rate_hz`` (simulated time on both of its clocks);
@@ -23,18 +24,22 @@ import math
 import time
 import zlib
 from collections import Counter
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
 
 from controller_bridge.main import bridge_settings
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode
+from controller_emu.open_follower import follower_limits
+from controller_emu.open_node import OpenControllerNode
 from gateway.core import RobotDecision
 from gateway.node import GatewayNode
+from gateway.open_robot import OpenRobot
 from gateway.tracks import TrackEvent
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -58,6 +63,7 @@ EPOCH_NS = 1_790_000_000_000_000_000
 """Wall-clock stamp of simulated time 0 [ns since the Unix epoch]."""
 
 Payload = tuple[str, bytes]
+FloatArray = npt.NDArray[np.float64]
 """A message on a link: its key expression and its payload bytes."""
 
 
@@ -133,28 +139,83 @@ def _rng(seed: int, *names: str) -> np.random.Generator:
     return np.random.default_rng([seed, *(zlib.crc32(n.encode()) for n in names)])
 
 
+class TraceSample(NamedTuple):
+    """One audited controller cycle, for a run's time series (``simulate(trace=...)``).
+
+    Attributes:
+        t_s: simulated time [s].
+        robot: the robot's name.
+        q_rad: its true joint positions [rad].
+        delta: the δ the gateway last commanded (for an open robot: the δ of its LP).
+        min_distance_m: the true smallest surface distance to a person, None with nobody [m].
+        zone: the gateway's zone of the robot's last decision.
+    """
+
+    t_s: float
+    robot: str
+    q_rad: FloatArray
+    delta: float
+    min_distance_m: float | None
+    zone: str | None
+
+
 @dataclass
 class _Controller:
     name: str
     robot: RobotModel
-    node: ControllerNode
+    node: ControllerNode | OpenControllerNode
+    trajectory: Trajectory
     cycle_ns: int
     tau0_s: float
     data: Any
     state_link: SimLink[Payload]
     override_link: SimLink[Payload]
     accumulator: AuditAccumulator
+    braking_time_s: float
     next_ns: int = 0
     zone: str | None = None
+    delta_commanded: float = 0.0
     bridge: SimBridge | None = None
+    task: OpenRobot | None = None
+    """An open robot's task in the gateway (its program time τ): the program's progress."""
 
     @property
     def state(self) -> ControllerState:
+        """A closed controller's state (the program time, δ applied)."""
+        assert isinstance(self.node, ControllerNode)
         return self.node.state
 
-    @property
-    def trajectory(self) -> Trajectory:
-        return self.node.trajectory
+    def true_motion(self, moving_eps_mps: float = MOVING_EPS_MPS) -> tuple[FloatArray, FloatArray, float]:
+        """The robot's true q [rad], q̇ [rad/s] and the fraction of its stop still ahead: δ applied (closed), or the
+        speed fraction max_j |q̇_j| / q̇max_j (open: its stop from there lasts that fraction of the stop time; 0 when
+        every link end moves slower than ``moving_eps_mps``, the auditor's standing robot: a position loop holding
+        its reference creeps at far less)."""
+        if isinstance(self.node, OpenControllerNode):
+            state = self.node.state
+            fraction = float(np.max(np.abs(state.qd_radps) / self.node.limits.velocity_limit_radps, initial=0.0))
+            if fraction > 0.0:
+                ends = link_motion(self.robot, self.data, state.q_rad, state.qd_radps)
+                speed_mps = float(np.sqrt(np.maximum((ends.v_a_world**2).sum(1), (ends.v_b_world**2).sum(1)).max()))
+                if speed_mps <= moving_eps_mps:
+                    fraction = 0.0
+            return state.q_rad, state.qd_radps, min(fraction, 1.0)
+        q_rad, qd_nominal_radps = self.trajectory.sample(self.state.tau_s)
+        delta_applied = self.state.delta_applied
+        return q_rad, delta_applied * qd_nominal_radps, delta_applied
+
+    def cycles_completed(self) -> int:
+        """Times the program passed its end since the start (an open robot: by the gateway's program time)."""
+        if self.task is not None:
+            duration = self.trajectory.duration_s
+            return int(self.task.tau_s // duration) - int(self.tau0_s // duration)
+        return self.state.cycles_completed
+
+    def progress_cycles(self) -> float:
+        """Program cycles completed since the start, the unfinished one by its fraction (an open robot: the
+        gateway's program time)."""
+        if self.task is not None:
+            return (self.task.tau_s - self.tau0_s) / self.trajectory.duration_s
+        return self.state.cycles_completed + (self.state.tau_s - self.tau0_s) / self.trajectory.duration_s
 
 
 def _build_controller(
@@ -177,10 +238,23 @@ def _build_controller(
         tau0_s = program_start_s[name] % trajectory.duration_s
     else:
         tau0_s = float(_rng(seed, "program-phase", name).uniform(0.0, trajectory.duration_s))
+    controller = robot_config.controller
+    node: ControllerNode | OpenControllerNode
+    if controller.control == "open":
+        node = OpenControllerNode(
+            name,
+            follower_limits(robot, controller.watchdog_s, stop_time_s=controller.braking_time_s),
+            trajectory.sample(tau0_s)[0],
+            controller,
+        )
+    else:
+        node = ControllerNode(name, trajectory, controller, tau0_s)
     ctrl = _Controller(
         name=name,
         robot=robot,
-        node=ControllerNode(name, trajectory, robot_config.controller, tau0_s),
+        node=node,
+        trajectory=trajectory,
+        braking_time_s=controller.braking_time_s,
         cycle_ns=round(robot_config.controller.cycle_s * NS_PER_S),
         tau0_s=tau0_s,
         data=robot.model.createData(),
@@ -189,12 +263,12 @@ def _build_controller(
         accumulator=AuditAccumulator(),
     )
     interface = robot_config.interface
-    if interface.kind != "zenoh":
+    if interface.kind != "zenoh" and isinstance(node, ControllerNode):  # the bridges speak to closed controllers
         phases = _rng(seed, "bridge-phase", name).integers(0, NS_PER_S, size=2)
         ctrl.bridge = SimBridge(
             interface,
             bridge_settings(config, name, robot),
-            ctrl.node,
+            node,
             ctrl.override_link,
             ctrl.state_link,
             keys.robot_state(config.cell, name),
@@ -238,8 +312,10 @@ class _SimCell:
         seed: int,
         program_start_s: Mapping[str, float] | None,
         moving_eps_mps: float,
+        trace: Callable[[TraceSample], None] | None = None,
     ) -> None:
         self.config = config
+        self.trace = trace
         self.scenario = scenario
         self.moving_eps_mps = moving_eps_mps
         self._contact_masses: dict[str, ContactMass] = {}
@@ -249,6 +325,11 @@ class _SimCell:
         self.controllers = {
             name: _build_controller(config, name, robot, links, seed, program_start_s) for name, robot in robots.items()
         }
+        for name, ctrl in self.controllers.items():  # an open robot's program runs in the gateway, from the same phase
+            task = self.gateway.core.states[name].open
+            if task is not None:
+                task.tau_s = ctrl.tau0_s
+                ctrl.task = task
         self.tracker_links: dict[str, SimLink[Payload]] = {
             name: SimLink(links.tracker_to_gateway, _rng(seed, "link-tracker", name)) for name in config.trackers
         }
@@ -286,9 +367,7 @@ class _SimCell:
     def _tracker_frames(self, now_ns: int) -> None:
         now_s = now_ns / NS_PER_S
         robot_links = (  # the true robots, for the sensors with occlusion
-            robots_capsules(
-                RobotAt(c.robot, c.data, c.trajectory.sample(c.state.tau_s)[0]) for c in self.controllers.values()
-            )
+            robots_capsules(RobotAt(c.robot, c.data, c.true_motion()[0]) for c in self.controllers.values())
             if self.emulator.occludes and self.emulator.capture_due(now_s)
             else None
         )
@@ -304,34 +383,37 @@ class _SimCell:
         if self.truth[0] != now_ns:
             self.truth = (now_ns, true_humans(self.scenario, now_ns / NS_PER_S))
         truth = self.truth[1]
-        q_rad, qd_nominal_radps = ctrl.trajectory.sample(ctrl.state.tau_s)
-        delta_applied = ctrl.state.delta_applied
+        q_rad, qd_radps, delta_applied = ctrl.true_motion(self.moving_eps_mps)
         audit = audit_cycle(
             ctrl.robot,
             ctrl.data,
             q_rad,
-            delta_applied * qd_nominal_radps,
+            qd_radps,
             delta_applied,
-            self.config.robots[ctrl.name].controller.braking_time_s,
+            ctrl.braking_time_s,
             truth,
             self.config.safety.human_speed_mps,
             self.moving_eps_mps,
         )
         if audit.min_distance_m is not None and audit.min_distance_m <= 0.0:  # a contact: the criterion of §12
             contacts = audit_contacts(
-                link_motion(ctrl.robot, ctrl.data, q_rad, delta_applied * qd_nominal_radps),
+                link_motion(ctrl.robot, ctrl.data, q_rad, qd_radps),
                 ctrl.robot.link_radius_m,
                 ctrl.robot.link_names,
                 truth,
                 self._contact_rules(ctrl),
                 self.moving_eps_mps,
                 q_rad,
-                delta_applied * qd_nominal_radps,
+                qd_radps,
             )
             labels = [f"{truth.human_ids[c.capsule]}/{truth.capsule_names[c.capsule]}" for c in contacts]
             ctrl.accumulator.add_contacts(contacts, labels)
         else:
             ctrl.accumulator.add_contacts((), ())
+        if self.trace is not None:
+            self.trace(
+                TraceSample(now_ns / NS_PER_S, ctrl.name, q_rad, ctrl.delta_commanded, audit.min_distance_m, ctrl.zone)
+            )
         worst = audit.worst_capsule
         ctrl.accumulator.add(
             audit,
@@ -339,7 +421,7 @@ class _SimCell:
             dt_s=ctrl.cycle_ns / NS_PER_S,
             delta_applied=delta_applied,
             zone=ctrl.zone,
-            program_cycles_completed=ctrl.state.cycles_completed,
+            program_cycles_completed=ctrl.cycles_completed(),
             capsule_label=None if worst is None else f"{truth.human_ids[worst]}/{truth.capsule_names[worst]}",
         )
 
@@ -364,8 +446,15 @@ class _SimCell:
             self.tally.count(decision)
             ctrl = self.controllers[name]
             ctrl.zone = decision.zone.value
-            key = keys.robot_override(self.config.cell, name)
-            ctrl.override_link.send((key, to_payload(cycle.overrides[name])), now_ns)
+            ctrl.delta_commanded = decision.delta
+            message = cycle.overrides.get(name)
+            if message is None:  # an open robot before its first joint state: nothing to command from
+                continue
+            if ctrl.task is not None:
+                key = keys.robot_joint_command(self.config.cell, name)
+            else:
+                key = keys.robot_override(self.config.cell, name)
+            ctrl.override_link.send((key, to_payload(message)), now_ns)
 
     def result(self, end_ns: int, wall_s: float) -> RunResult:
         per_robot = {name: c.accumulator.summary() for name, c in self.controllers.items()}
@@ -379,10 +468,7 @@ class _SimCell:
             t_delay_mean_s=float(np.mean(t_delays)) if t_delays else None,
             t_delay_min_s=min(t_delays) if t_delays else None,
             t_delay_max_s=max(t_delays) if t_delays else None,
-            program_progress_cycles=sum(
-                c.state.cycles_completed + (c.state.tau_s - c.tau0_s) / c.trajectory.duration_s
-                for c in self.controllers.values()
-            ),
+            program_progress_cycles=sum(c.progress_cycles() for c in self.controllers.values()),
             decisions=self.tally.decisions,
             fault_decisions=self.tally.fault_decisions,
             faults=MappingProxyType(dict(self.tally.faults)),
@@ -406,6 +492,7 @@ def simulate(
     *,
     program_start_s: Mapping[str, float] | None = None,
     moving_eps_mps: float = MOVING_EPS_MPS,
+    trace: Callable[[TraceSample], None] | None = None,
 ) -> RunResult:
     """Run the cell for ``duration_s`` of simulated time and audit every controller cycle.
 
@@ -419,13 +506,14 @@ def simulate(
         seed: seed of everything random (sensor noise and drops, links, the gateway's phase, the program phase).
         program_start_s: program time at which each robot's program starts; default: drawn from the seed [s].
         moving_eps_mps: the auditor's ε for contact while moving [m/s].
+        trace: called with every audited controller cycle (a time series; None: nothing kept).
 
     Returns:
         The auditor's summary and the gateway's figures. The same arguments give the same result.
     """
     started_wall_s = time.perf_counter()
     end_ns = round(duration_s * NS_PER_S)
-    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps)
+    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps, trace)
     cell.run(end_ns)
     return cell.result(end_ns, time.perf_counter() - started_wall_s)
 
@@ -440,11 +528,16 @@ def _controller_cycle(ctrl: _Controller, config: CellConfig, now_ns: int) -> Non
     """One controller cycle: the overrides that arrived, each at its arrival time, then the node's cycle (through a
     bridge: the bridge took the overrides and gave the node its writes; its face keeps the cycle's state)."""
     if ctrl.bridge is not None:
+        assert isinstance(ctrl.node, ControllerNode)  # the bridges speak to closed controllers
         ctrl.bridge.on_cycle(ctrl.node.cycle(_clocks(now_ns)))
         return
+    node = ctrl.node
     for arrived_ns, (_, payload) in ctrl.override_link.deliver(now_ns):
-        ctrl.node.on_override(payload, _clocks(arrived_ns))
-    output = ctrl.node.cycle(_clocks(now_ns))
+        if isinstance(node, OpenControllerNode):
+            node.on_command(payload, _clocks(arrived_ns))
+        else:
+            node.on_override(payload, _clocks(arrived_ns))
+    output = node.cycle(_clocks(now_ns))
     ctrl.state_link.send((keys.robot_state(config.cell, ctrl.name), to_payload(output.joint_state)), now_ns)
 
 

@@ -45,7 +45,10 @@ def test_productivity_benchmark_runs(tmp_path: Path) -> None:
         assert f["simulated_s"] == 1.5
         assert f["counts"] == (f["violations"] == 0)
     assert [t["name"] for t in doc["targets"]] == [
-        f"cycles/h {m} / {b}" for m in productivity.RATIO_METHODS for b in ("three_zones", "stop_only", "no_human")
+        f"cycles/h {m} / {b}"
+        for m in productivity.RATIO_METHODS
+        if m in productivity.VARIANTS  # the open variant runs on request only
+        for b in ("three_zones", "stop_only", "no_human")
     ]
     for target in doc["targets"]:
         assert target["verdict"] in ("PASS", "MISS")
@@ -178,3 +181,19 @@ def test_case_kind_takes_the_first_kind_present() -> None:
     assert kind([{"kind": "cross"}, {"kind": "approach"}]) == "approach"
     assert kind([{"kind": "cross"}]) == "cross"
     assert kind([]) == "nobody"
+
+
+def test_the_open_variant_runs_every_robot_open_and_the_others_closed() -> None:
+    from hrc_devices.robots.model import load_robot_model
+    from hrc_runtime.config import load_cell_config
+
+    config = load_cell_config("configs/cell_open_panda.toml")
+    robots = {name: load_robot_model(name, r) for name, r in config.robots.items()}
+    runs = {
+        v: productivity.run_variant(config, robots, 0, 0, 1.5, v, "collaborative")
+        for v in (productivity.OPEN, "zanchettin2016")
+    }
+    assert {r.variant for r in runs.values()} == {productivity.OPEN, "zanchettin2016"}
+    assert productivity.with_control(config, "closed").robots["panda"].controller.control == "closed"
+    assert productivity.with_control(config, "open").robots["panda"].controller.control == "open"
+    assert all(r.violations == 0 for r in runs.values())

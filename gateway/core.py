@@ -448,7 +448,8 @@ class SafetyCore:
             links = LinkEnds(kernel_links.p_a_world, kernel_links.p_b_world)
         else:
             state.zone = Zone.SAFETY_EXCEPTION
-        delta = 0.0 if command is None else command.solution.delta
+        # a ramp stop is a commanded stop (δ = 0); its solution's δ only paces the task's time along the stop
+        delta = 0.0 if command is None or command.solution.how.startswith("ramp_stop") else command.solution.delta
         state.previous_delta = delta
         return RobotDecision(
             state.name,

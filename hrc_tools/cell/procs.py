@@ -497,7 +497,16 @@ def running_cell(
         commands[name] = ("tracker_emu", args)
     logs = {name: tmp_path / f"{name}.log" for name in commands}
     cell = Cell(
-        {}, commands, http_port, gw_ep, ctrl_ep, logs, relay_endpoint=relay_ep, bridge_endpoint=bridge_ep, envs=envs
+        {},
+        commands,
+        http_port,
+        gw_ep,
+        ctrl_ep,
+        logs,
+        name=loaded.cell,
+        relay_endpoint=relay_ep,
+        bridge_endpoint=bridge_ep,
+        envs=envs,
     )
     try:
         for name in commands:

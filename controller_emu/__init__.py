@@ -7,6 +7,7 @@ __all__ = [
     "main",
     "node",
     "open_follower",
+    "open_node",
     "rtde_face",
     "rws_face",
 ]

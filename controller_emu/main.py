@@ -9,6 +9,14 @@ only from that face (the speed slider, the speed ratio), there is no override su
 published on the cell's state key (the controller bridge publishes the joint state it reads back). Each face gets
 the latest state every cycle; the ground-truth key and the stats are published as always.
 
+A robot whose ``controller.control`` is ``"open"`` gets an open controller instead
+(:class:`controller_emu.open_node.OpenControllerNode`): it subscribes to the robot's joint commands
+(``hrc/<cell>/robot/<robot>/joint_command``, newest wins) instead of its overrides, runs no program (the gateway
+does) and starts standing at the program's first waypoint; no vendor face serves it.
+
+joint command payload → node.on_command(payload, read_clocks())   (the subscriber's thread)
+rate.sleep() → node.cycle(read_clocks()) → publish the joint state (state and ground truth) → log, stats
+
 The same joint state also goes out on the ground-truth key (``hrc/<cell>/truth/robot/<robot>/state``) for
 the auditor: the emulator knows its true state exactly, so truth and report are the same message here. A
 fault injector may delay or drop the report on its way to the gateway; the truth key is not for the gateway.
@@ -29,6 +37,8 @@ import zenoh
 
 from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
+from controller_emu.open_follower import FollowerLimits, FollowerState, follower_limits
+from controller_emu.open_node import OpenControllerNode, OpenControllerStats
 from controller_emu.rtde_face import RtdeFace
 from controller_emu.rws_face import RwsFace
 from hrc_contract import keys
@@ -324,6 +334,143 @@ def run_controller(
     return node.state
 
 
+def _open_callback(node: OpenControllerNode) -> Callable[[zenoh.Sample], None]:
+    """The joint command subscriber's callback: the payload and its arrival times to the node, nothing else."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        try:
+            reason = node.on_command(sample.payload.to_bytes(), read_clocks())
+        except Exception:  # a callback must never die: count it, the watchdog stops the robot
+            log.exception("error while handling a joint command")
+            node.count_rejected("internal_error")
+            return
+        if reason is not None:
+            log.debug("joint command rejected: %s", reason)
+
+    return on_sample
+
+
+def _log_open_mode_change(change: ModeChange, state: FollowerState, watchdog_s: float) -> None:
+    if change.after == "protective_stop":
+        if change.silent_s is None:
+            log.warning("protective stop: no valid joint command yet")
+        else:
+            log.warning(
+                "protective stop: the last valid joint command is %.2f s old (watchdog %.2f s)",
+                change.silent_s,
+                watchdog_s,
+            )
+    else:
+        log.info("running: following joint commands (seq %d)", state.command_seq)
+
+
+def _open_stats_doc(robot: str, stats: OpenControllerStats, missed_cycles: int) -> bytes:
+    """The ``emu_stats`` payload of an open controller: the closed one's fields; it runs no program (0 cycles)."""
+    doc = {
+        "robot": robot,
+        "cycles_completed": 0,
+        "mode": stats.mode,
+        "override": 1.0 if stats.mode == "running" else 0.0,
+        "rejected": dict(stats.rejected),
+        "missed_cycles": missed_cycles,
+    }
+    return json.dumps(doc).encode()
+
+
+def open_status_line(robot: str, stats: OpenControllerStats) -> str:
+    """One line for the service manager (``STATUS=``): mode, last command, rejections."""
+    rejected = sum(stats.rejected.values())
+    return f"{robot} open {stats.mode} command_seq={stats.command_seq} rejected={rejected}"
+
+
+def _run_open_loop(node: OpenControllerNode, publishers: _Publishers, stop: threading.Event) -> RateLoop:
+    """Cycle the open node at its rate until ``stop`` is set; stats every second, a progress line every 5 s."""
+    freeze_startup_heap()
+    rate = RateLoop(node.config.cycle_s)
+    next_stats_s = time.monotonic() + STATS_EVERY_S
+    next_progress_s = time.monotonic() + PROGRESS_EVERY_S
+    service = LoopNotifier.from_environment()  # READY=1 after the first joint state, WATCHDOG=1, STATUS=
+    while rate.sleep(stop):
+        now = read_clocks()
+        output = node.cycle(now)
+        payload = to_payload(output.joint_state)
+        if publishers.state is not None:
+            publishers.state.put(payload)
+        publishers.truth.put(payload)
+        if output.mode_change is not None:
+            _log_open_mode_change(output.mode_change, output.state, node.limits.watchdog_s)
+        now_s = now.mono_ns / 1e9
+        service.cycle_done(now_s, lambda: open_status_line(node.robot, node.stats()))
+        if now_s >= next_stats_s:
+            next_stats_s = now_s + STATS_EVERY_S
+            publishers.stats.put(_open_stats_doc(node.robot, node.stats(), rate.missed_cycles))
+        if now_s >= next_progress_s:
+            next_progress_s = now_s + PROGRESS_EVERY_S
+            stats = node.stats()
+            log.info(
+                "%s: open %s command_seq=%d accepted=%d rejected=%s missed_cycles=%d",
+                node.robot,
+                stats.mode,
+                stats.command_seq,
+                stats.commands_accepted,
+                dict(stats.rejected),
+                rate.missed_cycles,
+            )
+    service.stopping()
+    return rate
+
+
+def run_open_controller(
+    cell: str,
+    robot: str,
+    limits: FollowerLimits,
+    q0_rad: Sequence[float],
+    config: ControllerConfig,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    stop: threading.Event,
+    *,
+    zenoh_options: SessionOptions,
+) -> FollowerState:
+    """Run an open controller loop until ``stop`` is set. Returns the final state.
+
+    Raises:
+        ConfigError: the Zenoh session cannot be opened with these endpoints.
+    """
+    node = OpenControllerNode(robot, limits, q0_rad, config)
+    command_key = keys.robot_joint_command(cell, robot)
+    with _open_session(listen, connect, zenoh_options) as session:
+        # the newest commands only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
+        subscriber = declare_newest_wins(session, command_key, _open_callback(node), name="joint-commands")
+        publishers = _declare_publishers(session, cell, robot)
+        token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
+        log.info(
+            "open controller %s of cell %r: %.0f Hz, acceleration bound %s rad/s², watchdog %.2f s; waiting for joint "
+            "commands on %s (protective stop until the first valid one)",
+            robot,
+            cell,
+            1.0 / config.cycle_s,
+            [round(float(a), 3) for a in limits.accel_limit_radps2],
+            limits.watchdog_s,
+            command_key,
+        )
+        try:
+            rate = _run_open_loop(node, publishers, stop)
+        finally:
+            del token, subscriber  # undeclared when the session closes
+    stats = node.stats()
+    log.info(
+        "open controller %s stopped: %d joint commands accepted, %d joint states published, %d missed cycles, "
+        "rejected joint commands: %s",
+        robot,
+        stats.commands_accepted,
+        stats.joint_states,
+        rate.missed_cycles,
+        dict(stats.rejected) or "none",
+    )
+    return node.state
+
+
 def main(
     config: CellConfig,
     robot: str | None,
@@ -349,13 +496,37 @@ def main(
     Returns:
         The process exit code (0).
 
+    An open controller (``controller.control = "open"``) is run by :func:`run_open_controller`, standing at the
+    program's first waypoint; it has no vendor face.
+
     Raises:
         ConfigError: unknown robot, invalid robot model or program, unsafe braking time, unusable
-            Zenoh endpoints.
+            Zenoh endpoints, a vendor face asked of an open controller.
     """
     name = select_robot(config, robot)
     robot_config = config.robots[name]
     model = load_robot_model(name, robot_config)
+    if robot_config.controller.control == "open":
+        if rtde_host is not None or rws_address is not None:
+            raise ConfigError(
+                f'robot {name!r} has an open controller (control = "open"): it serves no RTDE or RWS face; '
+                'allowed: --rtde and --rws with control = "closed" only'
+            )
+        if not listen and not connect:
+            connect = [DEFAULT_ENDPOINT]
+        q0_rad, _ = load_trajectory(robot_config.program, model).sample(0.0)  # where the closed one starts
+        run_open_controller(
+            config.cell,
+            name,
+            follower_limits(model, robot_config.controller.watchdog_s),
+            q0_rad.tolist(),
+            robot_config.controller,
+            listen,
+            connect,
+            stop,
+            zenoh_options=zenoh_options,
+        )
+        return 0
     check_braking_time(robot_config.controller, model)
     trajectory = load_trajectory(robot_config.program, model)
     if not listen and not connect:
@@ -376,7 +547,10 @@ def main(
 
 
 def cli(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog=PROG, description="Emulated closed robot controller (speed override δ)")
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Emulated robot controller: closed (a program, speed override δ) or open (follows joint commands)",
+    )
     add_config_argument(parser)
     parser.add_argument("--robot", default=None, metavar="NAME", help="robot of the cell (default: its only robot)")
     parser.add_argument(

@@ -6,15 +6,14 @@ import json
 import signal
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 import zenoh
 from support.paths import REPO_ROOT
+from support.recorder import Recorder
 
 from hrc_contract import keys
 from hrc_contract.messages import JointState, Override, parse_message, to_payload
@@ -35,28 +34,6 @@ GARBAGE = [
     b"[1, 2, 3]",
     b"\xff\xfe",
 ]
-
-
-class Recorder:
-    """Messages received by a subscriber callback, kept under a lock."""
-
-    def __init__(self, parse: Callable[[bytes], Any]) -> None:
-        self._parse = parse
-        self._lock = threading.Lock()
-        self._items: list[Any] = []
-
-    def on_sample(self, sample: zenoh.Sample) -> None:
-        item = self._parse(sample.payload.to_bytes())
-        with self._lock:
-            self._items.append(item)
-
-    def items(self) -> list[Any]:
-        with self._lock:
-            return list(self._items)
-
-    def latest(self) -> Any:
-        with self._lock:
-            return self._items[-1] if self._items else None
 
 
 @pytest.fixture

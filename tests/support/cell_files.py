@@ -58,3 +58,19 @@ def zed_cell(tmp_path: Path, ros2_endpoint: str) -> Path:
     path = tmp_path / "cell_ros2_zed.toml"
     path.write_text(text)
     return path
+
+
+def open_panda_cell(tmp_path: Path) -> Path:
+    """configs/cell_two_arms.toml with absolute paths and the Panda's controller open (``control = "open"``)."""
+    text = (CONFIGS / "cell_two_arms.toml").read_text()
+    for old, new in (
+        ('model = "robots/', f'model = "{CONFIGS}/robots/'),
+        ('program = "programs/', f'program = "{CONFIGS}/programs/'),
+        ('scenarios_dir = "scenarios"', f'scenarios_dir = "{CONFIGS}/scenarios"'),
+        ("[robots.panda.controller]\n", '[robots.panda.controller]\ncontrol = "open"\n'),
+    ):
+        assert old in text, f"{old!r} not in cell_two_arms.toml: the test is out of date"
+        text = text.replace(old, new)
+    path = tmp_path / "cell_open_panda.toml"
+    path.write_text(text)
+    return path

@@ -6,5 +6,6 @@ __all__ = [
     "main",
     "node",
     "rtde_face",
+    "rtde_outputs",
     "rws_face",
 ]

@@ -563,14 +563,14 @@ class RtdeFace:
                 skipped += 1
                 continue
             due.append((client, packer))
+        with self._lock:  # counted before they are sent, so a client that has its package sees it counted
+            self._sent += len(due)
+            self._skipped += skipped
         if due:
             values = self._values(latest, any(packer.needs_model for _, packer in due))
             for client, packer in due:
                 self._queue(client, packer.pack(values))
                 client.last_cycle = latest
-        with self._lock:
-            self._sent += len(due)
-            self._skipped += skipped
 
     def _values(self, cycle: _Cycle, with_model: bool) -> dict[str, Flat]:
         """Every output's value in ``cycle``: computed once per cycle (with the model's if asked), then reused."""

@@ -327,7 +327,7 @@ class ArmModel:
         pose = np.concatenate((tcp_in_base.translation, pin.log3(tcp_in_base.rotation)))
         twist = pin.getFrameVelocity(model, data, self._tcp, pin.LOCAL_WORLD_ALIGNED)
         speed = np.concatenate((R_base.T @ twist.linear, R_base.T @ twist.angular))
-        # classical (not spatial) acceleration of tool0's origin, in tool0's axes, minus gravity: what a
+        # classical (not spatial) acceleration of tool0's origin, in tool0's axes, minus gravity: what an
         # accelerometer fixed there measures
         accel = pin.getFrameClassicalAcceleration(model, data, self._tcp, pin.LOCAL).linear
         specific_force = accel - tcp.rotation.T @ model.gravity.linear

@@ -9,5 +9,6 @@ __all__ = [
     "open_follower",
     "open_node",
     "rtde_face",
+    "rtde_outputs",
     "rws_face",
 ]

@@ -44,7 +44,7 @@ from controller_emu.rws_face import RwsFace
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
 from hrc_contract.messages import to_payload
-from hrc_devices.robots.model import load_robot_model
+from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
@@ -186,16 +186,18 @@ def parse_host_port(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _start_faces(node: ControllerNode, rtde_host: str | None, rws_address: tuple[str, int] | None) -> list[VendorFace]:
+def _start_faces(
+    node: ControllerNode, model: RobotModel, rtde_host: str | None, rws_address: tuple[str, int] | None
+) -> list[VendorFace]:
     """Start the vendor faces asked for.
 
     Raises:
-        ConfigError: a face cannot listen on its address.
+        ConfigError: a face cannot listen on its address (or RTDE's outputs cannot be had from the model).
     """
     faces: list[VendorFace] = []
     try:
         if rtde_host is not None:
-            faces.append(RtdeFace(node, rtde_host))
+            faces.append(RtdeFace(node, rtde_host, model=model))
             faces[-1].start()
         if rws_address is not None:
             faces.append(RwsFace(node, *rws_address))
@@ -282,12 +284,14 @@ def run_controller(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
+    model: RobotModel,
     rtde_host: str | None = None,
     rws_address: tuple[str, int] | None = None,
 ) -> ControllerState:
     """Run the controller loop until ``stop`` is set. Returns the final state.
 
-    With ``rtde_host`` or ``rws_address`` the overrides come only from those faces (see the module docstring).
+    With ``rtde_host`` or ``rws_address`` the overrides come only from those faces (see the module docstring);
+    ``model`` is the robot's (the RTDE face reports its TCP from it).
 
     Raises:
         ConfigError: the Zenoh session cannot be opened with these endpoints, or a face cannot listen.
@@ -301,7 +305,7 @@ def run_controller(
         )
         publishers = _declare_publishers(session, cell, robot, state=not vendor)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        faces = _start_faces(node, rtde_host, rws_address)
+        faces = _start_faces(node, model, rtde_host, rws_address)
         log.info(
             "controller %s of cell %r: program %.2f s per cycle, %.0f Hz; waiting for overrides on %s "
             "(protective stop until the first valid one)",
@@ -542,6 +546,7 @@ def main(
         connect,
         stop,
         zenoh_options=zenoh_options,
+        model=model,
         rtde_host=rtde_host,
         rws_address=rws_address,
     )

@@ -1,19 +1,22 @@
 """The emulated controller's Universal Robots RTDE face: the speed slider in, the robot's state out, on TCP 30004.
 
-    face = RtdeFace(node, "127.0.0.2")       # port 30004, fixed like the real controller's
+    face = RtdeFace(node, "127.0.0.2", model=robot_model)   # port 30004, fixed like the real controller's
     face.start()                             # binds; raises ConfigError naming the address
     face.on_cycle(output)                    # the emulator's loop, every cycle: stores the latest state
     face.close()
 
-What a client sees is what an e-Series controller (software 5.x) shows its RTDE clients, for the variables this
-project uses (:data:`hrc_devices.controllers.ur_rtde.codec.OUTPUT_TYPES`): protocol version 2 only; output setups at 0
-< f <= 500 Hz (a frequency outside that gets recipe id 0 and the start is refused); names the emulator does not have are
-answered ``NOT_FOUND`` in the type list, as the real controller does (ur-rtde then raises naming them); input
-recipes numbered 1, 2, 3… per connection in arrival order (ur-rtde's IO interface sets up 16 and writes the slider
-with id 4). Inputs: a writable input set up by one connection is ``IN_USE`` for every other connection until the
-first one disconnects (UR's RTDE guide: an input controlled by another client or a fieldbus is ``IN_USE``; ur-rtde
-raises on it), so a second client cannot take the slider from the bridge. Of the inputs, **only the speed slider
-has an effect**: registers are accepted and ignored (no program reads them), and a write that drives a digital or
+What a client sees is what an e-Series controller (software 5.11, :data:`CONTROLLER_VERSION`) shows its RTDE
+clients: protocol version 2 only; every output variable of UR's RTDE guide that this software has
+(:func:`hrc_devices.controllers.ur_rtde.codec.output_type`; their values: :mod:`controller_emu.rtde_outputs`, from the
+controller's cycle and the robot's model where the emulator has one, stated constants where it has none), so
+ur-rtde's receive interface works with its default recipe; output setups at 0 < f <= 500 Hz (a frequency outside that
+gets recipe id 0 and the start is refused); names the controller does not have are answered ``NOT_FOUND`` in the type
+list, as the real controller does (ur-rtde then raises naming them); input recipes numbered 1, 2, 3… per connection
+in arrival order (ur-rtde's IO interface sets up 16 and writes the slider with id 4). Inputs: a writable input set up
+by one connection is ``IN_USE`` for every other connection until the first one disconnects (UR's RTDE guide: an input
+controlled by another client or a fieldbus is ``IN_USE``; ur-rtde raises on it), so a second client cannot take the
+slider from the bridge. Of the inputs, **only the speed slider has an effect**: registers are accepted and read back
+in the outputs (``input_int_register_23`` and the like; no program reads them), and a write that drives a digital or
 analog output (a non-zero mask) is ignored and counted as ``io_ignored``: the emulator has no I/O. They are set up
 rather than answered ``IN_USE`` because ur-rtde's IO interface raises on any ``IN_USE`` and would never reach its
 slider recipe.
@@ -47,7 +50,10 @@ look as if it moved a late cycle's distance in one period: the gateway's ``q_jum
   made (its monotonic clock; cycles 4 ms apart on time, more after a late one; at 125 Hz every other cycle);
 - ``runtime_state`` 2 playing; in the watchdog's stop 3 pausing while δ still falls, then 4 paused;
   ``safety_mode`` 1 normal, 3 protective stop (the emulator's ``protective_stop``); ``robot_mode`` 7 running;
-  ``robot_status_bits`` power on (+ program running); ``safety_status_bits`` normal or protective stopped.
+  ``robot_status_bits`` power on (+ program running); ``safety_status_bits`` normal or protective stopped;
+- every other output as :data:`controller_emu.rtde_outputs.OUTPUTS` says (TCP, elbow, momentum and torques from the
+  robot's model, constants where the emulator has no model). A cycle's values are computed once, in the serving
+  thread (the model's only if a recipe asks for one), and each recipe's package is one struct pre-compiled at setup.
 
 Hostile clients get a text message (``M``, level error) naming what was wrong and are disconnected: a size field
 below 3 or above 4096 bytes, an unknown type, a payload that does not decode, a command before the protocol
@@ -76,10 +82,12 @@ from types import MappingProxyType
 from typing import NamedTuple
 
 from controller_emu.node import PENDING_KEPT, ControllerNode, ControllerOutput
+from controller_emu.rtde_outputs import ArmModel, DataPacker, Flat, is_read_back, snapshot
 from hrc_contract.config import ConfigError
 from hrc_contract.messages import Override, to_payload
 from hrc_devices.controllers.ur_rtde import codec as rtde
 from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe, RtdeError
+from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks, read_clocks
 
 log = logging.getLogger("hrc-controller-emu.rtde")
@@ -88,81 +96,14 @@ DEFAULT_PORT = 30004
 CONTROL_PERIOD_S = 0.002
 """The real-time control period of an e-Series controller [s]: outputs are sent on its ticks."""
 MAX_FREQUENCY_HZ = 500.0
-CONTROLLER_VERSION = (5, 11, 0, 0)
-"""What ``v`` answers: an e-Series controller, so ur-rtde's receive interface defaults to 500 Hz."""
+CONTROLLER_VERSION = rtde.OUTPUT_TYPES_VERSION
+"""What ``v`` answers: an e-Series controller (5.11), so ur-rtde's receive interface defaults to 500 Hz and asks
+for the outputs that software has (ur-rtde picks its default recipe by version)."""
 MAX_CLIENTS = 8
 MAX_QUEUED_BYTES = 65536
 """A client whose unsent bytes exceed this is too slow to serve and is disconnected [bytes]."""
 TEXT_SOURCE = "hrc-controller-emu"
 N_JOINTS = 6
-
-
-@dataclass(frozen=True)
-class StateWords:
-    """The controller's state as RTDE reports it (see the module docstring for the choices)."""
-
-    runtime_state: int
-    safety_mode: int
-    speed_scaling: float
-    robot_status_bits: int
-    safety_status_bits: int
-
-
-def state_words(output: ControllerOutput, slider_fraction: float) -> StateWords:
-    """The RTDE state words for the emulator's mode and applied override (``slider_fraction``: the slider value
-    last accepted, in [0, 1])."""
-    held = output.state.mode == "protective_stop"
-    if held:
-        runtime = rtde.RUNTIME_PAUSING if output.state.delta_applied > 0.0 else rtde.RUNTIME_PAUSED
-        return StateWords(
-            runtime_state=runtime,
-            safety_mode=rtde.SAFETY_PROTECTIVE_STOP,
-            speed_scaling=0.0,
-            robot_status_bits=rtde.ROBOT_STATUS_POWER_ON,
-            safety_status_bits=rtde.SAFETY_STATUS_PROTECTIVE_STOPPED,
-        )
-    return StateWords(
-        runtime_state=rtde.RUNTIME_PLAYING,
-        safety_mode=rtde.SAFETY_NORMAL,
-        speed_scaling=_ramp_scaling(output.state.delta_applied, slider_fraction),
-        robot_status_bits=rtde.ROBOT_STATUS_POWER_ON | rtde.ROBOT_STATUS_PROGRAM_RUNNING,
-        safety_status_bits=rtde.SAFETY_STATUS_NORMAL,
-    )
-
-
-def _ramp_scaling(delta_applied: float, slider_fraction: float) -> float:
-    """``applied / slider`` while the applied override is still below the slider, else 1 (a scaling is at most 1)."""
-    if slider_fraction <= 0.0 or delta_applied >= slider_fraction:
-        return 1.0
-    return max(0.0, delta_applied / slider_fraction)
-
-
-def output_values(output: ControllerOutput, slider_fraction: float, timestamp_s: float) -> Mapping[str, object]:
-    """Every output variable this face serves, by name, for one package.
-
-    Args:
-        output: the latest controller cycle.
-        slider_fraction: the slider value last accepted, in [0, 1].
-        timestamp_s: controller time [s].
-    """
-    joint = output.joint_state
-    words = state_words(output, slider_fraction)
-    q = tuple(joint.q)
-    qd = tuple(joint.qd)
-    return {
-        "timestamp": timestamp_s,
-        "actual_q": q,
-        "actual_qd": qd,
-        "target_q": q,
-        "target_qd": qd,
-        "speed_scaling": words.speed_scaling,
-        "target_speed_fraction": slider_fraction,
-        "runtime_state": words.runtime_state,
-        "robot_mode": rtde.ROBOT_MODE_RUNNING,
-        "safety_mode": words.safety_mode,
-        "robot_status_bits": words.robot_status_bits,
-        "safety_status_bits": words.safety_status_bits,
-    }
 
 
 @dataclass(frozen=True)
@@ -199,6 +140,7 @@ class _Cycle(NamedTuple):
     """One controller cycle as the outputs show it."""
 
     output: ControllerOutput
+    previous: ControllerOutput | None  # the cycle before (target_qdd)
     slider_fraction: float  # in force at the cycle
     controller_time_s: float  # the cycle's time since the face was made
 
@@ -210,7 +152,7 @@ class _Client:
     inbuf: bytearray = field(default_factory=bytearray)
     outbuf: bytearray = field(default_factory=bytearray)
     negotiated: bool = False
-    output: Recipe | None = None
+    output: DataPacker | None = None
     output_ok: bool = False
     divisor: int = 1
     started: bool = False
@@ -230,12 +172,13 @@ class RtdeFace:
         node: the controller; slider writes go to its ``on_override``.
         host: the address to listen on (each emulated robot its own: 127.0.0.2, …).
         port: 30004 on a real controller.
+        model: the robot's model (the TCP, elbow, momentum and torque outputs: :class:`ArmModel`).
         paced: send outputs on the 2 ms control ticks of the monotonic clock; False sends them only on
             :meth:`tick` (for tests that count packages without reading a clock).
         clock: the clocks a slider write is stamped and timed with.
 
     Raises:
-        ConfigError: the robot has not 6 joints (RTDE's joint vectors are VECTOR6D).
+        ConfigError: the robot has not 6 joints (RTDE's joint vectors are VECTOR6D), or its URDF lacks UR's frames.
     """
 
     def __init__(
@@ -244,13 +187,15 @@ class RtdeFace:
         host: str,
         port: int = DEFAULT_PORT,
         *,
+        model: RobotModel,
         paced: bool = True,
         clock: Callable[[], Clocks] = read_clocks,
     ) -> None:
-        if node.trajectory.n_joints != N_JOINTS:
+        if node.trajectory.n_joints != N_JOINTS or model.n_joints != N_JOINTS:
             raise ConfigError(
                 f"robot {node.robot!r} has {node.trajectory.n_joints} joints; the RTDE face serves {N_JOINTS}"
             )
+        self._arm = ArmModel(model)
         self.node = node
         self.host = host
         self.port = port
@@ -263,6 +208,8 @@ class RtdeFace:
         self._slider_fraction = 0.0  # in force at the latest cycle
         self._override_seq = 0
         self._last_stamp_ns = -1
+        self._inputs: dict[str, Flat] = {}  # registers written, read back in the outputs (the serving thread's)
+        self._snapshot: tuple[_Cycle, bool, dict[str, Flat]] | None = None  # cycle, with the model's values, values
         self._owners: dict[str, _Client] = {}
         self._clients: dict[socket.socket, _Client] = {}
         self._errors: Counter[str] = Counter()
@@ -310,7 +257,9 @@ class RtdeFace:
         with self._lock:
             while self._writes and self._writes[0][0] <= output.cycle_mono_ns:
                 self._slider_fraction = self._writes.popleft()[1]
-            self._latest = _Cycle(output, self._slider_fraction, (output.cycle_mono_ns - self._t0_mono_ns) / 1e9)
+            previous = None if self._latest is None else self._latest.output
+            controller_time_s = (output.cycle_mono_ns - self._t0_mono_ns) / 1e9
+            self._latest = _Cycle(output, previous, self._slider_fraction, controller_time_s)
 
     def tick(self, count: int = 1) -> None:
         """Send ``count`` control ticks of outputs now (only for ``paced=False``)."""
@@ -511,7 +460,7 @@ class RtdeFace:
 
     def _setup_outputs(self, client: _Client, payload: bytes) -> None:
         frequency_hz, names = rtde.decode_output_setup(payload)
-        types = tuple(rtde.OUTPUT_TYPES.get(name, rtde.NOT_FOUND) for name in names)
+        types = tuple(rtde.output_type(name) or rtde.NOT_FOUND for name in names)
         valid = 0.0 < frequency_hz <= MAX_FREQUENCY_HZ and rtde.NOT_FOUND not in types and not client.started
         if not valid:
             self._count("output_setup_refused")
@@ -525,7 +474,7 @@ class RtdeFace:
             client.output, client.output_ok = None, False
             self._reply(client, MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_setup_reply(0, types))
             return
-        client.output = Recipe(1, names, types)
+        client.output = DataPacker(Recipe(1, names, types))
         client.output_ok = True
         client.divisor = max(1, round(1.0 / (frequency_hz * CONTROL_PERIOD_S)))
         self._reply(client, MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_setup_reply(1, types))
@@ -562,6 +511,9 @@ class RtdeFace:
                 "unknown_recipe", f"data package for input recipe {recipe_id}; set up: {sorted(client.inputs)}"
             )
         values = dict(zip(recipe.names, rtde.decode_data(recipe, payload), strict=True))
+        for name, value in values.items():
+            if is_read_back(name):  # a register: the outputs show its last value, as the controller's do
+                self._inputs[name] = (value,)  # type: ignore[assignment]
         if any(name.endswith("_mask") and name != "speed_slider_mask" and values[name] for name in values):
             self._count("io_ignored")
         mask = values.get("speed_slider_mask")
@@ -597,11 +549,11 @@ class RtdeFace:
             latest = self._latest
         if latest is None:
             return
-        values: Mapping[str, object] | None = None
-        sent = skipped = 0
+        due: list[tuple[_Client, DataPacker]] = []
+        skipped = 0
         for client in list(self._clients.values()):
-            recipe = client.output
-            if not client.started or recipe is None or tick < client.next_tick:
+            packer = client.output
+            if not client.started or packer is None or tick < client.next_tick:
                 continue
             if client.last_cycle is latest:
                 continue  # no new cycle since its last package: the next tick sends it
@@ -610,15 +562,27 @@ class RtdeFace:
             if client.outbuf:  # the last package is still queued: skip, as the real controller does
                 skipped += 1
                 continue
-            if values is None:
-                values = output_values(latest.output, latest.slider_fraction, latest.controller_time_s)
-            payload = rtde.encode_data(recipe, tuple(values[name] for name in recipe.names))
-            self._queue(client, rtde.pack_message(MessageType.DATA_PACKAGE, payload))
-            client.last_cycle = latest
-            sent += 1
-        with self._lock:
-            self._sent += sent
+            due.append((client, packer))
+        with self._lock:  # counted before they are sent, so a client that has its package sees it counted
+            self._sent += len(due)
             self._skipped += skipped
+        if due:
+            values = self._values(latest, any(packer.needs_model for _, packer in due))
+            for client, packer in due:
+                self._queue(client, packer.pack(values))
+                client.last_cycle = latest
+
+    def _values(self, cycle: _Cycle, with_model: bool) -> dict[str, Flat]:
+        """Every output's value in ``cycle``: computed once per cycle (with the model's if asked), then reused."""
+        cached = self._snapshot
+        if cached is not None and cached[0] is cycle and (cached[1] or not with_model):
+            return cached[2]
+        arm = self._arm if with_model else None
+        values = snapshot(
+            cycle.output, cycle.previous, cycle.slider_fraction, cycle.controller_time_s, self._inputs, arm
+        )
+        self._snapshot = (cycle, with_model, values)
+        return values
 
     def _queue(self, client: _Client, data: bytes) -> None:
         if client.closing:

@@ -11,7 +11,7 @@ What is real code and what is modelled:
   cell (:func:`controller_bridge.main.bridge_settings`), driven as its shell drives it (a writer at the heartbeat
   rate, woken at once by every override; a reader per output package or per poll);
 - the readings: built from the emulated controller's state by the faces' own functions and checked by the bridge's
-  own parsers. UR (:func:`controller_emu.rtde_face.output_values`, then
+  own parsers. UR (:func:`controller_emu.rtde_outputs.output_values`, then
   :func:`hrc_devices.controllers.ur_rtde.client.reading_from_values`): on the face's 2 ms control ticks, every output
   period (2 ms at 500 Hz, 8 ms at 125 Hz), a package of the controller's latest cycle if it is new (one per cycle),
   stamped with the cycle's time, so ``target_speed_fraction`` shows a slider write in the first package of the first
@@ -48,7 +48,8 @@ import numpy.typing as npt
 
 from controller_bridge.bridge import Bridge, BridgeSettings
 from controller_emu.node import ControllerNode, ControllerOutput
-from controller_emu.rtde_face import CONTROL_PERIOD_S, output_values
+from controller_emu.rtde_face import CONTROL_PERIOD_S
+from controller_emu.rtde_outputs import output_values
 from controller_emu.rws_face import execution_document, jointtarget_document, speedratio_document
 from hrc_contract.config import AbbRwsInterfaceConfig, UrRtdeInterfaceConfig
 from hrc_contract.messages import JointState, Override, to_payload

@@ -8,6 +8,7 @@ each output tick themselves, so they count packages without reading a clock.
 from __future__ import annotations
 
 import json
+import math
 import select
 import socket
 import statistics
@@ -18,10 +19,13 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
+from support.ur_rtde_cases import UR_RTDE_DEFAULT_OUTPUTS, rotation_of, ur5_flange_in_base
 
 from controller_emu.node import ControllerNode
-from controller_emu.rtde_face import RtdeFace, output_values
+from controller_emu.rtde_face import RtdeFace
+from controller_emu.rtde_outputs import output_values
 from hrc_contract.config import CellConfig, ControllerConfig
 from hrc_devices.controllers.ur_rtde import codec as rtde
 from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe
@@ -56,9 +60,10 @@ from hrc_runtime.config import load_cell_config
 from hrc_devices.robots.model import load_robot_model
 
 robot = load_cell_config(None).robots["ur5"]
-trajectory = load_trajectory(robot.program, load_robot_model("ur5", robot))
+model = load_robot_model("ur5", robot)
+trajectory = load_trajectory(robot.program, model)
 node = ControllerNode("ur5", trajectory, ControllerConfig(watchdog_s=1.0))
-face = RtdeFace(node, sys.argv[1])
+face = RtdeFace(node, sys.argv[1], model=model)
 stop = threading.Event()
 
 def loop():
@@ -94,9 +99,9 @@ def face_process(request: pytest.FixtureRequest) -> Iterator[tuple[str, subproce
         process.wait()
 
 
-def _wait_for(predicate: object, what: str) -> None:
-    """Poll ``predicate`` until true; the deadline only stops a broken test, it asserts nothing about speed."""
-    deadline = time.monotonic() + 10.0
+def _wait_for(predicate: object, what: str, timeout_s: float = 10.0) -> None:
+    """Poll ``predicate`` until true; the default deadline only stops a broken test, it asserts nothing about speed."""
+    deadline = time.monotonic() + timeout_s
     while not predicate():  # type: ignore[operator]
         if time.monotonic() > deadline:
             raise AssertionError(f"gave up waiting for {what}")
@@ -148,6 +153,70 @@ def test_ur_rtde_reads_back_the_slider_within_two_output_periods(
     stats = json.loads(process.stdout.readline())
     assert stats["slider_writes"] == 41
     assert stats["errors"] == {}
+
+
+def _pose_consistent(receive: object) -> tuple[list[float], list[float]]:
+    """``getActualQ()`` and ``getActualTCPPose()`` of one package: the pose read between two equal joint reads (the
+    getters read the client's latest package one at a time; a moving robot changes q with every package)."""
+    for _ in range(1000):
+        q_before = receive.getActualQ()  # type: ignore[attr-defined]
+        pose = receive.getActualTCPPose()  # type: ignore[attr-defined]
+        if receive.getActualQ() == q_before:  # type: ignore[attr-defined]
+            return q_before, pose
+    raise AssertionError("never read q and the pose of one package")
+
+
+def _assert_pose_is_the_dh_flange(q: list[float], pose: list[float]) -> None:
+    flange = ur5_flange_in_base(q)
+    assert pose[:3] == pytest.approx(flange[:3, 3], abs=1e-9)
+    assert rotation_of(pose[3:]) == pytest.approx(flange[:3, :3], abs=1e-9)
+
+
+@pytest.mark.parametrize("face_process", ["127.0.41.13"], indirect=True)
+def test_ur_rtde_default_recipe_reads_the_emulator_and_the_slider_is_read_back(
+    face_process: tuple[str, subprocess.Popen[str]], cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    """``RTDEReceiveInterface(host, 500.0)`` without a variable list (ur-rtde's default recipe: every output a 5.11
+    controller has, 58 with registers) connects; the joints are the program's, the TCP pose the flange of UR's DH
+    parameters at those joints; ``setSpeedSlider(0.5)`` is read back and the robot runs."""
+    import rtde_io
+    import rtde_receive
+
+    host, process = face_process
+    receive = rtde_receive.RTDEReceiveInterface(host, 500.0)
+    assert receive.isConnected()
+    # no slider write yet: held at the program's start by the watchdog (a protective stop), the slider at 0
+    start_q = load_trajectory(cell_config.robots["ur5"].program, ur5).sample(0.0)[0]
+    assert receive.getActualQ() == pytest.approx(start_q, abs=1e-12)
+    assert receive.getTargetQ() == receive.getActualQ()
+    assert (receive.getTargetSpeedFraction(), receive.getSpeedScaling()) == (0.0, 0.0)
+    assert receive.getSafetyMode() == rtde.SAFETY_PROTECTIVE_STOP
+    assert receive.getRuntimeState() == rtde.RUNTIME_PAUSED
+    assert receive.getRobotMode() == rtde.ROBOT_MODE_RUNNING
+    _assert_pose_is_the_dh_flange(*_pose_consistent(receive))
+    assert receive.getActualTCPSpeed() == [0.0] * 6
+    assert math.dist(receive.getActualToolAccelerometer(), (0.0, 0.0, 0.0)) == pytest.approx(9.81)
+    assert receive.getJointTemperatures() == [25.0] * 6  # a stated constant (rtde_outputs.OUTPUTS)
+    assert receive.getPayload() == 0.0
+    assert receive.getOutputIntRegister(12) == 0
+
+    io = rtde_io.RTDEIOInterface(host)
+    assert io.setSpeedSlider(0.5)
+    _wait_for(lambda: receive.getTargetSpeedFraction() == 0.5, "the slider's read-back", timeout_s=1.0)
+    _wait_for(lambda: receive.getSpeedScaling() == 1.0, "the ramp reaching the slider")  # 0.5 / accel_time 0.5 s
+    assert receive.getSpeedScalingCombined() == 0.5
+    assert (receive.getSafetyMode(), receive.getRuntimeState()) == (rtde.SAFETY_NORMAL, rtde.RUNTIME_PLAYING)
+    _wait_for(lambda: receive.getActualQ() != pytest.approx(start_q, abs=1e-6), "the robot moving")
+    for _ in range(20):  # moving: every package's pose is the flange at its joints
+        _assert_pose_is_the_dh_flange(*_pose_consistent(receive))
+        time.sleep(0.003)
+    io.disconnect()
+    receive.disconnect()
+    assert process.stdin is not None
+    assert process.stdout is not None
+    process.stdin.write("stats\n")
+    process.stdin.flush()
+    assert json.loads(process.stdout.readline())["errors"] == {}
 
 
 # -- raw clients against the face in this process --------------------------------------------------------------------
@@ -225,9 +294,9 @@ def node(cell_config: CellConfig, ur5: RobotModel) -> ControllerNode:
     return ControllerNode("ur5", trajectory, ControllerConfig(watchdog_s=0.1))
 
 
-def _face(node: ControllerNode, host: str, clock: FakeClock) -> RtdeFace:
+def _face(node: ControllerNode, model: RobotModel, host: str, clock: FakeClock) -> RtdeFace:
     """A face sending outputs only on ``tick`` (started by ``with``)."""
-    face = RtdeFace(node, host, paced=False, clock=clock)
+    face = RtdeFace(node, host, model=model, paced=False, clock=clock)
     face.on_cycle(node.cycle(clock()))
     return face
 
@@ -242,12 +311,12 @@ def _slider_recipe(client: RawClient) -> Recipe:
 
 @pytest.mark.parametrize(("frequency_hz", "ticks_per_package"), [(500.0, 2), (125.0, 4)])
 def test_a_slider_write_is_in_the_first_package_of_the_next_cycle_at_every_frequency(
-    node: ControllerNode, frequency_hz: float, ticks_per_package: int
+    node: ControllerNode, ur5: RobotModel, frequency_hz: float, ticks_per_package: int
 ) -> None:
     """Write (the face has it), then one controller cycle and one package's ticks: that package shows it."""
     clock = FakeClock()
     host = "127.0.41.21" if frequency_hz == 500.0 else "127.0.41.22"
-    with _face(node, host, clock) as face:
+    with _face(node, ur5, host, clock) as face:
         reader, writer = RawClient(host), RawClient(host)
         outputs = reader.handshake(frequency_hz)
         assert rtde.decode_accepted(reader.request(MessageType.CONTROL_PACKAGE_START))
@@ -266,10 +335,10 @@ def test_a_slider_write_is_in_the_first_package_of_the_next_cycle_at_every_frequ
         writer.close()
 
 
-def test_a_write_is_never_in_the_data_of_a_cycle_before_it(node: ControllerNode) -> None:
+def test_a_write_is_never_in_the_data_of_a_cycle_before_it(node: ControllerNode, ur5: RobotModel) -> None:
     """The cycle before the write is sent after it: it shows the old slider; the next cycle the new one."""
     clock = FakeClock()
-    with _face(node, "127.0.41.31", clock) as face:
+    with _face(node, ur5, "127.0.41.31", clock) as face:
         reader, writer = RawClient("127.0.41.31"), RawClient("127.0.41.31")
         outputs = reader.handshake(500.0)
         assert rtde.decode_accepted(reader.request(MessageType.CONTROL_PACKAGE_START))
@@ -291,11 +360,11 @@ def test_a_write_is_never_in_the_data_of_a_cycle_before_it(node: ControllerNode)
         writer.close()
 
 
-def test_output_timestamps_are_the_times_of_the_cycles_they_carry(node: ControllerNode) -> None:
+def test_output_timestamps_are_the_times_of_the_cycles_they_carry(node: ControllerNode, ur5: RobotModel) -> None:
     """One package per new cycle, stamped with the cycle's time (a late cycle late); a tick without a new cycle
     sends nothing."""
     clock = FakeClock()
-    with _face(node, "127.0.41.23", clock) as face:
+    with _face(node, ur5, "127.0.41.23", clock) as face:
         client = RawClient("127.0.41.23")
         outputs = client.handshake(500.0)
         assert rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
@@ -313,10 +382,10 @@ def test_output_timestamps_are_the_times_of_the_cycles_they_carry(node: Controll
         client.close()
 
 
-def test_watchdog_stop_shows_as_protective_stop_and_zero_scaling(node: ControllerNode) -> None:
+def test_watchdog_stop_shows_as_protective_stop_and_zero_scaling(node: ControllerNode, ur5: RobotModel) -> None:
     """Slider writes stop: after watchdog_s the node stops the robot; RTDE shows it (rtde_set_watchdog "pause")."""
     clock = FakeClock()
-    with _face(node, "127.0.41.24", clock) as face:
+    with _face(node, ur5, "127.0.41.24", clock) as face:
         client = RawClient("127.0.41.24")
         outputs = client.handshake()
         slider = _slider_recipe(client)
@@ -353,9 +422,66 @@ def test_output_values_carry_the_applied_override_in_target_qd(node: ControllerN
     assert values["timestamp"] == 1.5
 
 
-def test_second_client_gets_in_use_for_the_slider(node: ControllerNode) -> None:
+def test_the_default_recipe_carries_one_cycle_consistent_with_itself(node: ControllerNode, ur5: RobotModel) -> None:
+    """ur-rtde's default recipe, decoded from the bytes: every package one cycle, its pose the DH flange at its
+    joints, its qdd the change of qd between packages, the registers a client wrote read back."""
     clock = FakeClock()
-    with _face(node, "127.0.41.25", clock) as face:
+    with _face(node, ur5, "127.0.41.32", clock) as face:
+        client = RawClient("127.0.41.32")
+        outputs = client.handshake(500.0, list(UR_RTDE_DEFAULT_OUTPUTS))
+        assert outputs.recipe_id == 1
+        assert outputs.types == tuple(rtde.output_type(n) for n in UR_RTDE_DEFAULT_OUTPUTS)
+        slider = _slider_recipe(client)  # input_int_register_23, speed_slider_mask, speed_slider_fraction
+        recipe_id, _ = rtde.decode_setup_reply(
+            client.request(
+                MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS,
+                rtde.encode_output_setup(500.0, [*UR_RTDE_DEFAULT_OUTPUTS, "input_int_register_23"]),
+            )
+        )
+        assert recipe_id == 1  # set up again (before the start), now with the register read back
+        outputs = Recipe(1, (*UR_RTDE_DEFAULT_OUTPUTS, "input_int_register_23"), (*outputs.types, "INT32"))
+        assert rtde.decode_accepted(client.request(MessageType.CONTROL_PACKAGE_START))
+        packages = []
+        for i in range(60):
+            client.send(MessageType.DATA_PACKAGE, rtde.encode_data(slider, (22, 1, 0.8)))
+            _wait_for(lambda n=i + 1: face.stats().slider_writes == n, "the slider write")
+            face.on_cycle(node.cycle(clock.advance(0.004)))
+            face.tick(2)
+            packages.append(dict(zip(outputs.names, rtde.decode_data(outputs, client.receive().payload), strict=True)))
+        before, last = packages[-2], packages[-1]
+        assert last["input_int_register_23"] == 22
+        assert last["timestamp"] - before["timestamp"] == pytest.approx(0.004)
+        qdd = (np.asarray(last["target_qd"]) - np.asarray(before["target_qd"])) / 0.004
+        assert last["target_qdd"] == pytest.approx(qdd, abs=1e-9)
+        assert any(abs(a) > 1e-3 for p in packages for a in p["target_qdd"])  # it accelerated from rest
+        for package in packages:
+            flange = ur5_flange_in_base(package["actual_q"])
+            assert package["actual_TCP_pose"][:3] == pytest.approx(flange[:3, 3], abs=1e-9)
+            assert rotation_of(package["actual_TCP_pose"][3:]) == pytest.approx(flange[:3, :3], abs=1e-9)
+            assert package["target_TCP_pose"] == package["actual_TCP_pose"]
+        assert last["actual_momentum"] > 0.0
+        assert last["joint_mode"] == (253,) * 6
+        assert last["actual_TCP_force"] == (0.0,) * 6
+        assert face.stats().errors == {}
+        client.close()
+
+
+def test_outputs_a_5_11_controller_lacks_are_not_found(node: ControllerNode, ur5: RobotModel) -> None:
+    clock = FakeClock()
+    with _face(node, ur5, "127.0.41.33", clock):
+        client = RawClient("127.0.41.33")
+        client.handshake()
+        names = ["actual_q", "actual_current_as_torque", "joint_position_deviation_ratio", "output_bit_register_3"]
+        recipe_id, types = rtde.decode_setup_reply(
+            client.request(MessageType.CONTROL_PACKAGE_SETUP_OUTPUTS, rtde.encode_output_setup(500.0, names))
+        )
+        assert (recipe_id, types) == (0, ("VECTOR6D", rtde.NOT_FOUND, rtde.NOT_FOUND, rtde.NOT_FOUND))
+        client.close()
+
+
+def test_second_client_gets_in_use_for_the_slider(node: ControllerNode, ur5: RobotModel) -> None:
+    clock = FakeClock()
+    with _face(node, ur5, "127.0.41.25", clock) as face:
         owner, intruder = RawClient("127.0.41.25"), RawClient("127.0.41.25")
         owner.handshake()
         intruder.handshake()
@@ -377,9 +503,9 @@ def test_second_client_gets_in_use_for_the_slider(node: ControllerNode) -> None:
         intruder.close()
 
 
-def test_unknown_outputs_are_not_found_and_fast_frequencies_refused(node: ControllerNode) -> None:
+def test_unknown_outputs_are_not_found_and_fast_frequencies_refused(node: ControllerNode, ur5: RobotModel) -> None:
     clock = FakeClock()
-    with _face(node, "127.0.41.26", clock) as face:
+    with _face(node, ur5, "127.0.41.26", clock) as face:
         client = RawClient("127.0.41.26")
         client.handshake()
         recipe_id, types = rtde.decode_setup_reply(
@@ -397,9 +523,9 @@ def test_unknown_outputs_are_not_found_and_fast_frequencies_refused(node: Contro
         client.close()
 
 
-def test_slider_values_out_of_range_are_not_applied(node: ControllerNode) -> None:
+def test_slider_values_out_of_range_are_not_applied(node: ControllerNode, ur5: RobotModel) -> None:
     clock = FakeClock()
-    with _face(node, "127.0.41.27", clock) as face:
+    with _face(node, ur5, "127.0.41.27", clock) as face:
         client = RawClient("127.0.41.27")
         client.handshake()
         slider = _slider_recipe(client)
@@ -421,9 +547,11 @@ def test_slider_values_out_of_range_are_not_applied(node: ControllerNode) -> Non
         (b"\x00\x03v", "not_negotiated"),
     ],
 )
-def test_hostile_bytes_disconnect_that_client_only(node: ControllerNode, raw: bytes, reason: str) -> None:
+def test_hostile_bytes_disconnect_that_client_only(
+    node: ControllerNode, ur5: RobotModel, raw: bytes, reason: str
+) -> None:
     clock = FakeClock()
-    with _face(node, "127.0.41.28", clock) as face:
+    with _face(node, ur5, "127.0.41.28", clock) as face:
         good = RawClient("127.0.41.28")
         outputs = good.handshake()
         assert rtde.decode_accepted(good.request(MessageType.CONTROL_PACKAGE_START))
@@ -442,9 +570,9 @@ def test_hostile_bytes_disconnect_that_client_only(node: ControllerNode, raw: by
         hostile.close()
 
 
-def test_wrong_version_is_refused_and_the_client_may_retry(node: ControllerNode) -> None:
+def test_wrong_version_is_refused_and_the_client_may_retry(node: ControllerNode, ur5: RobotModel) -> None:
     clock = FakeClock()
-    with _face(node, "127.0.41.29", clock) as face:
+    with _face(node, ur5, "127.0.41.29", clock) as face:
         client = RawClient("127.0.41.29")
         assert not rtde.decode_accepted(client.request(MessageType.REQUEST_PROTOCOL_VERSION, b"\x00\x01"))
         assert rtde.decode_accepted(client.request(MessageType.REQUEST_PROTOCOL_VERSION, b"\x00\x02"))
@@ -453,9 +581,9 @@ def test_wrong_version_is_refused_and_the_client_may_retry(node: ControllerNode)
         client.close()
 
 
-def test_data_for_a_recipe_not_set_up_disconnects(node: ControllerNode) -> None:
+def test_data_for_a_recipe_not_set_up_disconnects(node: ControllerNode, ur5: RobotModel) -> None:
     clock = FakeClock()
-    with _face(node, "127.0.41.30", clock) as face:
+    with _face(node, ur5, "127.0.41.30", clock) as face:
         client = RawClient("127.0.41.30")
         client.handshake()
         client.send(MessageType.DATA_PACKAGE, b"\x07" + struct.pack(">Id", 1, 1.0))

@@ -116,26 +116,119 @@ _TYPE_FORMATS = MappingProxyType(
 )
 """Struct format of each RTDE type (big-endian is added per recipe)."""
 
+OUTPUT_TYPES_VERSION = (5, 11, 0, 0)
+"""The controller software whose outputs :data:`OUTPUT_TYPES` lists (major, minor, bugfix, build: e-Series 5.11)."""
+
 OUTPUT_TYPES = MappingProxyType(
     {
+        # UR's RTDE guide, "Robot Controller Outputs", the variables with a fixed name, as an e-Series controller with
+        # software 5.11 serves them (the guide's "introduced in" where it gives one). Newer ones are not here, so a
+        # 5.11 controller's answer to them, NOT_FOUND, is kept: actual_current_window, actual_current_as_torque
+        # (ur-rtde 1.6.5 asks for it from 5.23), tcp_offset, actual_TCP_acceleration, target_TCP_acceleration,
+        # actual_configurable_digital_input_bits, target_execution_time, joint_position_deviation_ratio,
+        # collision_detection_ratio, time_scale_source, wrench_calc_from_currents, target_gravity,
+        # target_base_acceleration.
         "timestamp": "DOUBLE",
-        "actual_q": "VECTOR6D",
-        "actual_qd": "VECTOR6D",
         "target_q": "VECTOR6D",
         "target_qd": "VECTOR6D",
+        "target_qdd": "VECTOR6D",
+        "target_current": "VECTOR6D",
+        "target_moment": "VECTOR6D",
+        "actual_q": "VECTOR6D",
+        "actual_qd": "VECTOR6D",
+        "actual_current": "VECTOR6D",
+        "joint_control_output": "VECTOR6D",
+        "actual_TCP_pose": "VECTOR6D",
+        "actual_TCP_speed": "VECTOR6D",
+        "actual_TCP_force": "VECTOR6D",
+        "target_TCP_pose": "VECTOR6D",
+        "target_TCP_speed": "VECTOR6D",
+        "actual_digital_input_bits": "UINT64",
+        "joint_temperatures": "VECTOR6D",
+        "actual_execution_time": "DOUBLE",
+        "robot_mode": "INT32",
+        "joint_mode": "VECTOR6INT32",
+        "safety_mode": "INT32",
+        "safety_status": "INT32",  # 5.4.0
+        "actual_tool_accelerometer": "VECTOR3D",
         "speed_scaling": "DOUBLE",
         "target_speed_fraction": "DOUBLE",
+        "actual_momentum": "DOUBLE",
+        "actual_main_voltage": "DOUBLE",
+        "actual_robot_voltage": "DOUBLE",
+        "actual_robot_current": "DOUBLE",
+        "actual_joint_voltage": "VECTOR6D",
+        "actual_digital_output_bits": "UINT64",
         "runtime_state": "UINT32",
-        "robot_mode": "INT32",
-        "safety_mode": "INT32",
+        "elbow_position": "VECTOR3D",  # 5.0.0
+        "elbow_velocity": "VECTOR3D",  # 5.0.0
         "robot_status_bits": "UINT32",
         "safety_status_bits": "UINT32",
+        "analog_io_types": "UINT32",
+        "standard_analog_input0": "DOUBLE",
+        "standard_analog_input1": "DOUBLE",
+        "standard_analog_output0": "DOUBLE",
+        "standard_analog_output1": "DOUBLE",
+        "io_current": "DOUBLE",
+        "euromap67_input_bits": "UINT32",
+        "euromap67_output_bits": "UINT32",
+        "euromap67_24V_voltage": "DOUBLE",
+        "euromap67_24V_current": "DOUBLE",
+        "tool_mode": "UINT32",
+        "tool_analog_input_types": "UINT32",
+        "tool_analog_input0": "DOUBLE",
+        "tool_analog_input1": "DOUBLE",
+        "tool_output_voltage": "INT32",
+        "tool_output_current": "DOUBLE",
+        "tool_temperature": "DOUBLE",
+        "tcp_force_scalar": "DOUBLE",
+        "output_bit_registers0_to_31": "UINT32",
+        "output_bit_registers32_to_63": "UINT32",
+        "input_bit_registers0_to_31": "UINT32",  # the inputs read back
+        "input_bit_registers32_to_63": "UINT32",
+        "tool_output_mode": "UINT8",  # 5.2.0
+        "tool_digital_output0_mode": "UINT8",  # 5.2.0
+        "tool_digital_output1_mode": "UINT8",  # 5.2.0
+        "payload": "DOUBLE",  # 5.5.1 (ur-rtde's gate)
+        "payload_cog": "VECTOR3D",  # 5.5.1
+        "payload_inertia": "VECTOR6D",  # 5.11.0
+        "script_control_line": "UINT32",  # in UR's client library table; no "introduced in" found for it
+        "ft_raw_wrench": "VECTOR6D",  # 5.9.0
     }
 )
-"""The output variables this project serves and reads, with their types from UR's RTDE guide."""
+"""The output variables with a fixed name and their RTDE types; the registers are :func:`output_type`'s."""
 
 SLIDER_INPUT_TYPES = MappingProxyType({"speed_slider_mask": "UINT32", "speed_slider_fraction": "DOUBLE"})
 """The speed slider inputs (``speed_slider_mask`` 1 = apply ``speed_slider_fraction``, 0–1)."""
+
+
+_REGISTER = re.compile(r"(input|output)_(bit|int|double)_register_(0|[1-9][0-9]{0,2})")
+
+
+def _register_type(name: str, direction: str) -> str | None:
+    """The type of a general purpose register (UR's RTDE guide): bits 64-127 (0-63 are the two UINT32 words),
+    integers and doubles 0-47; None for any other name (a leading zero included, as the controller has no such name)."""
+    match = _REGISTER.fullmatch(name)
+    if match is None or match.group(1) != direction:
+        return None
+    kind, index = match.group(2), int(match.group(3))
+    if kind == "bit":
+        return "BOOL" if 64 <= index <= 127 else None
+    if index > 47:
+        return None
+    return "INT32" if kind == "int" else "DOUBLE"
+
+
+def output_type(name: str) -> str | None:
+    """The RTDE type of an output variable (UR's RTDE guide, "Robot Controller Outputs"), or None if unknown.
+
+    The names of :data:`OUTPUT_TYPES`, the output registers, and the input registers read back (a client may
+    subscribe to an input register to read the value last written).
+    """
+    fixed = OUTPUT_TYPES.get(name)
+    if fixed is not None:
+        return fixed
+    return _register_type(name, "output") or _register_type(name, "input")
 
 
 def input_type(name: str) -> str | None:
@@ -149,15 +242,7 @@ def input_type(name: str) -> str | None:
     fixed = _FIXED_INPUTS.get(name)
     if fixed is not None:
         return fixed
-    match = re.fullmatch(r"input_(bit|int|double)_register_(\d{1,3})", name)
-    if match is None:
-        return None
-    kind, index = match.group(1), int(match.group(2))
-    if kind == "bit":
-        return "BOOL" if 64 <= index <= 127 else None
-    if index > 47:
-        return None
-    return "INT32" if kind == "int" else "DOUBLE"
+    return _register_type(name, "input")
 
 
 _FIXED_INPUTS = MappingProxyType(

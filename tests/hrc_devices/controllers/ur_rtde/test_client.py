@@ -50,10 +50,10 @@ def clock() -> FakeClock:
 
 
 @pytest.fixture
-def face(node: ControllerNode, clock: FakeClock) -> Iterator[RtdeFace]:
+def face(node: ControllerNode, ur5: RobotModel, clock: FakeClock) -> Iterator[RtdeFace]:
     """A face on its own loopback address, sending outputs only when the test ticks it."""
     host = f"127.0.42.{next(_HOSTS)}"
-    face = RtdeFace(node, host, paced=False, clock=clock)
+    face = RtdeFace(node, host, model=ur5, paced=False, clock=clock)
     face.on_cycle(node.cycle(clock()))
     with face:
         yield face

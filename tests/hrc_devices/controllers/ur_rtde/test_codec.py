@@ -9,6 +9,7 @@ import struct
 from collections.abc import Callable
 
 import pytest
+from support.ur_rtde_cases import UR_RTDE_DEFAULT_OUTPUTS
 
 from hrc_devices.controllers.ur_rtde import codec as rtde
 from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe, RtdeError
@@ -114,7 +115,25 @@ def test_input_types_from_the_rtde_guide() -> None:
     assert rtde.input_type("standard_digital_output") == "UINT8"
     assert rtde.input_type("input_int_register_48") is None
     assert rtde.input_type("input_bit_register_3") is None
+    assert rtde.input_type("input_int_register_023") is None  # no such name: a leading zero is not an index
+    assert rtde.input_type("output_int_register_2") is None
     assert rtde.input_type("actual_q") is None
+
+
+def test_output_types_from_the_rtde_guide() -> None:
+    """Every output ur-rtde 1.6.5 asks a 5.11 controller for by default is known; newer ones and bad indices not."""
+    assert all(rtde.output_type(name) is not None for name in UR_RTDE_DEFAULT_OUTPUTS)
+    assert rtde.output_type("actual_TCP_pose") == "VECTOR6D"
+    assert rtde.output_type("joint_mode") == "VECTOR6INT32"
+    assert rtde.output_type("actual_digital_input_bits") == "UINT64"
+    assert rtde.output_type("tool_output_mode") == "UINT8"
+    assert rtde.output_type("output_bit_register_64") == "BOOL"
+    assert rtde.output_type("output_double_register_0") == "DOUBLE"
+    assert rtde.output_type("input_int_register_23") == "INT32"  # an input read back
+    for newer in ("actual_current_as_torque", "joint_position_deviation_ratio", "tcp_offset", "time_scale_source"):
+        assert rtde.output_type(newer) is None
+    for unknown in ("output_bit_register_63", "output_int_register_48", "output_int_register_023", "speed_slider_mask"):
+        assert rtde.output_type(unknown) is None
 
 
 def test_text_message_round_trip_and_truncation() -> None:

@@ -18,6 +18,8 @@ __all__ = [
     "main",
     "methods",
     "node",
+    "open_control",
+    "open_robot",
     "recording",
     "reference",
     "ros2_face",

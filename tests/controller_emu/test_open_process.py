@@ -93,10 +93,12 @@ def test_an_open_controller_follows_joint_commands_and_stops_on_its_own(
         n_before = len(states.items())
         t0_ns = time.time_ns()
         seq = 0
+        sent_stamp_ns: dict[int, int] = {}
         end_s = time.monotonic() + 1.5
         while time.monotonic() < end_s:
             stamp_ns = time.time_ns()
             q, qd = _reference((stamp_ns - t0_ns) / 1e9 + PERIOD_S)
+            sent_stamp_ns[seq] = stamp_ns
             pub.put(
                 to_payload(
                     JointCommand(robot=ROBOT, seq=seq, stamp_ns=stamp_ns, q=q.tolist(), qd=qd.tolist(), delta=1.0)
@@ -124,13 +126,18 @@ def test_an_open_controller_follows_joint_commands_and_stops_on_its_own(
         assert all(s.mode == "running" and s.override == 1.0 for s in window)
         assert all(0 <= s.override_seq < seq for s in window)
         assert window[-1].override_seq >= seq - 50, "override_seq echoes a recently sent seq"
-        # It follows: q within what a few ms of timing slack allow at 0.5 rad/s, qd_nominal the reference's qd.
+        # It follows: q within a few ms at 0.5 rad/s of the reference it last accepted (judged against that command,
+        # so a test thread the machine held back does not count against the controller), qd_nominal that qd.
         for s in window:
-            q_ref, qd_ref = _reference((s.stamp_ns - t0_ns) / 1e9)
+            q_ref, qd_ref = _reference((sent_stamp_ns[s.override_seq] - t0_ns) / 1e9 + PERIOD_S)
             assert abs(s.q[0] - q_ref[0]) < 0.02, f"state {s.seq}: q {s.q[0]:.4f} vs reference {q_ref[0]:.4f}"
             assert abs(s.qd_nominal[0] - qd_ref[0]) < 0.05
             np.testing.assert_allclose(s.q[1:], Q0[1:], atol=1e-9)
-        assert window[-1].qd[0] == pytest.approx(SPEED_RADPS, abs=0.02)
+        # At speed: the typical state moves at the reference's speed (one state may lag a command the loaded test
+        # sent late, so judge the median, not the last).
+        cruising = [s.qd[0] for s in window if s.stamp_ns > t0_ns + int((SPEED_RADPS / ACCEL_RADPS2 + 0.2) * 1e9)]
+        assert len(cruising) > 100
+        assert float(np.median(cruising)) == pytest.approx(SPEED_RADPS, abs=0.02)
         # The acceleration bound, between consecutive states.
         for before, after in itertools.pairwise(window):
             if after.seq == before.seq + 1:

@@ -39,7 +39,7 @@ from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
 from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
 from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
-from gateway.stalls import Phase, StallMonitor
+from gateway.stalls import STALL_SUMMARY_EVERY_S, Phase, StallMonitor, StallSummary
 from gateway.status import StatusJob, cycle_status, effective_config, loop_status
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
@@ -120,8 +120,8 @@ def _log_events(events: list[Event]) -> None:
             log.warning("%s%s (δ = 0)", robot, event.message)
         elif event.kind in ("zone_changed", "fault_cleared"):
             log.info("%s%s", robot, event.message)
-        elif event.kind == "loop_stall":
-            log.warning("%s", event.message)
+        elif event.kind == "loop_stall":  # one summary line per interval (StallSummary), each stall in full here
+            log.debug("%s", event.message)
 
 
 def _log_progress(decisions: dict[str, RobotDecision], missed_cycles: int, budget_overruns: int) -> None:
@@ -457,6 +457,7 @@ def _cycle(
     rate = RateLoop(period_s, gateway.min_event_interval_s, gateway.event_guard_s)
     intervals = DecisionIntervals(period_s)
     overruns_logged = 0
+    stall_summary = StallSummary(round(STALL_SUMMARY_EVERY_S * 1e9), time.monotonic_ns())
     service = LoopNotifier.from_environment()  # READY=1, WATCHDOG=1 from this loop, STATUS=, STOPPING=1
     while rate.sleep(stop, wake):
         woke_s = time.monotonic()
@@ -475,6 +476,7 @@ def _cycle(
         events = out.events.observe(time.monotonic_ns(), time.time_ns(), cycle.decisions, cycle.track_events)
         if stall is not None:  # built after the decision is out; logged and written by other threads
             events += out.events.stalled(time.time_ns(), stall.cause, stall.message())
+            stall_summary.add(stall)
         if events:
             _log_events(events)
             out.http.offer_events(events)
@@ -485,13 +487,7 @@ def _cycle(
                 log.error("the HTTP server exited (code %s); is its port in use?", out.http.exit_code())
                 service.stopping()
                 return 1
-        if intervals.overruns and not overruns_logged:
-            overruns_logged = intervals.overruns
-            log.warning(
-                "a decision with δ > 0 was in force %.1f ms longer than its delay budget counted (the loop was "
-                "held up); later decisions budget the longer interval (loop.budget_overruns)",
-                1e3 * intervals.worst_overrun_s,
-            )
+        overruns_logged = _log_overruns_and_stalls(intervals, overruns_logged, stall_summary)
         if woke_s >= next_progress_s:
             next_progress_s = woke_s + PROGRESS_EVERY_S
             _log_progress(cycle.decisions, rate.missed_cycles, intervals.overruns)
@@ -510,6 +506,23 @@ def _cycle(
         intervals.overruns,
     )
     return 0
+
+
+def _log_overruns_and_stalls(intervals: DecisionIntervals, overruns_logged: int, stall_summary: StallSummary) -> int:
+    """The first budget overrun at once (a warning), then the stalls and overruns of each interval in one line:
+    a warning if a budget was hurt in it, else info. Returns the overruns logged at once (0 or the first count)."""
+    if intervals.overruns and not overruns_logged:
+        overruns_logged = intervals.overruns
+        log.warning(
+            "a decision with δ > 0 was in force %.1f ms longer than its delay budget counted (the loop was "
+            "held up); later decisions budget the longer interval (loop.budget_overruns)",
+            1e3 * intervals.worst_overrun_s,
+        )
+    summary = stall_summary.due(time.monotonic_ns(), intervals.overruns)
+    if summary is not None:
+        budget_hurt, line = summary
+        log.log(logging.WARNING if budget_hurt else logging.INFO, "%s", line)
+    return overruns_logged
 
 
 def run_gateway(

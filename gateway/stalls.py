@@ -208,6 +208,62 @@ class StallRecord(NamedTuple):
         )
 
 
+STALL_SUMMARY_EVERY_S = 60.0
+"""The stalls of this long are logged as one line (each stall in full at DEBUG, in the events and the metrics)."""
+
+
+class StallSummary:
+    """The stalls of an interval gathered into one log line: counts by cause, ticks missed, the worst lateness.
+
+    A loaded machine makes the loop late several times a second; an operator wants one line a minute, and a
+    warning only when a decision's delay budget was hurt (a decision with δ > 0 in force longer than it counted).
+    Pure: the caller gives the times and the budget overruns so far.
+    """
+
+    def __init__(self, every_ns: int, now_ns: int, overruns: int = 0) -> None:
+        self.every_ns = every_ns
+        self._begin(now_ns, overruns)
+
+    def _begin(self, now_ns: int, overruns: int) -> None:
+        self._start_ns = now_ns
+        self._overruns_at_start = overruns
+        self._counts: dict[str, int] = {}
+        self._missed = 0
+        self._worst_late_ns = 0
+
+    def add(self, record: StallRecord) -> None:
+        """One more stall of this interval."""
+        self._counts[record.cause] = self._counts.get(record.cause, 0) + 1
+        self._missed += record.missed
+        self._worst_late_ns = max(self._worst_late_ns, record.sample.late_ns)
+
+    def due(self, now_ns: int, overruns: int) -> tuple[bool, str] | None:
+        """At the interval's end: ``(budget_hurt, line)`` if anything happened in it (then a new interval
+        begins), else None; ``overruns``: the loop's budget overruns so far."""
+        if now_ns - self._start_ns < self.every_ns:
+            return None
+        new_overruns = overruns - self._overruns_at_start
+        line = None
+        if self._counts or new_overruns:
+            line = summary_line(self._counts, self._missed, self._worst_late_ns, now_ns - self._start_ns, new_overruns)
+        self._begin(now_ns, overruns)
+        return None if line is None else (new_overruns > 0, line)
+
+
+def summary_line(
+    counts: Mapping[str, int], missed: int, worst_late_ns: int, interval_ns: int, budget_overruns: int
+) -> str:
+    """For people: the stalls of an interval in one line, the most frequent cause first."""
+    causes = ", ".join(f"{cause} {n}" for cause, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    line = (
+        f"loop stalls in the last {interval_ns / NS_PER_S:.0f} s: {sum(counts.values())} ({causes or 'none'}), "
+        f"{missed} ticks missed, worst {worst_late_ns / 1e6:.1f} ms late"
+    )
+    if budget_overruns:
+        line += f"; {budget_overruns} decisions with δ > 0 held beyond their delay budget (loop.budget_overruns)"
+    return line + " (each stall at DEBUG, in the events and in /metrics)"
+
+
 def attribute(sample: StallSample) -> str:
     """The one cause of a late tick (the order is the module docstring's).
 

@@ -24,6 +24,7 @@ from gateway.stalls import (
     StallMonitor,
     StallRecord,
     StallSample,
+    StallSummary,
     ThreadSchedstat,
     ThreadTime,
     attribute,
@@ -479,3 +480,29 @@ def test_the_loop_records_a_hold_up_in_its_status_hand_off_as_a_stall_with_that_
     last = json.loads(status_key.payloads[-1])["loop"]
     assert last["stalls"].get("phase:status", 0) >= 1
     assert sum(last["missed_by_cause"].values()) == last["missed_cycles"] >= round(HOLD_S * 250) - 2
+
+
+def test_stalls_of_an_interval_make_one_line_with_counts_by_cause_and_a_warning_only_when_the_budget_is_hurt() -> None:
+    s = 1_000_000_000
+    summary = StallSummary(60 * s, now_ns=0, overruns=2)
+    summary.add(StallRecord("runqueue", 1, _sample(late_ns=4_000_000)))
+    summary.add(StallRecord("gc", 2, _sample(late_ns=9_500_000)))
+    summary.add(StallRecord("runqueue", 1, _sample(late_ns=5_000_000)))
+    assert summary.due(59 * s, overruns=2) is None, "not before the interval's end"
+    hurt, line = summary.due(60 * s, overruns=2) or (None, "")
+    assert hurt is False
+    assert line.startswith("loop stalls in the last 60 s: 3 (runqueue 2, gc 1), 4 ticks missed, worst 9.5 ms late")
+    assert "budget" not in line
+
+    # A new interval: nothing happened, nothing to say; then an overrun makes the line a warning.
+    assert summary.due(121 * s, overruns=2) is None
+    summary.add(StallRecord("unknown", 0, _sample(late_ns=5_000_000)))
+    hurt, line = summary.due(182 * s, overruns=3) or (None, "")
+    assert hurt is True
+    assert "1 (unknown 1), 0 ticks missed, worst 5.0 ms late; 1 decisions with δ > 0 held beyond" in line
+
+    # Overruns alone (no stall recorded) are still said.
+    hurt, line = summary.due(243 * s, overruns=5) or (None, "")
+    assert hurt is True
+    assert ": 0 (none)" in line
+    assert "; 2 decisions" in line

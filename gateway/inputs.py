@@ -32,7 +32,10 @@ state whose ``qd`` exceeds the tolerance there, judged over at least
 ``qd_nominal`` says, so standing still for the hold proves nothing (a controller reversing ``qd_nominal`` was caught
 each time it moved, cleared while it stood, and δ = 1 came back in bursts). An honest controller shows it while it
 brakes. An exact repeat of a recently accepted message (same seq and stamp: a duplicated packet) is counted
-as ``duplicate`` and is not a fault. Messages for robots or trackers the cell does not have are counted
+as ``duplicate`` and is not a fault. A tracker sending faster than its configured ``rate_hz`` has the excess
+dropped before it is parsed and counted as ``rate_exceeded`` (:class:`FrameBudget`: twice the rate, a burst of
+:data:`FRAME_BURST`): not a fault, since the frames kept are fresh, but a flood of valid frames cannot hold the
+interpreter away from the loop. Messages for robots or trackers the cell does not have are counted
 (``unknown_robot``, ``unknown_tracker``) and concern no robot.
 
 Ages run on the monotonic clock: a sample's age is its transit time measured at arrival (receive wall clock −
@@ -56,8 +59,8 @@ from gateway import joint_motion
 from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.humans import HumanCapsules, capsules_from_message, implausible_detail
-from hrc_contract.messages import Humans, JointState, MessageError, parse_message
+from hrc_contract.humans import HumanCapsules, humans_from_payload, implausible_detail
+from hrc_contract.messages import JointState, MessageError, parse_message
 from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
 
@@ -98,6 +101,40 @@ _FAULT_KIND: Mapping[str, str] = {
     "echo_never_sent": "inconsistent",
 }
 """Rejection reason → fault kind; any other reason of a configured topic is ``invalid``."""
+
+
+FRAME_RATE_FACTOR = 2.0
+"""A tracker may send up to this many times its configured ``rate_hz`` before frames are dropped at the door."""
+
+FRAME_BURST = 8
+"""Frames a tracker may send at once (a burst after a network hiccup) before the rate applies."""
+
+
+@dataclass
+class FrameBudget:
+    """A token bucket over the monotonic clock: ``burst`` frames at once, ``rate_hz`` frames per second after."""
+
+    rate_hz: float
+    burst: float
+    tokens: float = 0.0
+    last_mono_ns: int | None = None
+
+    @classmethod
+    def for_rate(cls, configured_rate_hz: float) -> FrameBudget:
+        return cls(FRAME_RATE_FACTOR * configured_rate_hz, float(FRAME_BURST), float(FRAME_BURST))
+
+    def admit(self, mono_ns: int) -> bool:
+        """Spend a token for a frame arriving at ``mono_ns``; False (drop it) when there is none. A clock that runs
+        backwards earns nothing."""
+        if self.last_mono_ns is not None and mono_ns > self.last_mono_ns:
+            earned = (mono_ns - self.last_mono_ns) * self.rate_hz / NS_PER_S
+            self.tokens = min(self.burst, self.tokens + earned)
+        if self.last_mono_ns is None or mono_ns > self.last_mono_ns:
+            self.last_mono_ns = mono_ns
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
 
 
 def fault_code(kind: TopicKind, reason: str) -> str:
@@ -306,6 +343,7 @@ class InputStore:
         self._command_window_ns = window_ns
         self._robots = {name: _robot_entry(robot, window_ns) for name, robot in robots.items()}
         self._frames: dict[str, HumanFrame | None] = dict.fromkeys(sorted(config.trackers))
+        self._frame_budgets = {name: FrameBudget.for_rate(t.rate_hz) for name, t in config.trackers.items()}
         self._streams = {f"robot/{name}": _Stream("joint_state") for name in robots}
         self._streams.update({f"tracker/{name}": _Stream("tracker") for name in config.trackers})
         self._rejected: Counter[tuple[str, str]] = Counter()
@@ -375,24 +413,29 @@ class InputStore:
         if tracker not in self._frames:
             self._count(topic, "unknown_tracker")
             return
+        with self._lock:
+            admitted = self._frame_budgets[tracker].admit(received.mono_ns)
+        if not admitted:
+            self._count(topic, "rate_exceeded")  # dropped before parsing; the frames kept stay fresh: no fault
+            return
         try:
-            msg = parse_message(payload, Humans)
+            header, capsules = humans_from_payload(payload)
         except MessageError as exc:
             self._reject(topic, exc.reason, exc.detail, received)
             self._on_tracker_change()
             return
-        capsules = capsules_from_message(tracker, msg) if msg.tracker == tracker else None
-        problem = None if capsules is None else implausible_detail(capsules, self._plausibility[tracker])
-        if capsules is None or problem is not None:
+        mismatch = header.tracker != tracker
+        problem = None if mismatch else implausible_detail(capsules, self._plausibility[tracker])
+        if mismatch or problem is not None:
             reason = "name_mismatch" if problem is None else problem[0]
-            detail = f"tracker {msg.tracker!r}" if problem is None else problem[1]
+            detail = f"tracker {header.tracker!r}" if problem is None else problem[1]
             self._reject(topic, reason, detail, received)
             self._on_tracker_change()
             return
-        transit_ns = max(0, received.wall_ns - msg.stamp_ns)
-        frame = HumanFrame(msg.stamp_ns, msg.seq, capsules, len(msg.humans), transit_ns, received.mono_ns)
+        transit_ns = max(0, received.wall_ns - header.stamp_ns)
+        frame = HumanFrame(header.stamp_ns, header.seq, capsules, header.human_count, transit_ns, received.mono_ns)
         with self._lock:
-            if not self._in_order(topic, msg.seq, msg.stamp_ns, received):
+            if not self._in_order(topic, header.seq, header.stamp_ns, received):
                 changed = self._streams[topic].fault is not None
             else:
                 self._frames[tracker] = frame

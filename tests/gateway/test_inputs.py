@@ -10,7 +10,16 @@ import numpy as np
 import pytest
 
 from gateway import joint_motion
-from gateway.inputs import JUMP_MARGIN_RAD, VELOCITY_LIMIT_FACTOR, InputStore, age_s, fault_code
+from gateway.inputs import (
+    FRAME_BURST,
+    FRAME_RATE_FACTOR,
+    JUMP_MARGIN_RAD,
+    VELOCITY_LIMIT_FACTOR,
+    FrameBudget,
+    InputStore,
+    age_s,
+    fault_code,
+)
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import capsules_from_message
@@ -1017,3 +1026,38 @@ def test_a_state_the_order_refuses_is_not_judged_for_its_motion(store: InputStor
     _stream(store, 5, seq0=6, t0_ns=NOW + 20 * MS, q0=q, override=lambda k: 0.0)
     assert rejected(store, "robot/ur5") == {"stamp_in_future": 1}
     assert fault_codes(store, NOW + 17 * MS + HOLD_NS) == {}
+
+
+def test_a_frame_budget_gives_its_burst_then_its_rate() -> None:
+    budget = FrameBudget.for_rate(30.0)  # 60 frames/s after a burst of FRAME_BURST
+    assert [budget.admit(0) for _ in range(FRAME_BURST + 1)] == [True] * FRAME_BURST + [False]
+    assert not budget.admit(16 * MS)  # 0.96 of a token earned
+    assert budget.admit(17 * MS)
+    assert not budget.admit(17 * MS)
+    assert not budget.admit(5 * MS)  # a clock running backwards earns nothing
+    assert budget.admit(17 * MS + 1000 * MS)  # a second later: the burst again, never more
+    assert sum(budget.admit(1017 * MS) for _ in range(3 * FRAME_BURST)) == FRAME_BURST - 1
+
+
+def test_a_tracker_flooding_valid_frames_has_the_excess_dropped_unparsed_and_no_fault(store: InputStore) -> None:
+    """10 kHz of valid frames for 1 s from a 30 Hz tracker: the store takes FRAME_BURST + 2 × 30 of them, counts the
+    rest as rate_exceeded, keeps the newest it took and raises no fault (what it kept is fresh)."""
+    sent = 10_000
+    for k in range(sent):
+        t_ns = NOW - 1000 * MS + k * 100_000
+        store.on_humans(FRONT_KEY, enc(hm(seq=k + 1, stamp_ns=t_ns - 30 * MS)), at(t_ns))
+    dropped = rejected(store, "tracker/front")["rate_exceeded"]
+    taken = sent - dropped
+    assert FRAME_BURST + FRAME_RATE_FACTOR * 30 - 1 <= taken <= FRAME_BURST + FRAME_RATE_FACTOR * 30 + 1
+    snap = store.snapshot(at())
+    assert snap.faults == {}
+    kept = snap.humans["front"]
+    assert kept is not None
+    assert kept.seq > sent - 200
+
+
+def test_a_tracker_at_its_rate_loses_nothing_at_the_door(store: InputStore) -> None:
+    for k in range(300):  # 10 s at 30 Hz, each frame 3 ms early or late
+        t_ns = NOW - 10_000 * MS + k * 33_333_333 + (3 * MS if k % 2 else -3 * MS)
+        store.on_humans(FRONT_KEY, enc(hm(seq=k + 1, stamp_ns=t_ns - 30 * MS)), at(t_ns))
+    assert "rate_exceeded" not in rejected(store, "tracker/front")

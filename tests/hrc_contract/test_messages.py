@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 from pydantic import BaseModel, ValidationError
+from support.payload_mutations import mutate_payload, random_float_token
 
 from hrc_contract.messages import (
     MAX_PAYLOAD_BYTES,
@@ -359,45 +360,7 @@ def test_what_the_reference_accepts_the_fast_path_accepts_the_same(payload: byte
     assert _outcome(parse_message, payload, model) == expected
 
 
-def _mutations(rng: np.random.Generator, payload: bytes) -> bytes:
-    """One random mutation of a valid payload: a value swapped, a key dropped or added, a byte changed or
-    inserted, a number token replaced."""
-    try:
-        raw = json.loads(payload)
-    except ValueError:  # already mutated beyond JSON: bytes only
-        raw = None
-    kind = int(rng.integers(6)) if isinstance(raw, dict) and raw else int(rng.integers(3, 6))
-    values = [None, True, 0, -1, 0.5, -0.0, 1e308, 2**70, "1", "0.5", "1e400", "NaN", "", [], {}, [0.1] * 6]
-    if kind == 0:
-        raw[str(rng.choice(sorted(raw)))] = values[int(rng.integers(len(values)))]
-        return _payload(raw)
-    if kind == 1:
-        del raw[str(rng.choice(sorted(raw)))]
-        return _payload(raw)
-    if kind == 2:
-        raw[str(rng.choice(["extra", "schema_", "seq"]))] = values[int(rng.integers(len(values)))]
-        return _payload(raw)
-    data = bytearray(payload)
-    i = int(rng.integers(len(data)))
-    if kind == 3:
-        data[i] = int(rng.integers(256))
-    elif kind == 4:
-        data[i:i] = bytes([int(rng.choice([0, 9, 10, 0x1F, 0x7F, 0xFF, 0xC3, ord('"'), ord("\\"), ord("]")]))])
-    else:
-        token = str(rng.choice(["NaN", "Infinity", "-Infinity", "1e400", "-1e400", "1e-400", "1E2", "-0", "9" * 30]))
-        return payload.replace(b"0.", token.encode() + b"+0.", 1).replace(b"+0.", b"", 1)
-    return bytes(data)
-
-
-def _random_float_token(rng: np.random.Generator) -> str:
-    digits = "".join(str(d) for d in rng.integers(0, 10, int(rng.integers(1, 25))))
-    token = digits[0] + ("." + digits[1:] if len(digits) > 1 else "")
-    if rng.random() < 0.7:
-        token += f"e{int(rng.integers(-330, 310))}"
-    return ("-" if rng.random() < 0.3 else "") + token
-
-
-def test_fast_path_agrees_with_the_reference_on_seeded_mutations() -> None:
+def test_fast_path_agrees_with_the_reference_on_seededmutate_payload() -> None:
     """Same acceptance, same reason, same values (to the bit) as ``json.loads`` + ``model_validate``."""
     rng = np.random.default_rng(7)
     outcomes: set[str] = set()
@@ -405,13 +368,13 @@ def test_fast_path_agrees_with_the_reference_on_seeded_mutations() -> None:
         model, make = MODELS[k % len(MODELS)]
         payload = _payload(make())
         if k % 3 == 0:
-            payload = _mutations(rng, payload)
+            payload = mutate_payload(rng, payload)
         elif k % 3 == 1:
-            payload = _mutations(rng, _mutations(rng, payload))
+            payload = mutate_payload(rng, mutate_payload(rng, payload))
         else:  # every float re-spelt: long mantissas, exponents near the limits
             text = payload.decode()
             for number in {w.strip(",]}") for w in text.split() if w[:1].isdigit() and "." in w}:
-                text = text.replace(number, _random_float_token(rng), 1)
+                text = text.replace(number, random_float_token(rng), 1)
             payload = text.encode()
         reference = _outcome(parse_message_reference, payload, model)
         assert _outcome(parse_message, payload, model) == reference, payload

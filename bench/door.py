@@ -1,0 +1,108 @@
+"""A tracker frame at the door: the pydantic reference against the msgspec fast path, per frame size.
+
+    .venv/bin/python -m bench.door [--repeats 200] [--json out/bench/door.json]
+
+Frames of 1 person × 15 capsules and 2 × 1000 capsules (the contract's largest frame: 2000 capsules, ~380 KB of
+JSON at full float precision). Timed, on the same payloads in one run: ``reference``
+(:func:`hrc_contract.messages.parse_message_reference` then :func:`hrc_contract.humans.capsules_from_message`,
+what the door did before) and ``door``
+(:func:`hrc_contract.humans.humans_from_payload`), and ``json.loads`` alone as the floor of any JSON door.
+The target of issue 36 is admission p99 ≤ 0.5 ms for 2000 capsules.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
+from hrc_contract.humans import capsules_from_message, humans_from_payload
+from hrc_contract.messages import Humans, parse_message_reference
+
+NAME = "door"
+TARGET_P99_MS = 0.5
+STAMP_NS = 1_790_000_000_000_000_000
+SIZES = {"1 × 15": (1, 15), "2 × 1000": (2, 1000)}
+
+
+def frame_payload(rng: np.random.Generator, people: int, parts: int) -> bytes:
+    humans = []
+    for k in range(people):
+        capsules = []
+        for j in range(parts):
+            a = rng.uniform(-3.0, 3.0, 3)
+            b = a + rng.uniform(-0.2, 0.2, 3)
+            radius = float(rng.uniform(0, 0.2))
+            capsules.append({"name": f"part{j}", "a": a.tolist(), "b": b.tolist(), "radius": radius})
+        humans.append({"id": f"p{k}", "capsules": capsules})
+    frame = {"schema": "hrc.humans/1", "tracker": "front", "seq": 1, "stamp_ns": STAMP_NS, "humans": humans}
+    return json.dumps(frame).encode()
+
+
+def _reference(payload: bytes) -> object:
+    message = parse_message_reference(payload, Humans)
+    return capsules_from_message(message.tracker, message)
+
+
+def _time_ms(parse: Callable[[bytes], object], payload: bytes, repeats: int) -> list[float]:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter_ns()
+        parse(payload)
+        times.append((time.perf_counter_ns() - t0) / 1e6)
+    return times
+
+
+def run(repeats: int, seed: int) -> dict[str, object]:
+    rng = np.random.default_rng(seed)
+    results: dict[str, object] = {}
+    for label, (people, parts) in SIZES.items():
+        payload = frame_payload(rng, people, parts)
+        parsers: dict[str, Callable[[bytes], object]] = {
+            "json.loads": json.loads,
+            "reference": _reference,
+            "door": humans_from_payload,
+        }
+        times: dict[str, list[float]] = {name: [] for name in parsers}
+        for _ in range(repeats // 10):  # interleaved rounds, so that a busy moment hurts all alike
+            for name, parse in parsers.items():
+                times[name] += _time_ms(parse, payload, 10)
+        results[label] = {"bytes": len(payload), **{k: summary(v, 1.0, 3) for k, v in times.items()}}
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.door", description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=200)
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--json", type=Path, default=default_json_path(NAME))
+    args = parser.parse_args(argv)
+    print_header("a tracker frame at the door: pydantic reference against the msgspec door")
+    report = Report(NAME, {"repeats": args.repeats, "seed": args.seed})
+    results = run(max(10, args.repeats), args.seed)
+    report.results = results
+    rows = []
+    for label, figures in results.items():
+        assert isinstance(figures, dict)
+        for name in ("json.loads", "reference", "door"):
+            f = figures[name]
+            rows.append([label, figures["bytes"], name, f["p50"], f["p99"], f["max"]])
+        ratio = figures["reference"]["p50"] / max(figures["door"]["p50"], 1e-9)
+        rows.append([label, "", "reference / door (p50)", round(ratio, 2), "", ""])
+    print(table(["frame", "bytes", "parsed by", "p50 [ms]", "p99", "max"], rows))
+    largest = results["2 × 1000"]
+    assert isinstance(largest, dict)
+    report.targets = [Target("2000-capsule frame admitted, p99", largest["door"]["p99"], TARGET_P99_MS, "ms")]
+    print("\n" + targets_table(report.targets))
+    report.finish(args.json)
+    print(f"\nwrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -3,7 +3,6 @@ open (follows the joint references the gateway streams, as ABB's EGM)."""
 
 __all__ = [
     "commissioning",
-    "controller",
     "main",
     "node",
     "open_follower",

@@ -16,7 +16,7 @@ The gateway plans a stop from override δ to last δ t_b (safety-math.md §10): 
 the largest measured ``stop time / δ`` over all poses and speeds, times (1 + margin), rounded up to the
 millisecond. The time the command waits for the controller's next cycle is not in the stop time: the gateway's
 t_delay counts the controller cycle it measures. The controller emulator and the simulated cell refuse a
-controller slower than the profile (:func:`controller_emu.controller.check_braking_time`).
+controller slower than the profile (:func:`hrc_devices.robots.time_scaling.check_braking_time`).
 """
 
 from __future__ import annotations
@@ -33,13 +33,13 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
-from controller_emu.controller import check_braking_time
 from controller_emu.node import ControllerNode
 from hrc_contract.config import ConfigError, ControllerConfig, RobotConfig, RobotModelConfig
 from hrc_contract.errors import HrcError
 from hrc_contract.messages import JointState, Override, to_payload
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
+from hrc_devices.robots.time_scaling import check_braking_time
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config, one_line, read_toml, resolve_urdf
 from hrc_runtime.locate import find_cell_config

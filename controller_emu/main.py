@@ -35,7 +35,6 @@ from typing import NamedTuple, Protocol
 
 import zenoh
 
-from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
 from controller_emu.open_follower import FollowerLimits, FollowerState, follower_limits
 from controller_emu.open_node import OpenControllerNode, OpenControllerStats
@@ -46,6 +45,7 @@ from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
 from hrc_contract.messages import to_payload
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
+from hrc_devices.robots.time_scaling import ControllerState, check_braking_time
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config

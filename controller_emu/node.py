@@ -10,7 +10,7 @@ The node reads no clock and does no I/O: ``controller_emu/main.py`` passes the p
 and sends over simulated links. Both clocks come with every call: the wall clock is compared only with
 the gateway's stamps, the monotonic clock runs the watchdog and measures the step.
 
-An override is checked when it arrives (:func:`controller_emu.controller.check_override`), and the newest
+An override is checked when it arrives (:func:`hrc_devices.robots.time_scaling.check_override`), and the newest
 accepted one is applied at the next cycle whose time is not before its arrival, so each is applied at most once
 and never in a state stamped before it arrived (a cycle's thread held off the CPU between reading its clock and
 taking the override would otherwise report, in a state stamped then, an override the gateway decided later: its
@@ -26,7 +26,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
 
-from controller_emu.controller import (
+from hrc_contract.config import ControllerConfig
+from hrc_contract.messages import JointState, MessageError, Override, parse_message
+from hrc_devices.robots.program import Trajectory
+from hrc_devices.robots.time_scaling import (
     ControllerState,
     Mode,
     apply_override,
@@ -34,9 +37,6 @@ from controller_emu.controller import (
     joint_state,
     step,
 )
-from hrc_contract.config import ControllerConfig
-from hrc_contract.messages import JointState, MessageError, Override, parse_message
-from hrc_devices.robots.program import Trajectory
 from hrc_runtime.clocks import Clocks
 
 
@@ -83,8 +83,8 @@ class ControllerStats:
         cycles_completed: program cycles completed.
         override_seq: ``seq`` of the last accepted override; -1 before any.
         joint_states: joint state messages produced (cycles run).
-        rejected: override payloads rejected, by reason (parse errors and :data:`~controller_emu.controller.Rejection`),
-            sorted by reason.
+        rejected: override payloads rejected, by reason (parse errors and
+            :data:`~hrc_devices.robots.time_scaling.Rejection`), sorted by reason.
     """
 
     mode: Mode
@@ -149,7 +149,7 @@ class ControllerNode:
 
         Returns:
             None if accepted, else the reason it was rejected (also counted in :meth:`stats`): a
-            :attr:`MessageError.reason` or a :data:`~controller_emu.controller.Rejection`.
+            :attr:`MessageError.reason` or a :data:`~hrc_devices.robots.time_scaling.Rejection`.
         """
         try:
             message = parse_message(payload, Override)

@@ -50,11 +50,11 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from controller_emu.controller import MAX_FUTURE_STAMP_S
 from hrc_contract.config import ConfigError
 from hrc_contract.messages import JointCommand, JointState
 from hrc_contract.vocabulary import ControllerMode
 from hrc_devices.robots.model import RobotModel
+from hrc_devices.robots.time_scaling import MAX_FUTURE_STAMP_S
 from hrc_runtime.clocks import Clocks
 
 FloatArray = npt.NDArray[np.float64]
@@ -210,7 +210,7 @@ def check_command(
     Returns:
         None, or ``wrong_robot``; ``wrong_joint_count`` (not the model's); ``old_or_repeated`` (stamp not newer
         than ``newest_stamp_ns``); ``stale`` (stamped more than ``watchdog_s`` ago); ``stamp_in_future`` (stamped
-        more than :data:`~controller_emu.controller.MAX_FUTURE_STAMP_S` ahead, as an override).
+        more than :data:`~hrc_devices.robots.time_scaling.MAX_FUTURE_STAMP_S` ahead, as an override).
     """
     if msg.robot != robot_name:
         return "wrong_robot"

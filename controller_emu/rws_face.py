@@ -64,7 +64,6 @@ from types import MappingProxyType
 from typing import Any
 from urllib.parse import parse_qsl, urlsplit
 
-from controller_emu.controller import Mode
 from controller_emu.node import ControllerNode, ControllerOutput
 from hrc_contract.messages import Override, to_payload
 from hrc_devices.controllers.abb_rws.http_digest import (
@@ -77,6 +76,7 @@ from hrc_devices.controllers.abb_rws.http_digest import (
     nonce_issued_ns,
     parse_authorization,
 )
+from hrc_devices.robots.time_scaling import Mode
 from hrc_runtime.clocks import Clocks, read_clocks
 
 log = logging.getLogger("hrc-controller-emu.rws")

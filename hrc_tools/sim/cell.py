@@ -33,7 +33,6 @@ import numpy as np
 import numpy.typing as npt
 
 from controller_bridge.main import bridge_settings
-from controller_emu.controller import ControllerState, check_braking_time
 from controller_emu.node import ControllerNode
 from controller_emu.open_follower import follower_limits
 from controller_emu.open_node import OpenControllerNode
@@ -47,6 +46,7 @@ from hrc_contract.messages import to_payload
 from hrc_devices.robots.link_motion import link_motion
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import Trajectory, load_trajectory
+from hrc_devices.robots.time_scaling import ControllerState, check_braking_time
 from hrc_runtime.clocks import Clocks
 from hrc_tools.audit.checks import MOVING_EPS_MPS, AuditAccumulator, AuditSummary, audit_cycle, merge_summaries
 from hrc_tools.audit.contact import ContactMass, ContactRules, audit_contacts

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import pytest
 
-from controller_emu.controller import MAX_FUTURE_STAMP_S
 from controller_emu.node import ControllerNode, ControllerOutput
 from hrc_contract.config import CellConfig, ControllerConfig
 from hrc_contract.messages import Override, to_payload
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import load_trajectory
+from hrc_devices.robots.time_scaling import MAX_FUTURE_STAMP_S
 from hrc_runtime.clocks import Clocks
 
 ROBOT = "ur5"

@@ -13,7 +13,6 @@ import numpy.typing as npt
 import pytest
 from support.paths import DEFAULT_CELL_PATH
 
-from controller_emu.controller import MAX_FUTURE_STAMP_S
 from controller_emu.open_follower import (
     POSITION_GAIN_PER_S,
     FollowerLimits,
@@ -30,6 +29,7 @@ from hrc_contract.config import ConfigError
 from hrc_contract.messages import JointCommand, JointState, MessageError, parse_message, to_payload
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import load_trajectory
+from hrc_devices.robots.time_scaling import MAX_FUTURE_STAMP_S
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
 

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from support.paths import DEFAULT_CELL_PATH
 
-from controller_emu.controller import check_braking_time
 from gateway.core import SafetyCore
 from gateway.kinematics import PRISMATIC, REVOLUTE, kinematic_chain
 from gateway.reference.kinematics import link_kinematics
 from hrc_contract.config import CellConfig
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import load_trajectory
+from hrc_devices.robots.time_scaling import check_braking_time
 from hrc_runtime.config import load_cell_config
 from hrc_tools.cell.launcher import program_commands
 from hrc_tools.sim.cell import RunResult, simulate

@@ -14,12 +14,12 @@ import pytest
 import support.status_examples as ex
 from support.paths import REPO_ROOT
 
-from controller_emu.controller import Rejection
 from gateway.inputs import fault_code
 from hrc_contract import contract
 from hrc_contract.messages import JointState
 from hrc_contract.status_models import ControllerMode, ZoneName
 from hrc_contract.vocabulary import Zone
+from hrc_devices.robots.time_scaling import Rejection
 
 CONTRACT = REPO_ROOT / "docs" / "contract.md"
 EMITTING_SOURCES = [

@@ -13,7 +13,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from controller_emu.controller import (
+from hrc_contract.config import ConfigError, ControllerConfig
+from hrc_contract.messages import JointState, Override, parse_message, to_payload
+from hrc_devices.robots.model import RobotModel, load_robot_model
+from hrc_devices.robots.program import Trajectory, build_trajectory, parse_program
+from hrc_devices.robots.time_scaling import (
     MAX_FUTURE_STAMP_S,
     ControllerState,
     apply_override,
@@ -22,10 +26,6 @@ from controller_emu.controller import (
     joint_state,
     step,
 )
-from hrc_contract.config import ConfigError, ControllerConfig
-from hrc_contract.messages import JointState, Override, parse_message, to_payload
-from hrc_devices.robots.model import RobotModel, load_robot_model
-from hrc_devices.robots.program import Trajectory, build_trajectory, parse_program
 from hrc_runtime.config import load_cell_config
 
 CONFIG = ControllerConfig(cycle_s=0.004, braking_time_s=0.24, accel_time_s=0.5, watchdog_s=0.1)

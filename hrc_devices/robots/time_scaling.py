@@ -1,4 +1,6 @@
-"""The emulated controller as a pure state machine: override in, program time and joint state out.
+"""The time scaling as a pure state machine: override in, program time and joint state out (what a closed
+controller does with its speed override; the controller emulator runs it, and any mode that needs the bounded ramp
+or the watchdog elsewhere imports it from here).
 
 No I/O and no clocks: the caller passes the times (:class:`controller_emu.node.ControllerNode` does, and is
 what the process and the simulated cell drive). One override, then one cycle::

@@ -121,25 +121,21 @@ def test_no_module_imports_its_own_package_below_module_level() -> None:
 
 def _vendor_places(kind: str) -> tuple[str, ...]:
     """Where a vendor's kind string and config class may appear: the contract, its folder, the registries (and the
-    family's ``__all__``, which lists the folder by its name, the kind)."""
+    family's ``__all__``, which lists the folder by its name, the kind), and its exchange in the simulated cell."""
     return (
         "hrc_contract/",
         f"hrc_devices/controllers/{kind}/",
         "hrc_devices/controllers/registry.py",
         "hrc_devices/controllers/__init__.py",
+        f"hrc_tools/sim/exchanges/{kind}.py",
+        "hrc_tools/sim/exchanges/__init__.py",
     )
-
-
-KNOWN_VENDOR_CHOICES = {"hrc_tools/sim/bridged.py"}
-"""Left (issue 33): the simulated link still models each vendor's exchange itself (UR packages, ABB polls)."""
 
 
 def test_a_vendors_kind_and_config_class_appear_only_in_the_contract_its_folder_and_the_registries() -> None:
     offenders = []
     for path in _installed_files():
         rel = str(path.relative_to(REPO_ROOT))
-        if rel in KNOWN_VENDOR_CHOICES:
-            continue
         tokens = list(tokenize.generate_tokens(io.StringIO(path.read_text()).readline))
         for kind, vendor in VENDORS.items():
             if rel.startswith(_vendor_places(kind)):

@@ -19,6 +19,7 @@ __all__ = [
     "SweepCase",
     "bridged",
     "cell",
+    "exchanges",
     "generate_case",
     "human_speed",
     "links",

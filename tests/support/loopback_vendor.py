@@ -1,19 +1,24 @@
 """A fake vendor, ``loopback`` (as ros2_control's ``mock_components``): a controller showing at once what was written.
 
-Registered by a test (``monkeypatch.setitem(VENDORS, "loopback", LOOPBACK)``), it must be enough for the bridge core,
-the bridge's program and the launcher: no other file names it.
+Registered by a test (``monkeypatch.setitem(VENDORS, "loopback", LOOPBACK)``, and for the simulated cell
+``monkeypatch.setitem(EXCHANGES, "loopback", LoopbackExchange)``), it must be enough for the bridge core, the bridge's
+program, the launcher and the simulated link: no other file names it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
 from hrc_devices.controllers.descriptor import SpeedInput, Vendor
 from hrc_devices.controllers.vendor import ControllerReading, VendorError, VendorInterface
 from hrc_runtime.clocks import Clocks, read_clocks
+from hrc_tools.sim.exchanges.base import ExchangeHost, VendorLink
+
+LOOPBACK_POLL_NS = 10_000_000
+"""The simulated loopback link: a reading every 10 ms, each way instantaneous."""
 
 
 class LoopbackInterfaceConfig(BaseModel):
@@ -82,3 +87,32 @@ LOOPBACK = Vendor(
     environment=_environment,
     poll_interval_s=lambda config: 0.01,
 )
+
+
+class LoopbackExchange:
+    """The loopback vendor over the simulated link: a write reaches the controller's face at once and is answered at
+    once; every 10 ms a reading of the controller's latest cycle (q and the speed input, no velocities)."""
+
+    def __init__(self, interface: LoopbackInterfaceConfig, host: ExchangeHost, link: VendorLink | None) -> None:
+        self._host = host
+        host.face.value = 1.0
+
+    def start(self, reader_phase_ns: int) -> None:
+        self._host.push(reader_phase_ns % LOOPBACK_POLL_NS, "read")
+
+    def write(self, value: float, t_ns: int) -> None:
+        host = self._host
+        host.face.apply(host.node, host.node.robot, value, host.clocks(t_ns))
+        host.written(value, t_ns)
+
+    def handle(self, kind: str, data: Any, t_ns: int) -> None:
+        host = self._host
+        host.push(t_ns + LOOPBACK_POLL_NS, "read")
+        state = host.node.state if host.latest is None else host.latest.state
+        q_rad, truth = host.node.trajectory.sample(state.tau_s)
+        now = host.clocks(t_ns)
+        running = state.mode == "running"
+        reading = ControllerReading(
+            now.wall_ns, now.mono_ns, tuple(float(q) for q in q_rad), None, None, host.face.value, None, running, "loop"
+        )
+        host.reading(reading, truth, t_ns)

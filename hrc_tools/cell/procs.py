@@ -17,6 +17,7 @@ One function for each step, shared by ``bench/`` and ``tests/`` (which import th
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -50,6 +51,9 @@ Status = dict[str, Any]
 
 POLL_S = 0.05
 """How often :func:`wait_for` evaluates its condition [s]."""
+
+MAX_LOAD_SCALE = 4.0
+"""A wait is stretched by the machine's load per core, up to this factor (:func:`load_scale`)."""
 
 STOP_TIMEOUT_S = 10.0
 """How long :func:`stop_program` waits for a program to exit after the signal [s]."""
@@ -286,22 +290,44 @@ def programs(specs: Sequence[tuple[str, Sequence[str], Path]]) -> Iterator[list[
         stop_all(procs)
 
 
+def load_scale(load_per_core: float | None = None) -> float:
+    """How much longer than on an idle machine a wait may take here: the 1-minute load average per core, between 1
+    and :data:`MAX_LOAD_SCALE` (a start-up that takes 10 s idle takes about 40 s at a load of 8 on 2 cores, where the
+    programs get a quarter of a core each). ``load_per_core``: the figure to scale by instead of this machine's."""
+    if load_per_core is None:
+        try:
+            load_per_core = os.getloadavg()[0] / max(1, os.cpu_count() or 1)
+        except OSError:  # no load average on this platform
+            load_per_core = 1.0
+    if not math.isfinite(load_per_core):
+        return MAX_LOAD_SCALE
+    return min(MAX_LOAD_SCALE, max(1.0, load_per_core))
+
+
 def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, procs: Sequence[Program] = ()) -> float:
     """Evaluate ``predicate`` every :data:`POLL_S` until it holds; return how long that took [s].
 
+    ``timeout_s`` is what the wait may take on an idle machine; it is stretched by :func:`load_scale`, read again at
+    every poll (a machine that becomes busy while a program starts extends the deadline, never shortens it).
+
     Raises:
-        StartupError: ``timeout_s`` passed, or one of ``procs`` exited meanwhile.
+        StartupError: the stretched timeout passed, or one of ``procs`` exited meanwhile.
     """
     start_s = time.monotonic()
-    deadline = start_s + timeout_s
-    while time.monotonic() < deadline:
+    scale = load_scale()
+    while time.monotonic() < start_s + timeout_s * scale:
         if predicate():
             return time.monotonic() - start_s
         for proc in procs:
             if proc.poll() is not None:
                 raise StartupError(f"{describe(proc)} exited with code {proc.returncode} ({what})")
         time.sleep(POLL_S)
-    raise StartupError(f"timed out after {timeout_s} s waiting for {what}")
+        scale = max(scale, load_scale())
+    waited_s = time.monotonic() - start_s
+    raise StartupError(
+        f"timed out after {waited_s:.1f} s waiting for {what} ({timeout_s} s on an idle machine, × {scale:.2f} for "
+        "the load)"
+    )
 
 
 def wait_or_fail(

@@ -32,6 +32,7 @@ from hrc_devices.controllers.ur_rtde.codec import MessageType, Recipe
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
+from hrc_tools.cell.procs import load_scale
 
 OUTPUTS = [
     "timestamp",
@@ -101,7 +102,7 @@ def face_process(request: pytest.FixtureRequest) -> Iterator[tuple[str, subproce
 
 def _wait_for(predicate: object, what: str, timeout_s: float = 10.0) -> None:
     """Poll ``predicate`` until true; the default deadline only stops a broken test, it asserts nothing about speed."""
-    deadline = time.monotonic() + timeout_s
+    deadline = time.monotonic() + timeout_s * load_scale()
     while not predicate():  # type: ignore[operator]
         if time.monotonic() > deadline:
             raise AssertionError(f"gave up waiting for {what}")
@@ -250,7 +251,7 @@ class RawClient:
 
     def receive(self) -> rtde.Message:
         """The next message (5 s at most, else the test is broken)."""
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 5.0 * load_scale()
         while True:
             messages = rtde.take_messages(self.buffer)
             if messages:

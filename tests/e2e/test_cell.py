@@ -19,7 +19,7 @@ from hrc_contract import keys
 from hrc_contract.messages import JointState, parse_message
 from hrc_contract.status_models import EffectiveConfig, GatewayStatus
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import collapse, is_subsequence, record, running_cell, stop_program
+from hrc_tools.cell.procs import collapse, is_subsequence, load_scale, record, running_cell, stop_program
 
 pytestmark = pytest.mark.e2e
 
@@ -189,7 +189,7 @@ def test_controller_stops_on_its_own_when_the_gateway_is_killed(tmp_path: Path) 
         assert (stopped[0].stamp_ns - killed_ns) / 1e9 < 0.6  # watchdog 0.1 s + braking 0.24 s + margin
         assert all(abs(v) < 1e-12 for v in stopped[-1].qd)
         # The HTTP child went with its parent.
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 5.0 * load_scale()
         while time.monotonic() < deadline:
             try:
                 cell.get("/healthz")

@@ -19,7 +19,7 @@ import zenoh
 from hrc_contract import keys
 from hrc_contract.messages import Capsule, Human, Humans, JointState, parse_message, to_payload
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import Cell, running_cell, stop_program
+from hrc_tools.cell.procs import Cell, load_scale, running_cell, stop_program
 
 pytestmark = pytest.mark.e2e
 
@@ -170,7 +170,7 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
                     time.sleep(1 / 50)  # 50 Hz: a late frame under load stays well inside max_data_age_s
 
             def publish_until_healthy(timeout_s: float) -> bool:
-                deadline = time.monotonic() + timeout_s
+                deadline = time.monotonic() + timeout_s * load_scale()
                 while time.monotonic() < deadline:
                     publish_for(0.2)
                     if _healthy(cell.robot() or {"faults": [1]}):
@@ -204,7 +204,7 @@ def test_partition_between_gateway_and_controller_stops_and_resumes(tmp_path: Pa
             cut_ns = time.time_ns()
             # Repeated until seen: the session may still be connecting to the relay (slow under load).
             status = None
-            deadline = time.monotonic() + 15.0
+            deadline = time.monotonic() + 15.0 * load_scale()
             while status is None and time.monotonic() < deadline:
                 session.put("hrc/demo/faultinject/control", json.dumps({"partition_for_s": 2.0}))
                 with suppress(AssertionError):

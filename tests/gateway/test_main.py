@@ -30,7 +30,7 @@ from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import free_port, running_cell
+from hrc_tools.cell.procs import free_port, load_scale, running_cell
 
 
 def _may_use_fifo() -> bool:
@@ -82,7 +82,7 @@ def test_http_child_lowers_its_cpu_priority(cell_config: CellConfig) -> None:
     try:
         pid = http._proc.pid
         expected = min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICENESS_INCREMENT)
-        deadline = time.monotonic() + 20.0
+        deadline = time.monotonic() + 20.0 * load_scale()
         niceness = os.getpriority(os.PRIO_PROCESS, pid)
         while niceness != expected and time.monotonic() < deadline:
             time.sleep(0.05)
@@ -172,7 +172,7 @@ def test_the_http_feed_thread_runs_under_fifo_when_asked(cell_config: CellConfig
         try:
             native_id = http._writer.native_id
             assert native_id is not None
-            deadline = time.monotonic() + 10.0
+            deadline = time.monotonic() + 10.0 * load_scale()
             while os.sched_getscheduler(native_id) != policy and time.monotonic() < deadline:
                 time.sleep(0.01)
             assert (os.sched_getscheduler(native_id), os.sched_getparam(native_id).sched_priority) == (policy, priority)
@@ -240,7 +240,7 @@ def test_offering_a_status_never_waits_for_the_status_thread_and_the_newest_wins
         for seq in (2, 3, 4):  # the thread is stuck in publishing 1: each offer still returns
             status.offer(_job(seq))
         release.set()
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 10.0 * load_scale()
         while status.published < 2 and time.monotonic() < deadline:
             time.sleep(0.01)
     assert published == [1, 4]
@@ -256,7 +256,7 @@ def test_an_error_while_publishing_a_status_is_counted_and_the_thread_goes_on() 
 
     with gateway_main.StatusThread(publish) as status:
         status.offer(_job(1))
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + 10.0 * load_scale()
         while status.errors < 1 and time.monotonic() < deadline:
             time.sleep(0.01)
         status.offer(_job(2))
@@ -478,7 +478,7 @@ def test_the_last_word_is_put_to_every_controller_and_waits_a_bounded_time_for_a
     assert late == ["a"]
     assert _overrides(free.payloads)[-1] == last["b"]  # put before last_word returned
     congested.released.set()  # the link clears: the last word follows the put under way
-    deadline = time.monotonic() + GIVE_UP_S
+    deadline = time.monotonic() + GIVE_UP_S * load_scale()
     while len(congested.payloads) < 2 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert _overrides(congested.payloads) == [

@@ -1,0 +1,35 @@
+"""The waits of the cell's programs stretch with the machine's load (issue 36: start-up waits scale with the load,
+not fixed ones that fail on a busy machine)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from hrc_tools.cell import procs
+from hrc_tools.cell.procs import MAX_LOAD_SCALE, StartupError, load_scale, wait_for
+
+
+@pytest.mark.parametrize(
+    ("load_per_core", "scale"),
+    [(0.0, 1.0), (0.5, 1.0), (1.0, 1.0), (2.5, 2.5), (4.0, 4.0), (9.0, MAX_LOAD_SCALE), (math.nan, MAX_LOAD_SCALE)],
+)
+def test_the_load_scale_is_the_load_per_core_between_one_and_its_cap(load_per_core: float, scale: float) -> None:
+    assert load_scale(load_per_core) == scale
+
+
+def test_this_machines_scale_is_within_its_bounds() -> None:
+    assert 1.0 <= load_scale() <= MAX_LOAD_SCALE
+
+
+def test_a_wait_that_holds_returns_at_once_and_one_in_vain_says_how_long_it_was_stretched(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    assert wait_for(lambda: True, 5.0, "nothing") < 5.0
+    monkeypatch.setattr(procs, "load_scale", lambda: 3.0)
+    start_s = time.monotonic()
+    with pytest.raises(StartupError, match=r"waiting for the impossible \(0\.1 s on an idle machine, × 3\.00"):
+        wait_for(lambda: False, 0.1, "the impossible")
+    assert time.monotonic() - start_s >= 0.3  # the deadline was stretched to 3 × 0.1 s, never less

@@ -311,6 +311,12 @@ COMPANION_GAP_M = (0.4, 2.0)
 first one hidden at the robot, the companion seen (the review's cases 1-3)."""
 HIDDEN_AT_M = (0.85, 1.2)
 """Where the hidden person stands, from the robot's base [m]: their reach (1.0) puts a hand near the tool."""
+BYSTANDER_BEYOND_M = (1.6, 2.6)
+"""How much farther from the base than the hidden person a bystander stands, in view [m]: far enough that the robot
+may run at speed beside them, near enough that a rule releasing a lost person by anyone who could have reached their
+place releases the hidden one."""
+BYSTANDER_BEARING_OFFSET_RAD = (math.radians(15.0), math.radians(40.0))
+"""How far round from the hidden person's bearing the bystander stands (either side) [rad]."""
 STAMP_LATE_S = (0.05, 0.14)
 """How late one tracker stamps its frames (within the data age limit with its latency capped) [s]."""
 
@@ -349,6 +355,29 @@ def _hidden_at_the_robot(
     return _clip_to("h8", False, frames, duration_s), shelves, math.hypot(x, y)
 
 
+def _bystander_beyond(
+    rng: np.random.Generator, hidden_xy_m: tuple[float, float], duration_s: float, coverage: Box
+) -> tuple[HumanScript | None, float]:
+    """Someone who walks in and stands :data:`BYSTANDER_BEYOND_M` farther out than the hidden person, a little round
+    from them, for the rest of the case; and how much farther [m]."""
+    beyond_m = float(rng.uniform(*BYSTANDER_BEYOND_M))
+    offset = float(rng.uniform(*BYSTANDER_BEARING_OFFSET_RAD)) * (1.0 if rng.random() < 0.5 else -1.0)
+    bearing = math.atan2(hidden_xy_m[1], hidden_xy_m[0]) + offset
+    x, y = _at(bearing, math.hypot(*hidden_xy_m) + beyond_m)
+    frames, t = _walk_in(rng, (x, y), float(rng.uniform(0.0, 2.0)), coverage)
+    facing = _heading_to_origin(x, y)
+    frames += [
+        Keyframe(t_s=t, xy_m=(x, y), heading_rad=facing),
+        Keyframe(t_s=max(duration_s, t + 1.0), xy_m=(x, y), heading_rad=facing),
+    ]
+    return _clip_to("bystander", False, frames, duration_s), beyond_m
+
+
+def _standing_xy_m(script: HumanScript) -> tuple[float, float]:
+    """Where a script ends [m]."""
+    return script.keyframes[-1].xy_m
+
+
 def _hostile_trackers(rng: np.random.Generator, trackers: Mapping[str, TrackerConfig]) -> dict[str, dict[str, Any]]:
     """Per tracker, what it does wrong: one stamps late (its latency capped), ids renewed, one joining late, now and
     then one merging people or naming parts by kind."""
@@ -379,7 +408,8 @@ def with_hostile_tracking(
     a second tracker where there was one, one tracker stamping late, trackers renewing ids, one joining late, and
     now and then one that merges people or names parts by kind (the door refuses those: the robots stop). In half
     the cases someone walks up to the robot, reaches toward it and vanishes behind shelves there, from every sensor
-    that saw them come in (the one who must stay held).
+    that saw them come in (the one who must stay held); in half of those, a bystander stands in view 1.6–2.6 m
+    farther out (whom a rule releasing the lost by anyone who could have reached their place takes for them).
 
     Returns:
         The people, the trackers, the hiding shelves and what was drawn (for the case's parameters).
@@ -403,6 +433,13 @@ def with_hostile_tracking(
         if hidden is not None:
             humans = [*humans, hidden]
             drawn["hidden_at_m"] = round(at_m, 3)
+            # drawn from a stream of its own, so that every other draw of the case stays as it was
+            own = rng.spawn(1)[0]
+            if own.random() < 0.5:
+                bystander, beyond_m = _bystander_beyond(own, _standing_xy_m(hidden), duration_s, coverage)
+                if bystander is not None:
+                    humans = [*humans, bystander]
+                    drawn["bystander_beyond_m"] = round(beyond_m, 3)
     updates = _hostile_trackers(rng, trackers)
     trackers = {n: TrackerConfig.model_validate(trackers[n].model_dump() | u) for n, u in updates.items()}
     drawn["shelves"] = len(shelves)

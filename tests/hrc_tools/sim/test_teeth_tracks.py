@@ -80,6 +80,40 @@ def test_forgetting_a_hidden_person_violates_where_keeping_them_does_not(
     assert real.program_progress_cycles > 0.2
 
 
+def with_a_bystander_beyond(scenario: Scenario, xy_m: tuple[float, float]) -> Scenario:
+    """The scene and a second person who walks in and stands at ``xy_m``, in the sensor's view, for the rest of it."""
+    bystander = HumanScript(
+        id="h2",
+        keyframes=[
+            Keyframe(t_s=0.5, xy_m=(xy_m[0], -6.0), heading_rad=NORTH),
+            Keyframe(t_s=4.0, xy_m=xy_m, heading_rad=NORTH),
+            Keyframe(t_s=DURATION_S, xy_m=xy_m, heading_rad=NORTH),
+        ],
+    )
+    return scenario.model_copy(update={"humans": [*scenario.humans, bystander]})
+
+
+def test_releasing_a_hidden_person_by_a_bystander_violates_where_persons_do_not(
+    cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 32 in the simulated cell, judged by the auditor on the true people: the person hidden at the tool and a
+    bystander standing in view 1.9 m farther out. The rule before persons (any detection that could have reached
+    the lost body since the loss, away from the entry band) releases the hidden person by the bystander and drives
+    the robot into their hand; persons keep them (only evidence about that very person releases them)."""
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_release_by_id_for_tests")
+    scenario = with_a_bystander_beyond(hidden_at_the_tool(), (0.3, -3.0))
+    raw = one_occluding_sensor(cell_config, forget=False)[0]
+    runs = {}
+    for by_id in (True, False):
+        config = CellVariant(unsafe_release_by_id=by_id).apply(raw)
+        robots = {name: load_robot_model(name, r) for name, r in config.robots.items()}
+        runs[by_id] = simulate(config, robots, scenario, LinkFaults(), DURATION_S, SEED, program_start_s={"ur5": TAU_S})
+    assert runs[True].audit.violations > 10, runs[True].to_dict()["audit"]
+    assert runs[True].audit.smallest_margin_moving_m < 0.0
+    assert runs[False].audit.violations == 0, runs[False].to_dict()["audit"]
+    assert runs[False].program_progress_cycles > 0.2  # it worked before the person hid: not stopped all along
+
+
 def test_the_forgetting_switch_is_refused_without_the_environment(
     cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch
 ) -> None:

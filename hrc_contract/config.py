@@ -543,6 +543,12 @@ class TrackerConfig(_Frozen):
     """Sensor properties; the tracker emulator plays them, the gateway only needs the names."""
 
     rate_hz: Annotated[float, Field(gt=0.0, le=1000.0)] = 30.0
+    wire: Literal["json", "packed"] = Field(
+        "json",
+        description="How the tracker's frames are written: JSON (hrc.humans/1) or packed (hrc.humans_packed/1, a "
+        "MessagePack map with each person's capsules as one binary array: for trackers with many capsules). The "
+        "gateway takes either on the same key; the tracker emulator writes this one.",
+    )
     noise_std_m: NonNegativeFloat = 0.01
     drop_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.0
     latency_s: NonNegativeFloat = Field(0.0, description="Capture-to-publish latency [s].")

@@ -24,7 +24,13 @@ import numpy as np
 import numpy.typing as npt
 
 from hrc_contract.config import PlausibilityConfig
-from hrc_contract.messages import MAX_CAPSULES_PER_MESSAGE, MAX_PAYLOAD_BYTES, Humans, parse_message_reference
+from hrc_contract.messages import (
+    MAX_CAPSULES_PER_MESSAGE,
+    MAX_PAYLOAD_BYTES,
+    Humans,
+    MessageError,
+    parse_message_reference,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -126,9 +132,14 @@ def humans_from_payload(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     ``tests/hrc_contract/test_humans.py``). 2000 capsules: ~1.4 ms against ~3.0 ms through pydantic
     (``python -m bench.door``).
 
+    A payload that opens a MessagePack map is a packed frame (:func:`humans_from_packed`); JSON opens with ``{`` or
+    whitespace, so neither is taken for the other.
+
     Raises:
-        MessageError: as :func:`hrc_contract.messages.parse_message`.
+        MessageError: as :func:`hrc_contract.messages.parse_message`, or :func:`humans_from_packed`'s reasons.
     """
+    if is_packed(payload):
+        return humans_from_packed(payload)
     fast = _humans_fast(payload)
     if fast is not None:
         return fast
@@ -163,6 +174,104 @@ def _humans_fast(payload: bytes) -> tuple[HumansHeader, HumanCapsules] | None:
         return None
     header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
     return header, HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], tuple(human_ids), tuple(names))
+
+
+# -- packed frames: the capsules as one binary array per person ----------------------------------------------------
+
+PACKED_SCHEMA = "hrc.humans_packed/1"
+"""The schema of a packed tracker frame (docs/contract.md, "Packed tracker frames")."""
+
+PACKED_ROW_BYTES = 7 * 8
+"""One capsule in a packed frame: ``a`` (x, y, z), ``b`` (x, y, z), ``radius``, little-endian float64 [m]."""
+
+_PACKED_ROW = np.dtype("<f8")
+
+
+class _PackedHuman(msgspec.Struct, forbid_unknown_fields=True):
+    id: _Text64
+    names: Annotated[list[_Text64], msgspec.Meta(min_length=1, max_length=MAX_CAPSULES_PER_MESSAGE)]
+    capsules: bytes
+
+
+class _PackedHumans(msgspec.Struct, forbid_unknown_fields=True, rename={"schema_": "schema"}):
+    schema_: str
+    tracker: str
+    seq: _NonNegativeInt
+    stamp_ns: _NonNegativeInt
+    humans: Annotated[list[_PackedHuman], msgspec.Meta(max_length=256)]
+
+
+_PACKED_DECODER = msgspec.msgpack.Decoder(_PackedHumans)
+_PACKED_ENCODER = msgspec.msgpack.Encoder()
+
+
+def is_packed(payload: bytes) -> bool:
+    """Whether ``payload`` opens a MessagePack map (fixmap, map 16, map 32): a packed frame, not JSON."""
+    return bool(payload) and (0x80 <= payload[0] <= 0x8F or payload[0] in (0xDE, 0xDF))
+
+
+def packed_payload(message: Humans) -> bytes:
+    """``message`` as a packed frame: per person its id, its capsules' names and one array of their rows."""
+    humans = []
+    for human in message.humans:
+        rows = np.array([(*c.a, *c.b, c.radius) for c in human.capsules], dtype=_PACKED_ROW)
+        humans.append({"id": human.id, "names": [c.name for c in human.capsules], "capsules": rows.tobytes()})
+    doc = {"schema": PACKED_SCHEMA, "tracker": message.tracker, "seq": message.seq, "stamp_ns": message.stamp_ns}
+    return _PACKED_ENCODER.encode({**doc, "humans": humans})
+
+
+def _decode_packed(payload: bytes) -> _PackedHumans:
+    """The packed frame's document, its schema and tracker name checked (:func:`humans_from_packed`'s reasons)."""
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise MessageError("too_large", f"{len(payload)} bytes, at most {MAX_PAYLOAD_BYTES} allowed")
+    try:
+        wire = _PACKED_DECODER.decode(payload)
+    except msgspec.ValidationError as exc:
+        raise MessageError("invalid", str(exc)[:300]) from None
+    except msgspec.DecodeError as exc:
+        raise MessageError("not_msgpack", str(exc)[:200]) from None
+    if wire.schema_ != PACKED_SCHEMA:
+        raise MessageError("wrong_schema", f"schema {wire.schema_[:80]!r}, expected {PACKED_SCHEMA!r}")
+    if _NAME.fullmatch(wire.tracker) is None:
+        raise MessageError("invalid", f"tracker {wire.tracker[:80]!r}: not a name ([a-z0-9_-], 1 to 64 characters)")
+    return wire
+
+
+def humans_from_packed(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
+    """A packed frame's header and capsules, held to the same rules as a JSON frame (docs/contract.md): a Python
+    object per person and per name, none per coordinate.
+
+    Raises:
+        MessageError: ``too_large``, ``not_msgpack`` (not a MessagePack document of the packed frame's shape),
+            ``wrong_schema``, ``invalid`` (a tracker name, an id, a part name, a count or a radius the contract
+            does not allow, or capsule bytes that are not one row per name), ``non_finite``.
+    """
+    wire = _decode_packed(payload)
+    tracker = wire.tracker
+    human_ids: list[str] = []
+    names: list[str] = []
+    blocks: list[bytes] = []
+    for k, human in enumerate(wire.humans):
+        count = len(human.names)
+        if len(human.capsules) != count * PACKED_ROW_BYTES:
+            raise MessageError(
+                "invalid",
+                f"humans[{k}]: {len(human.capsules)} bytes of capsules for {count} names "
+                f"({PACKED_ROW_BYTES} bytes each expected)",
+            )
+        human_ids.extend([f"{tracker}/{human.id}"] * count)
+        names.extend(human.names)
+        blocks.append(human.capsules)
+        if len(names) > MAX_CAPSULES_PER_MESSAGE:
+            raise MessageError("invalid", f"more than {MAX_CAPSULES_PER_MESSAGE} capsules in one message")
+    rows = np.frombuffer(b"".join(blocks), dtype=_PACKED_ROW).astype(np.float64).reshape(-1, 7)
+    if not np.isfinite(rows).all():
+        raise MessageError("non_finite", "a capsule coordinate or radius is not a finite number")
+    radius = rows[:, 6]
+    if radius.size and not ((radius >= 0.0) & (radius <= 2.0)).all():
+        raise MessageError("invalid", "a capsule radius outside 0 to 2 m")
+    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
+    return header, HumanCapsules(rows[:, 0:3], rows[:, 3:6], radius, tuple(human_ids), tuple(names))
 
 
 def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:

@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hrc_contract.config import Box, TrackerConfig
-from hrc_contract.messages import Humans
+from hrc_contract.humans import packed_payload
+from hrc_contract.messages import Humans, to_payload
 from tracker_emu.occlusion import NO_BLOCKERS, Blockers, fixture_blockers, join_blockers
 from tracker_emu.scenario import Scenario, TrackedHuman, humans_at, scenario_time
 from tracker_emu.sensor import humans_message, measure, merge_close, names_by_kind, rename, renew_ids, swap_ids
@@ -127,6 +128,11 @@ class TrackerEmulator:
     def loop_index(self, now_s: float) -> int:
         """How many times the scenario has restarted by ``now_s`` (0 during the first run)."""
         return math.floor(max(0.0, self.elapsed_s(now_s)) / self.scenario.duration_s)
+
+    def payload(self, tracker: str, message: Humans) -> bytes:
+        """``message`` written as ``tracker`` writes its frames (``trackers.<name>.wire``: JSON or packed)."""
+        packed = self._sensors[tracker].config.wire == "packed"
+        return packed_payload(message) if packed else to_payload(message)
 
     @property
     def occludes(self) -> bool:

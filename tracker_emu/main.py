@@ -165,7 +165,7 @@ def _publish_due(
         if publishers.zed is not None:
             publishers.zed.publish(name, message, emulator.present_ids)
         else:
-            publishers.humans[name].put(to_payload(message))
+            publishers.humans[name].put(emulator.payload(name, message))
         published = True
     truth_message = truth.step(now_s, now_ns) if truth is not None else None
     if truth_message is not None:

@@ -17,7 +17,8 @@ def test_the_door_benchmark_runs_and_reports(tmp_path: Path) -> None:
     doc = json.loads(out.read_text())
     assert set(doc["results"]) == set(door.SIZES)
     for figures in doc["results"].values():
-        assert {"json.loads", "reference", "door"} <= set(figures)
+        assert {"json.loads", "reference", "door", "packed"} <= set(figures)
+        assert figures["packed_bytes"] < figures["bytes"]
         assert figures["door"]["n"] == 10
     assert {t["verdict"] for t in doc["targets"]} <= {"PASS", "MISS"}
 

@@ -18,8 +18,17 @@ from support.paths import REPO_ROOT
 from hrc_contract import keys
 from hrc_contract.messages import JointState, parse_message
 from hrc_contract.status_models import EffectiveConfig, GatewayStatus
+from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import collapse, is_subsequence, load_scale, record, running_cell, stop_program
+from hrc_tools.cell.procs import (
+    collapse,
+    is_subsequence,
+    load_scale,
+    record,
+    running_cell,
+    stop_program,
+    write_cell_config,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -240,3 +249,27 @@ def test_status_is_also_published_on_zenoh(tmp_path: Path) -> None:
         config = EffectiveConfig.model_validate_json(cell.get("/api/v1/config").content)
         assert len(config.config_sha256) == 64
         assert config.robots["ur5"].urdf.endswith("ur5_robot.urdf")
+
+
+def test_packed_tracker_frames_run_the_cell_end_to_end(tmp_path: Path) -> None:
+    """The tracker emulator writes every tracker's frames packed (``wire = "packed"``, hrc.humans_packed/1); the
+    gateway admits them on the same keys: the person standing inside is seen by every tracker, nothing is refused,
+    and a broken packed frame is counted and survived like broken JSON."""
+    config = load_cell_config(None)
+    packed = {name: t.model_copy(update={"wire": "packed"}) for name, t in config.trackers.items()}
+    path = write_cell_config(config.model_copy(update={"trackers": packed}), tmp_path / "cell.toml")
+    with running_cell(tmp_path, config=path, scenario="standing_inside") as cell:
+        cell.wait_until(lambda s: not s["faults"] and s["min_distance_m"] is not None, 20.0, "a person seen, no fault")
+        status = cell.get("/api/v1/status").json()
+        for name in config.trackers:
+            assert status["inputs"]["received"][f"tracker/{name}"] > 0
+            assert f"tracker/{name}" not in status["inputs"]["rejected"]
+        assert {h["tracker"] for h in status["humans"]} == set(config.trackers)
+        with zenoh.open(session_config(connect=[cell.gateway_endpoint])) as session:
+            time.sleep(0.5)
+            session.put(keys.tracker_humans(config.cell, "front"), b"\x81\xa6schema")  # a packed map cut short
+            time.sleep(0.5)
+        rejected = cell.get("/api/v1/status").json()["inputs"]["rejected"]
+        assert rejected["tracker/front"] == {"not_msgpack": 1}
+        cell.wait_until(lambda s: not s["faults"], 5.0, "the fault to clear after the broken frame")
+        assert cell.gateway.poll() is None

@@ -22,8 +22,8 @@ from gateway.inputs import (
 )
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.humans import capsules_from_message
-from hrc_contract.messages import Humans
+from hrc_contract.humans import capsules_from_message, packed_payload
+from hrc_contract.messages import Humans, parse_message
 from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
 
@@ -1061,3 +1061,29 @@ def test_a_tracker_at_its_rate_loses_nothing_at_the_door(store: InputStore) -> N
         t_ns = NOW - 10_000 * MS + k * 33_333_333 + (3 * MS if k % 2 else -3 * MS)
         store.on_humans(FRONT_KEY, enc(hm(seq=k + 1, stamp_ns=t_ns - 30 * MS)), at(t_ns))
     assert "rate_exceeded" not in rejected(store, "tracker/front")
+
+
+def test_a_packed_frame_is_stored_as_its_json_would_be_and_judged_alike(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    """The same frame through the door as JSON and packed: the same stored capsules; the same refusal of a capsule
+    outside the cell (the plausibility at the door does not depend on how the frame was written)."""
+    stores = {wire: InputStore(cell_config, {"ur5": ur5}) for wire in ("json", "packed")}
+    message = parse_message(enc(hm(seq=3)), Humans)
+    stores["json"].on_humans(FRONT_KEY, enc(hm(seq=3)), at())
+    stores["packed"].on_humans(FRONT_KEY, packed_payload(message), at())
+    frames = {wire: store.snapshot(at()).humans["front"] for wire, store in stores.items()}
+    assert frames["json"] is not None
+    assert frames["packed"] is not None
+    assert frames["packed"].seq == frames["json"].seq == 3
+    assert frames["packed"].capsules.human_ids == frames["json"].capsules.human_ids
+    np.testing.assert_array_equal(frames["packed"].capsules.h_a_world, frames["json"].capsules.h_a_world)
+    np.testing.assert_array_equal(frames["packed"].capsules.radius_m, frames["json"].capsules.radius_m)
+
+    far = hm(seq=4)
+    far["humans"][0]["capsules"][0]["a"] = [2.0, 0.0, 90.0]
+    stores["json"].on_humans(FRONT_KEY, enc(far), at())
+    stores["packed"].on_humans(FRONT_KEY, packed_payload(parse_message(enc(far), Humans)), at())
+    assert rejected(stores["packed"], "tracker/front") == rejected(stores["json"], "tracker/front")
+    assert rejected(stores["packed"], "tracker/front") == {"outside_world": 1}
+    assert fault_codes(stores["packed"]) == fault_codes(stores["json"]) == {"tracker/front": "tracker_implausible"}

@@ -5,13 +5,30 @@ from __future__ import annotations
 
 import json
 
+import msgspec
 import numpy as np
 import pytest
 from support.payload_mutations import mutate_payload, random_float_token
 
 from hrc_contract import humans as door
-from hrc_contract.humans import HumanCapsules, HumansHeader, capsules_from_message, humans_from_payload
-from hrc_contract.messages import MAX_CAPSULES_PER_MESSAGE, Humans, MessageError, parse_message_reference
+from hrc_contract.humans import (
+    PACKED_ROW_BYTES,
+    HumanCapsules,
+    HumansHeader,
+    capsules_from_message,
+    humans_from_packed,
+    humans_from_payload,
+    is_packed,
+    packed_payload,
+)
+from hrc_contract.messages import (
+    MAX_CAPSULES_PER_MESSAGE,
+    MAX_PAYLOAD_BYTES,
+    Humans,
+    MessageError,
+    parse_message,
+    parse_message_reference,
+)
 
 STAMP = 1_790_000_000_000_000_000
 
@@ -139,7 +156,117 @@ def test_the_door_agrees_with_the_reference_on_seeded_mutations() -> None:
             for number in {w.strip(",]}") for w in text.split() if w[:1].isdigit() and "." in w}:
                 text = text.replace(number, random_float_token(rng), 1)
             payload = text.encode()
+        if is_packed(payload):  # a mutated first byte that opens a MessagePack map: the packed door judges it
+            assert _outcome(humans_from_payload, payload)[0] == "error"
+            continue
         reference = _outcome(_reference, payload)
         assert _outcome(humans_from_payload, payload) == reference, payload
         outcomes.add(reference[0] if reference[0] == "ok" else str(reference[1]))
     assert outcomes == {"ok", "not_json", "non_finite", "wrong_schema", "invalid"}
+
+
+# -- packed frames ---------------------------------------------------------------------------------------------------
+
+
+def _packed_doc(raw: dict) -> dict:
+    """The packed frame of a JSON frame, as a document (to be changed by a test, then encoded)."""
+    return msgspec.msgpack.decode(packed_payload(parse_message(json.dumps(raw).encode(), Humans)))
+
+
+def test_a_packed_frame_gives_the_same_header_and_capsules_as_its_json_to_the_bit() -> None:
+    for people, parts in ((0, 1), (1, 1), (3, 15), (2, 1000)):
+        payload = json.dumps(_frame(np.random.default_rng(people + parts), people, parts)).encode()
+        packed = packed_payload(parse_message(payload, Humans))
+        assert is_packed(packed)
+        assert not is_packed(payload)
+        assert not is_packed(b" " + payload)
+        assert _outcome(humans_from_payload, packed) == _outcome(_reference, payload)
+        assert len(packed) < len(payload)
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        (lambda doc: doc.update(schema="hrc.humans/1"), "wrong_schema"),
+        (lambda doc: doc.update(tracker="Front"), "invalid"),
+        (lambda doc: doc.update(tracker="front\n"), "invalid"),
+        (lambda doc: doc.update(seq=-1), "invalid"),
+        (lambda doc: doc.update(extra=1), "invalid"),
+        (lambda doc: doc.pop("stamp_ns"), "invalid"),
+        (lambda doc: doc["humans"][0].update(id=""), "invalid"),
+        (lambda doc: doc["humans"][0].update(id="x" * 65), "invalid"),
+        (lambda doc: doc["humans"][0]["names"].append("extra"), "invalid"),  # a name without its row
+        (lambda doc: doc["humans"][0].update(capsules=doc["humans"][0]["capsules"][:-1]), "invalid"),
+        (lambda doc: doc["humans"][0].update(names=[], capsules=b""), "invalid"),  # a person with no capsule
+        (lambda doc: doc["humans"][0]["names"].__setitem__(0, ""), "invalid"),
+        (lambda doc: doc["humans"][0].update(capsules="not bytes"), "invalid"),
+        (lambda doc: doc["humans"].extend(doc["humans"] * 200), "invalid"),  # more capsules than a frame may carry
+    ],
+)
+def test_packed_refusals_carry_their_reason(change, reason: str) -> None:
+    doc = _packed_doc(_frame(np.random.default_rng(5), 2, 10))
+    change(doc)
+    payload = msgspec.msgpack.encode(doc)
+    assert _outcome(humans_from_payload, payload) == ("error", reason)
+
+
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [(float("nan"), "non_finite"), (float("inf"), "non_finite"), (-0.01, "invalid"), (2.01, "invalid")],
+)
+def test_a_packed_radius_or_coordinate_the_contract_refuses_is_refused(value: float, reason: str) -> None:
+    doc = _packed_doc(_frame(np.random.default_rng(6), 1, 3))
+    rows = np.frombuffer(doc["humans"][0]["capsules"], dtype="<f8").copy().reshape(-1, 7)
+    rows[1, 6 if reason == "invalid" else 2] = value
+    doc["humans"][0]["capsules"] = rows.tobytes()
+    assert _outcome(humans_from_payload, msgspec.msgpack.encode(doc)) == ("error", reason)
+
+
+def test_what_is_not_a_packed_frame_is_refused_with_a_reason_never_an_exception() -> None:
+    assert _outcome(humans_from_packed, b"\x81") == ("error", "not_msgpack")  # a map cut short
+    assert _outcome(humans_from_packed, b"\x81\xa6schema") == ("error", "not_msgpack")  # a key without its value
+    assert _outcome(humans_from_packed, b"\xde\x00") == ("error", "not_msgpack")
+    assert _outcome(humans_from_packed, msgspec.msgpack.encode([1, 2])) == ("error", "invalid")
+    big = b"\x81" + b"\x00" * MAX_PAYLOAD_BYTES
+    assert _outcome(humans_from_payload, big) == ("error", "too_large")
+
+
+def test_seeded_damage_to_packed_frames_is_refused_or_read_as_a_frame_the_contract_allows() -> None:
+    """Bytes flipped, cut or inserted anywhere: every outcome is a refusal with a reason, or a frame whose every
+    value the contract allows (the damage hit a coordinate: still finite, still a frame)."""
+    rng = np.random.default_rng(12)
+    outcomes: set[str] = set()
+    for _ in range(1500):
+        packed = bytearray(packed_payload(parse_message(json.dumps(_frame(rng, 2, 3)).encode(), Humans)))
+        for _ in range(int(rng.integers(1, 4))):
+            if not packed:
+                break
+            at = int(rng.integers(len(packed)))
+            what = rng.random()
+            if what < 0.6:
+                packed[at] = int(rng.integers(256))
+            elif what < 0.8:
+                del packed[at:]
+            else:
+                packed[at:at] = bytes(rng.integers(0, 256, int(rng.integers(1, 9))).astype(np.uint8))
+        outcome = _outcome(humans_from_payload, bytes(packed))
+        outcomes.add(outcome[0] if outcome[0] == "ok" else str(outcome[1]))
+        if outcome[0] == "ok":
+            _, rows, ids, names = outcome[1]
+            values = np.frombuffer(rows, dtype=np.float64).reshape(-1, 7)
+            assert np.isfinite(values).all()
+            assert ((values[:, 6] >= 0.0) & (values[:, 6] <= 2.0)).all()
+            assert len(ids) == len(names) == len(values) <= MAX_CAPSULES_PER_MESSAGE
+            assert all(0 < len(n) <= 64 for n in names)
+    assert {"ok", "not_msgpack", "invalid"} <= outcomes
+    # a damaged first byte no longer opens a map: the JSON door refuses it
+    assert outcomes <= {"ok", "not_msgpack", "invalid", "non_finite", "wrong_schema", "not_json"}
+
+
+def test_a_packed_row_is_seven_little_endian_doubles() -> None:
+    raw = _frame(np.random.default_rng(7), 1, 1)
+    doc = _packed_doc(raw)
+    capsule = raw["humans"][0]["capsules"][0]
+    expected = np.array([*capsule["a"], *capsule["b"], capsule["radius"]], dtype="<f8").tobytes()
+    assert doc["humans"][0]["capsules"] == expected
+    assert len(expected) == PACKED_ROW_BYTES

@@ -20,7 +20,8 @@ only for a decision that lets the robot move). Measured in each phase, ``--durat
   ``loop.budget_overruns`` (decisions with δ > 0 whose successor came later than budgeted), ``loop.compute_max_s``;
   faults (a gateway that cannot keep its budget must stop the robot and say why).
 
-    python -m bench.crowded [--duration 20] [--warmup 3] [--near-m 2.4] [--json out/bench/crowded.json]
+    python -m bench.crowded [--duration 20] [--warmup 3] [--near-m 2.4] [--wire json|packed]
+                            [--json out/bench/crowded.json]
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, NamedTuple
 
+import msgspec
 import zenoh
 
 from bench._progress import Progress
@@ -46,7 +48,8 @@ from bench.compute import human_capsules
 from bench.loop import Stamp, periods
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.messages import MAX_CAPSULES_PER_MESSAGE
+from hrc_contract.humans import PACKED_SCHEMA, packed_payload
+from hrc_contract.messages import MAX_CAPSULES_PER_MESSAGE, Humans
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import (
@@ -104,17 +107,28 @@ def crowd(base_xy_m: tuple[float, float], near_m: float, capsules: int) -> list[
 
 
 class FrameTemplate(NamedTuple):
-    """A tracker frame serialised once; each put only writes its ``seq`` and ``stamp_ns`` in."""
+    """A tracker frame serialised once; each put only writes its ``seq`` and ``stamp_ns`` in (JSON), or encodes the
+    packed people again around them (packed: one binary array per person, cheap to encode)."""
 
     head: bytes
     humans: bytes
+    packed_humans: list[dict[str, Any]] | None = None
+    tracker: str = ""
 
     @classmethod
-    def of(cls, tracker: str, humans: list[dict[str, Any]]) -> FrameTemplate:
+    def of(cls, tracker: str, humans: list[dict[str, Any]], wire: str = "json") -> FrameTemplate:
         head = json.dumps({"schema": "hrc.humans/1", "tracker": tracker})[:-1].encode()
-        return cls(head, json.dumps(humans, separators=(",", ":")).encode())
+        body = json.dumps(humans, separators=(",", ":")).encode()
+        if wire != "packed":
+            return cls(head, body)
+        message = Humans.model_validate({"tracker": tracker, "seq": 0, "stamp_ns": 0, "humans": humans})
+        packed = msgspec.msgpack.decode(packed_payload(message))["humans"]
+        return cls(head, body, packed, tracker)
 
     def payload(self, seq: int, stamp_ns: int) -> bytes:
+        if self.packed_humans is not None:
+            doc = {"schema": PACKED_SCHEMA, "tracker": self.tracker, "seq": seq, "stamp_ns": stamp_ns}
+            return msgspec.msgpack.encode({**doc, "humans": self.packed_humans})
         return b'%s, "seq": %d, "stamp_ns": %d, "humans": %s}' % (self.head, seq, stamp_ns, self.humans)
 
 
@@ -124,7 +138,10 @@ class FakeTrackers:
     Frames are stamped when put (no capture latency); :meth:`show` changes the people from the next frame on.
     """
 
-    def __init__(self, session: zenoh.Session, cell: str, trackers: Sequence[str], rate_hz: float) -> None:
+    def __init__(
+        self, session: zenoh.Session, cell: str, trackers: Sequence[str], rate_hz: float, wire: str = "json"
+    ) -> None:
+        self._wire = wire
         self._publishers = {
             t: session.declare_publisher(keys.tracker_humans(cell, t), congestion_control=zenoh.CongestionControl.BLOCK)
             for t in trackers
@@ -136,7 +153,7 @@ class FakeTrackers:
         self.frames = 0
 
     def show(self, humans: list[dict[str, Any]]) -> None:
-        self._templates = {t: FrameTemplate.of(t, humans) for t in self._publishers}
+        self._templates = {t: FrameTemplate.of(t, humans, self._wire) for t in self._publishers}
 
     def __enter__(self) -> FakeTrackers:
         self._thread.start()
@@ -317,6 +334,7 @@ class Settings:
     warmup_s: float
     near_m: float
     rate_hz: float = RATE_HZ
+    wire: str = "json"
 
 
 def _watch(duration_s: float, procs: Sequence[Any], logs: Sequence[Path], tick: Callable[[float], None]) -> None:
@@ -360,7 +378,7 @@ def run_once(base: CellConfig, settings: Settings, work_dir: Path, progress: Pro
     with (
         programs(specs) as procs,
         zenoh.open(session_config(connect=[gw_ep])) as session,
-        FakeTrackers(session, base.cell, sorted(base.trackers), TRACKER_RATE_HZ) as trackers,
+        FakeTrackers(session, base.cell, sorted(base.trackers), TRACKER_RATE_HZ, settings.wire) as trackers,
     ):
         subscribers = [
             session.declare_subscriber(keys.robot_override(base.cell, robot), recorder.on_override),
@@ -415,6 +433,7 @@ def run(settings: Settings, config_path: Path | None, work_dir: Path) -> Report:
             "near_m": settings.near_m,
             "tracker_rate_hz": TRACKER_RATE_HZ,
             "capsules_per_frame": CAPSULES_PER_FRAME,
+            "wire": settings.wire,
             "trackers": sorted(base.trackers),
             "config": str(config_path) if config_path else "configs/cell.toml",
         },
@@ -512,12 +531,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=3.0, help="seconds after each phase starts before measuring")
     parser.add_argument("--near-m", type=float, default=2.4, help="the near person's distance from the base [m]")
     parser.add_argument("--config", type=Path, default=None, help="cell configuration (default configs/cell.toml)")
+    parser.add_argument(
+        "--wire",
+        choices=("json", "packed"),
+        default="json",
+        help="how the fake trackers write their frames: hrc.humans/1 (JSON) or hrc.humans_packed/1",
+    )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
     if args.duration <= 0 or args.warmup < 0 or args.near_m <= 0:
         parser.error("--duration and --near-m must be > 0, --warmup >= 0")
     print_header("crowded cell: the decision interval against its budget, 2 trackers × 2000 capsules per frame")
-    report = run(Settings(args.duration, args.warmup, args.near_m), args.config, args.json.parent)
+    report = run(Settings(args.duration, args.warmup, args.near_m, wire=args.wire), args.config, args.json.parent)
     doc = report.finish(args.json)
     print_report(doc)
     print(f"\nwrote {args.json}")

@@ -12,6 +12,7 @@ import pytest
 
 from bench import crowded
 from bench.crowded import Decision, StatusSample
+from hrc_contract.humans import HumansHeader, humans_from_payload
 from hrc_contract.messages import Humans, parse_message
 
 MS = 1_000_000
@@ -24,6 +25,9 @@ def test_the_crowd_fills_a_frame_to_the_limit_and_the_frame_is_a_valid_message()
     assert len(crowded.crowd((0.0, 0.0), 2.4, 0)) == 1  # the sparse phase: the near person alone
     frame = parse_message(crowded.FrameTemplate.of("front", people).payload(7, 123), Humans)
     assert (frame.tracker, frame.seq, frame.stamp_ns, len(frame.humans)) == ("front", 7, 123, len(people))
+    header, capsules = humans_from_payload(crowded.FrameTemplate.of("front", people, "packed").payload(7, 123))
+    assert header == HumansHeader("front", 7, 123, len(people))
+    assert capsules.n_capsules == crowded.CAPSULES_PER_FRAME
 
 
 def _status(seq: int, budget_ms: float) -> StatusSample:

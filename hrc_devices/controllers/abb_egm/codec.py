@@ -24,7 +24,8 @@ Repeated doubles are written one by one (proto2's default, as ``egm_pb2`` does) 
 
 **Joints.** Degrees (and deg/s) on the wire, radians on our side (:func:`joints_deg`, :func:`joints_rad`). An ABB
 robot has at most six axes in ``joints``; a 7-axis arm sends its seventh (the arm angle) as ``externalJoints[0]``.
-Here the seventh joint of the robot's model (index 6) is that value. (On a YuMi the arm angle sits between axes 2
+Here the seventh joint of the robot's model (index 6) is that value, and any further joints (the Panda's two fingers)
+follow it in ``externalJoints``, in the model's order. (On a YuMi the arm angle sits between axes 2
 and 3 physically; a bridge to a real YuMi would map it there.)
 """
 
@@ -352,8 +353,8 @@ def decode_sensor(data: bytes) -> EgmSensor:
 
 
 def joints_deg(q_rad: npt.ArrayLike) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """``joints`` and ``externalJoints`` [deg] of a robot's joint vector [rad] (a seventh joint rides as
-    ``externalJoints[0]``; a robot with more than seven is not an ABB arm)."""
+    """``joints`` and ``externalJoints`` [deg] of a robot's joint vector [rad]: the first six, then the rest (a
+    seventh joint, the arm angle, as ``externalJoints[0]``)."""
     q_deg = np.degrees(np.asarray(q_rad, dtype=float)).tolist()
     return tuple(q_deg[:ROBOT_AXES]), tuple(q_deg[ROBOT_AXES:])
 

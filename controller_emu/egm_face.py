@@ -11,7 +11,8 @@ and ``tm`` [ms since the face started], ``feedBack`` (the joint angles [deg] and
 (the reference it is converging on; its position where it has none), ``motorState`` ON, ``rapidExecState`` RUNNING,
 ``mciState`` RUNNING while it follows and STOPPED otherwise, ``mciConvergenceMet`` (every joint within
 :data:`CONVERGENCE_DEG` of the reference). The PC answers the sender's address with an ``EgmSensor``: ``planned``
-joints [deg] are the reference, ``speedRef`` joints [deg/s] the feed-forward (absent: 0). Joints beyond the sixth
+joints [deg] are the reference, ``speedRef`` joints [deg/s] the feed-forward (absent: 0; absent for the external
+joints only: 0 for those). Joints beyond the sixth
 ride in ``externalJoints`` in the model's order (a 7-axis arm's arm angle first; the Panda's fingers after it):
 :mod:`hrc_devices.controllers.abb_egm.codec`.
 
@@ -48,6 +49,7 @@ from controller_emu.open_node import OpenControllerNode, OpenControllerOutput
 from hrc_contract.messages import JointCommand
 from hrc_devices.controllers.abb_egm.codec import (
     MAX_DATAGRAM_BYTES,
+    ROBOT_AXES,
     EgmRobot,
     MciState,
     MotorState,
@@ -134,7 +136,9 @@ def sensor_command(data: bytes, robot: str, n_joints: int, seq: int, stamp_ns: i
     sensor = decode_sensor(data)
     q_rad = joints_rad(sensor.planned_deg, sensor.planned_external_deg, n_joints)
     if sensor.speed_ref_degps or sensor.speed_ref_external_degps:
-        qd_radps = joints_rad(sensor.speed_ref_degps, sensor.speed_ref_external_degps, n_joints)
+        # external joints without a speed reference get none (send_to_robot's external_joints_speed is optional)
+        external_degps = sensor.speed_ref_external_degps or (0.0,) * max(n_joints - ROBOT_AXES, 0)
+        qd_radps = joints_rad(sensor.speed_ref_degps, external_degps, n_joints)
     else:
         qd_radps = np.zeros(n_joints)
     return JointCommand(robot=robot, seq=seq, stamp_ns=stamp_ns, q=q_rad.tolist(), qd=qd_radps.tolist(), delta=1.0)

@@ -258,8 +258,10 @@ def test_foreign_broken_and_wrong_datagrams_are_counted_and_dropped(panda_node: 
     assert face.on_datagram(b"\x0b", ("127.0.0.1", 6510), now) == "malformed"
     six = encode_sensor(EgmSensor(seqno=1, tm_ms=0, planned_deg=joints))
     assert face.on_datagram(six, ("127.0.0.1", 6510), now) == "joint_count"
-    half_speed = encode_sensor(replace(EgmSensor(seqno=1, tm_ms=0, planned_deg=joints), speed_ref_degps=(1.0,) * 6))
-    assert face.on_datagram(half_speed, ("127.0.0.1", 6510), now) == "joint_count"
+    short_speed = encode_sensor(
+        replace(EgmSensor(seqno=1, tm_ms=0, planned_deg=joints, planned_external_deg=external), speed_ref_degps=(1.0,))
+    )
+    assert face.on_datagram(short_speed, ("127.0.0.1", 6510), now) == "joint_count"
     assert face.on_datagram(good, ("127.0.0.1", 6510), now) is None
     stats = face.stats()
     assert (stats.received, stats.accepted) == (5, 1)
@@ -275,6 +277,9 @@ def test_a_sensor_datagram_becomes_a_command_in_radians() -> None:
     np.testing.assert_allclose(command.q, [np.pi / 2] * 6 + [-np.pi / 4])
     assert command.qd == [0.0] * 7  # no speed reference: no feed-forward
     assert (command.robot, command.seq, command.stamp_ns) == ("panda7", 3, 5)
+    with_speed = encode_sensor(replace(EgmSensor(9, 0, (90.0,) * 6, (-45.0,)), speed_ref_degps=(1.0,) * 6))
+    command = sensor_command(with_speed, "panda7", 7, seq=4, stamp_ns=6)
+    np.testing.assert_allclose(command.qd, [np.radians(1.0)] * 6 + [0.0])  # no external speed: none for the arm angle
     assert len(sensor_command(data, "ur5", 6, seq=0, stamp_ns=5).q) == 6  # a track or positioner: not the arm's
     with pytest.raises(EgmError, match="joint_count"):
         sensor_command(data, "panda", 9, seq=0, stamp_ns=5)  # the fingers are missing

@@ -6,7 +6,6 @@ counted and dropped. The emulator's loop runs in a thread at its real rate; noth
 
 from __future__ import annotations
 
-import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
@@ -16,6 +15,7 @@ import numpy.typing as npt
 import pytest
 from abb_robot_client._egm_protobuf import egm_pb2
 from abb_robot_client.egm import EGM, EGMRobotState
+from support.egm import EmulatorLoop
 from support.paths import DEFAULT_CELL_PATH
 
 from controller_emu.egm_face import EgmFace, robot_message, sender_is_pc, sensor_command
@@ -28,7 +28,6 @@ from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.rate_loop import RateLoop
 
 FloatArray = npt.NDArray[np.float64]
 WATCHDOG_S = 0.1
@@ -65,31 +64,6 @@ def client() -> Iterator[EGM]:
     egm = EGM(port=0)  # a free port of its own: the kernel's choice
     yield egm
     egm.close()
-
-
-class EmulatorLoop:
-    """The emulator's open loop in a thread: ``node.cycle`` then ``face.on_cycle`` every ``cycle_s`` (as
-    ``controller_emu.main`` runs it, without Zenoh)."""
-
-    def __init__(self, node: OpenControllerNode, face: EgmFace) -> None:
-        self.node, self.face = node, face
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, name="emulator-loop", daemon=True)
-
-    def _run(self) -> None:
-        rate = RateLoop(self.node.config.cycle_s)
-        while rate.sleep(self.stop):
-            self.face.on_cycle(self.node.cycle(read_clocks()))
-
-    def __enter__(self) -> EmulatorLoop:
-        self.face.start()
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop.set()
-        self.thread.join(timeout=5.0)
-        self.face.close()
 
 
 def _emulator(node: OpenControllerNode, client: EGM) -> EmulatorLoop:

@@ -1,6 +1,6 @@
 """``hrc-controller-emu --egm HOST:PORT`` as a process: an open Panda (configs/cell_two_arms.toml with ``control =
 "open"``) plays ABB EGM's controller side toward abb-robot-client's ``EGM``, which reads its feedback and drives it;
-the truth key shows the same motion; SIGINT ends it cleanly."""
+the truth key shows the same motion, the cell's state key stays silent (a bridge's); SIGINT ends it cleanly."""
 
 from __future__ import annotations
 
@@ -59,6 +59,7 @@ def test_abb_robot_client_reads_and_drives_the_emulators_egm_face(
 ) -> None:
     proc, endpoint, log_path = egm_controller
     truth = Recorder(lambda payload: parse_message(payload, JointState))
+    reported = Recorder(lambda payload: parse_message(payload, JointState))
     state = _receive(client)  # the controller speaks first, once it runs (start-up included)
     np.testing.assert_allclose(state.joint_angles, np.degrees(Q0[:6]), rtol=0, atol=1e-6)
     np.testing.assert_allclose(state.external_axes, np.degrees(Q0[6:]), rtol=0, atol=1e-6)
@@ -67,6 +68,7 @@ def test_abb_robot_client_reads_and_drives_the_emulators_egm_face(
     target_deg = np.degrees(target)
     with zenoh.open(session_config(connect=[endpoint])) as session:
         truth_sub = session.declare_subscriber(keys.truth_robot_state(CELL, ROBOT), truth.on_sample)
+        state_sub = session.declare_subscriber(keys.robot_state(CELL, ROBOT), reported.on_sample)
         end = time.monotonic() + DEADLINE_S
         while np.max(np.abs(np.r_[state.joint_angles, state.external_axes] - target_deg)) > 0.05:
             assert time.monotonic() < end, f"the emulator did not follow within {DEADLINE_S} s"
@@ -79,7 +81,8 @@ def test_abb_robot_client_reads_and_drives_the_emulators_egm_face(
             assert client.send_to_robot(target_deg[:6], np.zeros(6), external_joints=target_deg[6:])
             _receive(client, 5.0)
         assert truth.latest().mode == "running"
-        del truth_sub
+        assert reported.items() == [], "with EGM the state key is the bridge's: the emulator publishes none there"
+        del truth_sub, state_sub
     proc.send_signal(signal.SIGINT)
     assert proc.wait(10.0) == 0
     log = log_path.read_text()

@@ -1,8 +1,9 @@
 """Emulator of an industrial controller: closed (runs a pre-planned program and accepts only a speed override δ) or
-open (follows the joint references the gateway streams, as ABB's EGM)."""
+open (follows the joint references the gateway streams, or an ABB EGM face's: `egm_face`)."""
 
 __all__ = [
     "commissioning",
+    "egm_face",
     "main",
     "node",
     "open_follower",

@@ -12,7 +12,9 @@ the latest state every cycle; the ground-truth key and the stats are published a
 A robot whose ``controller.control`` is ``"open"`` gets an open controller instead
 (:class:`controller_emu.open_node.OpenControllerNode`): it subscribes to the robot's joint commands
 (``hrc/<cell>/robot/<robot>/joint_command``, newest wins) instead of its overrides, runs no program (the gateway
-does) and starts standing at the program's first waypoint; no vendor face serves it.
+does) and starts standing at the program's first waypoint. With ``--egm HOST:PORT`` it plays ABB EGM's controller
+side instead (:mod:`controller_emu.egm_face`): references only from the PC's ``EgmSensor`` replies, no joint command
+subscription and nothing on the cell's state key, as the closed controller's faces.
 
 joint command payload → node.on_command(payload, read_clocks())   (the subscriber's thread)
 rate.sleep() → node.cycle(read_clocks()) → publish the joint state (state and ground truth) → log, stats
@@ -35,6 +37,7 @@ from typing import NamedTuple, Protocol
 
 import zenoh
 
+from controller_emu.egm_face import EgmFace
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
 from controller_emu.open_follower import FollowerLimits, FollowerState, follower_limits
 from controller_emu.open_node import OpenControllerNode, OpenControllerStats
@@ -174,15 +177,15 @@ class VendorFace(Protocol):
     def close(self) -> None: ...
 
 
-def parse_host_port(text: str) -> tuple[str, int]:
-    """``HOST:PORT`` (``--rws``).
+def parse_host_port(text: str, option: str = "--rws", example: str = "127.0.0.3:8080") -> tuple[str, int]:
+    """``HOST:PORT`` (``--rws``, ``--egm``).
 
     Raises:
-        ConfigError: not HOST:PORT with a port in 1-65535.
+        ConfigError: not HOST:PORT with a port in 1-65535 (the message names ``option`` and shows ``example``).
     """
     host, _, port = text.rpartition(":")
     if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ConfigError(f"--rws {text!r}; expected HOST:PORT with a port in 1-65535 (e.g. 127.0.0.3:8080)")
+        raise ConfigError(f"{option} {text!r}; expected HOST:PORT with a port in 1-65535 (e.g. {example})")
     return host, int(port)
 
 
@@ -387,8 +390,11 @@ def open_status_line(robot: str, stats: OpenControllerStats) -> str:
     return f"{robot} open {stats.mode} command_seq={stats.command_seq} rejected={rejected}"
 
 
-def _run_open_loop(node: OpenControllerNode, publishers: _Publishers, stop: threading.Event) -> RateLoop:
-    """Cycle the open node at its rate until ``stop`` is set; stats every second, a progress line every 5 s."""
+def _run_open_loop(
+    node: OpenControllerNode, publishers: _Publishers, stop: threading.Event, egm: EgmFace | None = None
+) -> RateLoop:
+    """Cycle the open node at its rate until ``stop`` is set (each cycle's state to the EGM face, if any); stats every
+    second, a progress line every 5 s."""
     freeze_startup_heap()
     rate = RateLoop(node.config.cycle_s)
     next_stats_s = time.monotonic() + STATS_EVERY_S
@@ -397,6 +403,8 @@ def _run_open_loop(node: OpenControllerNode, publishers: _Publishers, stop: thre
     while rate.sleep(stop):
         now = read_clocks()
         output = node.cycle(now)
+        if egm is not None:
+            egm.on_cycle(output)
         payload = to_payload(output.joint_state)
         if publishers.state is not None:
             publishers.state.put(payload)
@@ -412,16 +420,38 @@ def _run_open_loop(node: OpenControllerNode, publishers: _Publishers, stop: thre
             next_progress_s = now_s + PROGRESS_EVERY_S
             stats = node.stats()
             log.info(
-                "%s: open %s command_seq=%d accepted=%d rejected=%s missed_cycles=%d",
+                "%s: open %s command_seq=%d accepted=%d rejected=%s missed_cycles=%d%s",
                 node.robot,
                 stats.mode,
                 stats.command_seq,
                 stats.commands_accepted,
                 dict(stats.rejected),
                 rate.missed_cycles,
+                "" if egm is None else _egm_line(egm),
             )
     service.stopping()
     return rate
+
+
+def _egm_line(egm: EgmFace) -> str:
+    stats = egm.stats()
+    return f" egm_sent={stats.sent} egm_received={stats.received} egm_refused={dict(stats.refused)}"
+
+
+def _start_egm(node: OpenControllerNode, egm_address: tuple[str, int] | None) -> EgmFace | None:
+    """The EGM face, started, or None.
+
+    Raises:
+        ConfigError: the PC's host does not resolve or the socket cannot be opened.
+    """
+    if egm_address is None:
+        return None
+    face = EgmFace(node, *egm_address)
+    try:
+        face.start()
+    except OSError as exc:
+        raise ConfigError(f"EGM face cannot send to {egm_address[0]}:{egm_address[1]}: {exc}") from None
+    return face
 
 
 def run_open_controller(
@@ -435,19 +465,29 @@ def run_open_controller(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
+    egm_address: tuple[str, int] | None = None,
 ) -> FollowerState:
     """Run an open controller loop until ``stop`` is set. Returns the final state.
 
+    With ``egm_address`` (the PC's UDP address) the references come only from the EGM face
+    (:mod:`controller_emu.egm_face`): no joint command subscription, nothing on the cell's state key (the bridge
+    publishes the state it reads); the ground truth and the stats are published as always.
+
     Raises:
-        ConfigError: the Zenoh session cannot be opened with these endpoints.
+        ConfigError: the Zenoh session cannot be opened with these endpoints, or the EGM face cannot be opened.
     """
     node = OpenControllerNode(robot, limits, q0_rad, config)
     command_key = keys.robot_joint_command(cell, robot)
     with _open_session(listen, connect, zenoh_options) as session:
         # the newest commands only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
-        subscriber = declare_newest_wins(session, command_key, _open_callback(node), name="joint-commands")
-        publishers = _declare_publishers(session, cell, robot)
+        subscriber = (
+            None
+            if egm_address is not None
+            else declare_newest_wins(session, command_key, _open_callback(node), name="joint-commands")
+        )
+        publishers = _declare_publishers(session, cell, robot, state=egm_address is None)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
+        egm = _start_egm(node, egm_address)
         log.info(
             "open controller %s of cell %r: %.0f Hz, acceleration bound %s rad/s², watchdog %.2f s; waiting for joint "
             "commands on %s (protective stop until the first valid one)",
@@ -456,11 +496,13 @@ def run_open_controller(
             1.0 / config.cycle_s,
             [round(float(a), 3) for a in limits.accel_limit_radps2],
             limits.watchdog_s,
-            command_key,
+            command_key if egm_address is None else f"EGM (EgmRobot to {egm_address[0]}:{egm_address[1]})",
         )
         try:
-            rate = _run_open_loop(node, publishers, stop)
+            rate = _run_open_loop(node, publishers, stop, egm)
         finally:
+            if egm is not None:
+                egm.close()
             del token, subscriber  # undeclared when the session closes
     stats = node.stats()
     log.info(
@@ -485,6 +527,7 @@ def main(
     zenoh_options: SessionOptions,
     rtde_host: str | None = None,
     rws_address: tuple[str, int] | None = None,
+    egm_address: tuple[str, int] | None = None,
 ) -> int:
     """Load the robot and its program, then run the controller until ``stop`` is set.
 
@@ -496,16 +539,18 @@ def main(
         zenoh_options: mutual TLS and access control (``zenoh_session.options_from_args``).
         rtde_host: serve UR RTDE on this address, port 30004 (overrides only from its speed slider).
         rws_address: serve ABB RWS on this (host, port) (overrides only from its speed ratio).
+        egm_address: an open controller only: play ABB EGM's controller side toward the PC at this (host, port)
+            (references only from its ``EgmSensor`` replies; EGM's position mode on silence).
 
     Returns:
         The process exit code (0).
 
     An open controller (``controller.control = "open"``) is run by :func:`run_open_controller`, standing at the
-    program's first waypoint; it has no vendor face.
+    program's first waypoint; its only vendor face is EGM.
 
     Raises:
         ConfigError: unknown robot, invalid robot model or program, unsafe braking time, unusable
-            Zenoh endpoints, a vendor face asked of an open controller.
+            Zenoh endpoints, a closed controller's face asked of an open controller or EGM of a closed one.
     """
     name = select_robot(config, robot)
     robot_config = config.robots[name]
@@ -514,7 +559,7 @@ def main(
         if rtde_host is not None or rws_address is not None:
             raise ConfigError(
                 f'robot {name!r} has an open controller (control = "open"): it serves no RTDE or RWS face; '
-                'allowed: --rtde and --rws with control = "closed" only'
+                'allowed: --rtde and --rws with control = "closed" only (--egm serves an open one)'
             )
         if not listen and not connect:
             connect = [DEFAULT_ENDPOINT]
@@ -523,7 +568,10 @@ def main(
             config.cell,
             name,
             follower_limits(
-                model, robot_config.controller.watchdog_s, stop_time_s=robot_config.controller.braking_time_s
+                model,
+                robot_config.controller.watchdog_s,
+                stop_time_s=robot_config.controller.braking_time_s,
+                on_silence="keep_speed" if egm_address is None else "hold_reference",
             ),
             q0_rad.tolist(),
             robot_config.controller,
@@ -531,8 +579,14 @@ def main(
             connect,
             stop,
             zenoh_options=zenoh_options,
+            egm_address=egm_address,
         )
         return 0
+    if egm_address is not None:
+        raise ConfigError(
+            f"robot {name!r} has a closed controller: EGM streams joint references to an open one; allowed: --egm "
+            'with control = "open" in the robot\'s [controller] (--rtde or --rws for a closed one)'
+        )
     check_braking_time(robot_config.controller, model)
     trajectory = load_trajectory(robot_config.program, model)
     if not listen and not connect:
@@ -566,6 +620,13 @@ def cli(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--rws", default=None, metavar="HOST:PORT", help="serve ABB RWS on HOST:PORT; overrides only from its ratio"
     )
+    parser.add_argument(
+        "--egm",
+        default=None,
+        metavar="HOST:PORT",
+        help='an open controller (control = "open") plays ABB EGM: EgmRobot every cycle to the PC at HOST:PORT, '
+        "joint references only from its EgmSensor replies",
+    )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
@@ -575,6 +636,7 @@ def cli(argv: list[str] | None = None) -> None:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
             rws_address = None if args.rws is None else parse_host_port(args.rws)
+            egm_address = None if args.egm is None else parse_host_port(args.egm, "--egm", "127.0.0.1:6510")
             code = main(
                 config,
                 args.robot,
@@ -584,6 +646,7 @@ def cli(argv: list[str] | None = None) -> None:
                 zenoh_options=zenoh_options,
                 rtde_host=args.rtde,
                 rws_address=rws_address,
+                egm_address=egm_address,
             )
         except ConfigError as exc:
             reason = " ".join(str(exc).split())

@@ -40,6 +40,11 @@ cycle ahead, and stops sooner), so the gateway's budget is tested against it; bu
 speed up to its ``\\CommTimeout`` (1 s by default) and then only raises an error in RAPID. The gateway never
 relies on either: it budgets a silent link up to the *controller's* ``watchdog_s`` (its ``gateway_period_s``)
 plus the stop within t_b, which only a watchdog of this kind delivers (docs/controllers.md, "Open controllers").
+
+**Silence, EGM's position mode** (``FollowerLimits.on_silence = "hold_reference"``, the emulator's EGM face): each
+command is one cycle's reference; a cycle with no newer one keeps the last ``q_ref`` where it is and drops the
+feed-forward (q̇_ref = 0 after the step it was sent for), so the robot converges on the last reference (at K, within
+its limits) and holds it; after ``watchdog_s`` (EGM's communication timeout) the protective stop above follows.
 """
 
 from __future__ import annotations
@@ -58,6 +63,11 @@ from hrc_devices.robots.time_scaling import MAX_FUTURE_STAMP_S
 from hrc_runtime.clocks import Clocks
 
 FloatArray = npt.NDArray[np.float64]
+
+SilenceBehaviour = Literal["keep_speed", "hold_reference"]
+"""What an open controller does between commands, until its watchdog: ``keep_speed`` moves the reference on at the
+last q̇_ref (EGM's velocity mode); ``hold_reference`` holds the last q_ref without feed-forward (EGM's position
+mode)."""
 
 CommandRejection = Literal["wrong_robot", "wrong_joint_count", "old_or_repeated", "stale", "stamp_in_future"]
 """Why a schema-valid joint command was not accepted (:func:`check_command`)."""
@@ -82,6 +92,7 @@ class FollowerLimits:
         q_min_rad, q_max_rad: the URDF's position limits [rad] (infinite for a joint without).
         gain_per_s: K of the law [1/s], > 0.
         watchdog_s: a command older than this is not followed [s], > 0.
+        on_silence: what the controller does between commands until the watchdog (:data:`SilenceBehaviour`).
 
     Raises:
         ValueError: arrays of different lengths, a limit that is not positive and finite, q_min > q_max, or a gain
@@ -94,6 +105,7 @@ class FollowerLimits:
     q_max_rad: FloatArray
     gain_per_s: float = POSITION_GAIN_PER_S
     watchdog_s: float = 0.1
+    on_silence: SilenceBehaviour = "keep_speed"
 
     def __post_init__(self) -> None:
         arrays = (self.velocity_limit_radps, self.accel_limit_radps2, self.q_min_rad, self.q_max_rad)
@@ -123,7 +135,11 @@ class FollowerLimits:
 
 
 def follower_limits(
-    robot: RobotModel, watchdog_s: float, gain_per_s: float = POSITION_GAIN_PER_S, stop_time_s: float | None = None
+    robot: RobotModel,
+    watchdog_s: float,
+    gain_per_s: float = POSITION_GAIN_PER_S,
+    stop_time_s: float | None = None,
+    on_silence: SilenceBehaviour = "keep_speed",
 ) -> FollowerLimits:
     """The limits of ``robot``'s open controller: the URDF's velocity and position limits, a_j = v_max,j / t_b,j, or
     a_j = v_max,j / ``stop_time_s`` when given (the controller's ``braking_time_s``: every joint together from its
@@ -134,6 +150,7 @@ def follower_limits(
         watchdog_s: the controller's ``watchdog_s`` [s].
         gain_per_s: K of the law [1/s].
         stop_time_s: the controller's stop from full speed [s]; None: each joint's own braking time.
+        on_silence: between commands, until the watchdog (:data:`SilenceBehaviour`).
 
     Raises:
         ConfigError: a joint whose URDF velocity limit is not positive (an open controller could not move it, and
@@ -154,6 +171,7 @@ def follower_limits(
         q_max_rad=np.asarray(robot.model.upperPositionLimit, dtype=float).copy(),
         gain_per_s=gain_per_s,
         watchdog_s=watchdog_s,
+        on_silence=on_silence,
     )
 
 
@@ -164,7 +182,8 @@ class FollowerState:
     Attributes:
         q_rad: joint positions [rad].
         qd_radps: joint velocities, the actual ones [rad/s].
-        qd_ref_radps: the accepted command's ``qd`` [rad/s]; zeros before any.
+        qd_ref_radps: the accepted command's ``qd`` [rad/s]; zeros before any (and, holding the reference, after
+            the step the command was applied to).
         mode: ``running`` while it follows a command, ``protective_stop`` otherwise (none yet, or silence).
         q_ref_rad: the reference position for the end of the next step [rad]: the accepted command's ``q``, moved on
             at ``qd_ref_radps`` for each step taken since; None before any command.
@@ -296,9 +315,14 @@ def step_follower(state: FollowerState, limits: FollowerLimits, dt_s: float, now
     if follow and q_ref is not None:
         gain = min(limits.gain_per_s, 1.0 / dt_s)
         target = state.qd_ref_radps + gain * (q_ref - (q + state.qd_ref_radps * dt_s))
-        q_ref = q_ref + state.qd_ref_radps * dt_s  # the reference of the next step, if no newer command comes
+        if limits.on_silence == "keep_speed":
+            q_ref = q_ref + state.qd_ref_radps * dt_s  # the reference of the next step, if no newer command comes
+            qd_ref = state.qd_ref_radps
+        else:
+            qd_ref = np.zeros_like(q)  # no newer command: converge on q_ref (EGM's position mode)
     else:
         target = np.zeros_like(q)
+        qd_ref = state.qd_ref_radps
     v_max = limits.velocity_limit_radps
     target = np.clip(target, -v_max, v_max)
     up = stop_speed_radps(np.maximum(limits.q_max_rad - q, 0.0), qd, a, dt_s)
@@ -307,7 +331,7 @@ def step_follower(state: FollowerState, limits: FollowerLimits, dt_s: float, now
     qd_new = np.clip(target, qd - a * dt_s, qd + a * dt_s)
     # The position clip only catches rounding: the stop speed keeps q inside its limits.
     q_new = np.clip(q + 0.5 * (qd + qd_new) * dt_s, limits.q_min_rad, limits.q_max_rad)
-    return replace(state, q_rad=q_new, qd_radps=qd_new, q_ref_rad=q_ref, mode=mode)
+    return replace(state, q_rad=q_new, qd_radps=qd_new, q_ref_rad=q_ref, qd_ref_radps=qd_ref, mode=mode)
 
 
 def follower_joint_state(state: FollowerState, robot_name: str, seq: int, stamp_ns: int) -> JointState:

@@ -139,6 +139,14 @@ class OpenControllerNode:
         except MessageError as exc:
             self.count_rejected(exc.reason)
             return exc.reason
+        return self.on_message(message, now)
+
+    def on_message(self, message: JointCommand, now: Clocks) -> str | None:
+        """Check a parsed joint command on arrival (a vendor face's, e.g. EGM's); as :meth:`on_command` after parsing.
+
+        Returns:
+            None if accepted, else the :data:`~controller_emu.open_follower.CommandRejection` (also counted).
+        """
         with self._lock:
             reason = check_command(
                 message,

@@ -18,6 +18,7 @@ A leaf module (it imports nothing of the project), so that the wire messages can
     │   └── Ros2TrackerError (gateway.ros2_trackers)       a ROS 2 tracker sample refused before it is decoded
     ├── DigestError        (hrc_devices.controllers.abb_rws.http_digest) an HTTP Digest header that does not
     │                                                      parse: refuse it (401)
+    ├── EgmError           (hrc_devices.controllers.abb_egm.wire) bytes that are not a valid ABB EGM message
     ├── AttachmentError    (hrc_devices.ros2.rmw_zenoh)    an rmw_zenoh sample attachment that rmw_zenoh would drop
     ├── RecordingError     (hrc_runtime.mcap_sink)         a recording cannot be written or read
     ├── RtdeError          (hrc_devices.controllers.ur_rtde.codec) bytes that are not a valid RTDE package

@@ -366,6 +366,43 @@ def test_silence_keeps_the_last_velocity_for_the_watchdog_time_then_stops_within
     assert np.all(sim.state.qd_radps == 0.0)
 
 
+def test_holding_the_reference_converges_on_the_last_one_then_stops_at_the_watchdog(
+    limits: FollowerLimits, q0: FloatArray
+) -> None:
+    """EGM's position mode (the EGM face): silence keeps the last reference without its feed-forward; the robot
+    converges on it and stands there, reporting ``running`` until the watchdog, then ``protective_stop``."""
+    hold = replace(limits, on_silence="hold_reference")
+    sim = Sim(hold, q0)
+    reference = _ramp(q0, 0, 0.2, 100)
+    sim.follow(reference)
+    last_q_ref = reference[-1][0]
+    assert sim.state.qd_radps[0] == pytest.approx(0.2, abs=1e-3), "followed with its feed-forward"
+    states = sim.silent(round(WATCHDOG_S / DT_S) + 40)
+    running = [s for s in states if s.mode == "running"]
+    assert len(running) * DT_S == pytest.approx(WATCHDOG_S - DT_S, abs=DT_S)
+    assert np.max(np.abs(running[-1].q_rad - last_q_ref)) < 2e-3, "converged on the last reference"
+    assert np.all(np.abs(running[-1].qd_radps) < 0.05)
+    assert all(s.mode == "protective_stop" for s in states[len(running) :])
+    assert np.all(sim.state.qd_radps == 0.0)
+    assert np.max(np.abs(sim.state.q_rad - last_q_ref)) < 2e-3, "and stands there"
+    _assert_within_limits(sim.history, hold)
+
+
+def test_holding_the_reference_between_commands_drops_only_that_cycles_feed_forward(
+    limits: FollowerLimits, q0: FloatArray
+) -> None:
+    """One cycle without a command (a late packet) slows the joint by at most a·Δt; the next command restores it."""
+    hold = replace(limits, on_silence="hold_reference")
+    sim = Sim(hold, q0)
+    reference = _ramp(q0, 0, 0.2, 120)
+    sim.follow(reference[:100])
+    sim.silent(1)
+    assert 0.2 - sim.state.qd_radps[0] <= hold.accel_limit_radps2[0] * DT_S + EPS
+    sim.follow(reference[101:])
+    assert sim.state.qd_radps[0] == pytest.approx(0.2, abs=0.02)
+    _assert_within_limits(sim.history, hold)
+
+
 def _profile(
     q_start: FloatArray, qd_start: float, joint: int, accel_radps2: float, speed_radps: float, cycles: int
 ) -> list[tuple[FloatArray, FloatArray]]:

@@ -125,6 +125,11 @@ def test_controller_follows_overrides_and_stops_on_its_own(
         (["--robot", "nope"], "unknown robot 'nope'; allowed: ur5"),
         (["--config", "{bad}"], "robots: Field required"),
         (["--zenoh-listen", "tcp/127.0.0.1:notaport"], "cannot open a Zenoh session"),
+        (
+            ["--egm", "127.0.0.1:6510", "--zenoh-listen", "tcp/127.0.0.1:7999"],
+            "robot 'ur5' has a closed controller: EGM streams joint references",
+        ),
+        (["--egm", "nohost"], "--egm 'nohost'; expected HOST:PORT"),
     ],
 )
 def test_invalid_configuration_exits_2_with_one_line(tmp_path: Path, args: list[str], expected: str) -> None:

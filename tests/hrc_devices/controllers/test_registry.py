@@ -99,9 +99,15 @@ def test_without_its_registry_line_the_vendor_is_unknown() -> None:
     assert vendor_face_args(config.robots[ROBOT]) == []
 
 
+UNBRIDGED_FOLDERS = {"abb_egm"}
+"""Vendor folders with a codec (and an emulator face) but no bridge vendor yet (issue 34: EGM needs an open vendor
+interface, docs/controllers.md)."""
+
+
 def test_the_vendor_folders_hold_their_kind() -> None:
     root = REPO_ROOT / "hrc_devices" / "controllers"
-    assert {p.name for p in root.iterdir() if (p / "__init__.py").exists()} == set(bridged_kinds())
+    folders = {p.name for p in root.iterdir() if (p / "__init__.py").exists()}
+    assert folders == set(bridged_kinds()) | UNBRIDGED_FOLDERS
 
 
 @pytest.mark.usefixtures("loopback")

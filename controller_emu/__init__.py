@@ -4,6 +4,7 @@ open (follows the joint references the gateway streams, or an ABB EGM face's: `e
 __all__ = [
     "commissioning",
     "egm_face",
+    "faces",
     "main",
     "node",
     "open_follower",

@@ -265,6 +265,11 @@ class EgmFace:
             if reason is not None:
                 log.debug("EgmSensor refused: %s", reason)
 
+    def progress(self) -> str:
+        """For the emulator's progress line."""
+        stats = self.stats()
+        return f"egm_sent={stats.sent} egm_received={stats.received} egm_refused={dict(stats.refused)}"
+
     def stats(self) -> EgmFaceStats:
         """The current figures (safe to call from any thread)."""
         with self._lock:

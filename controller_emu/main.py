@@ -3,8 +3,9 @@
 override payload → node.on_override(payload, read_clocks())   (the subscriber's thread)
 rate.sleep() → node.cycle(read_clocks()) → publish the joint state (state and ground truth) → log, stats
 
-With ``--rtde HOST`` (Universal Robots RTDE on HOST:30004, :mod:`controller_emu.rtde_face`) or ``--rws HOST:PORT``
-(ABB Robot Web Services, :mod:`controller_emu.rws_face`) the emulator plays a vendor's controller: overrides come
+With a vendor face (:data:`controller_emu.faces.FACES`, one option each): ``--rtde HOST`` (Universal Robots RTDE on
+HOST:30004, :mod:`controller_emu.rtde_face`) or ``--rws HOST:PORT`` (ABB Robot Web Services,
+:mod:`controller_emu.rws_face`), the emulator plays a vendor's controller: overrides come
 only from that face (the speed slider, the speed ratio), there is no override subscription, and nothing is
 published on the cell's state key (the controller bridge publishes the joint state it reads back). Each face gets
 the latest state every cycle; the ground-truth key and the stats are published as always.
@@ -32,17 +33,15 @@ import logging
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
-from typing import NamedTuple, Protocol
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
 
 import zenoh
 
-from controller_emu.egm_face import EgmFace
+from controller_emu.faces import FACES, VendorFace, start_faces
 from controller_emu.node import ControllerNode, ControllerOutput, ControllerStats, ModeChange
 from controller_emu.open_follower import FollowerLimits, FollowerState, follower_limits
 from controller_emu.open_node import OpenControllerNode, OpenControllerStats
-from controller_emu.rtde_face import RtdeFace
-from controller_emu.rws_face import RwsFace
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, ControllerConfig
 from hrc_contract.messages import to_payload
@@ -167,54 +166,6 @@ def _publish(output: ControllerOutput, publishers: _Publishers, config: Controll
         _log_mode_change(output.mode_change, output.state, config)
 
 
-class VendorFace(Protocol):
-    """A vendor's interface served by the emulator (:class:`RtdeFace`, :class:`RwsFace`)."""
-
-    def start(self) -> None: ...
-
-    def on_cycle(self, output: ControllerOutput) -> None: ...
-
-    def close(self) -> None: ...
-
-
-def parse_host_port(text: str, option: str = "--rws", example: str = "127.0.0.3:8080") -> tuple[str, int]:
-    """``HOST:PORT`` (``--rws``, ``--egm``).
-
-    Raises:
-        ConfigError: not HOST:PORT with a port in 1-65535 (the message names ``option`` and shows ``example``).
-    """
-    host, _, port = text.rpartition(":")
-    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ConfigError(f"{option} {text!r}; expected HOST:PORT with a port in 1-65535 (e.g. {example})")
-    return host, int(port)
-
-
-def _start_faces(
-    node: ControllerNode, model: RobotModel, rtde_host: str | None, rws_address: tuple[str, int] | None
-) -> list[VendorFace]:
-    """Start the vendor faces asked for.
-
-    Raises:
-        ConfigError: a face cannot listen on its address (or RTDE's outputs cannot be had from the model).
-    """
-    faces: list[VendorFace] = []
-    try:
-        if rtde_host is not None:
-            faces.append(RtdeFace(node, rtde_host, model=model))
-            faces[-1].start()
-        if rws_address is not None:
-            faces.append(RwsFace(node, *rws_address))
-            try:
-                faces[-1].start()
-            except OSError as exc:
-                raise ConfigError(f"RWS face cannot listen on {rws_address[0]}:{rws_address[1]}: {exc}") from None
-    except ConfigError:
-        for face in faces[:-1]:
-            face.close()
-        raise
-    return faces
-
-
 def _run_loop(
     node: ControllerNode, publishers: _Publishers, stop: threading.Event, faces: Sequence[VendorFace] = ()
 ) -> RateLoop:
@@ -288,27 +239,27 @@ def run_controller(
     *,
     zenoh_options: SessionOptions,
     model: RobotModel,
-    rtde_host: str | None = None,
-    rws_address: tuple[str, int] | None = None,
+    faces: Mapping[str, Any] | None = None,
 ) -> ControllerState:
     """Run the controller loop until ``stop`` is set. Returns the final state.
 
-    With ``rtde_host`` or ``rws_address`` the overrides come only from those faces (see the module docstring);
-    ``model`` is the robot's (the RTDE face reports its TCP from it).
+    With ``faces`` (kind → address, :data:`controller_emu.faces.FACES`) the overrides come only from those faces
+    (see the module docstring); ``model`` is the robot's (the RTDE face reports its TCP from it).
 
     Raises:
         ConfigError: the Zenoh session cannot be opened with these endpoints, or a face cannot listen.
     """
     node = ControllerNode(robot, trajectory, config)
     override_key = keys.robot_override(cell, robot)
-    vendor = rtde_host is not None or rws_address is not None
+    faces = faces or {}
+    vendor = bool(faces)
     with _open_session(listen, connect, zenoh_options) as session:
         subscriber = (  # the newest overrides only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
             None if vendor else declare_newest_wins(session, override_key, _callback(node), name="overrides")
         )
         publishers = _declare_publishers(session, cell, robot, state=not vendor)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        faces = _start_faces(node, model, rtde_host, rws_address)
+        served = start_faces(FACES, faces, node, model)
         log.info(
             "controller %s of cell %r: program %.2f s per cycle, %.0f Hz; waiting for overrides on %s "
             "(protective stop until the first valid one)",
@@ -316,16 +267,12 @@ def run_controller(
             cell,
             trajectory.duration_s,
             1.0 / config.cycle_s,
-            ", ".join(
-                ([f"RTDE {rtde_host}:30004"] if rtde_host else [])
-                + ([f"RWS {rws_address[0]}:{rws_address[1]}"] if rws_address else [])
-            )
-            or override_key,
+            ", ".join(FACES[kind].describe(address) for kind, address in faces.items()) or override_key,
         )
         try:
-            rate = _run_loop(node, publishers, stop, faces)
+            rate = _run_loop(node, publishers, stop, served)
         finally:
-            for face in faces:
+            for face in served:
                 face.close()
             del token, subscriber  # undeclared when the session closes
     stats = node.stats()
@@ -391,7 +338,7 @@ def open_status_line(robot: str, stats: OpenControllerStats) -> str:
 
 
 def _run_open_loop(
-    node: OpenControllerNode, publishers: _Publishers, stop: threading.Event, egm: EgmFace | None = None
+    node: OpenControllerNode, publishers: _Publishers, stop: threading.Event, faces: Sequence[VendorFace] = ()
 ) -> RateLoop:
     """Cycle the open node at its rate until ``stop`` is set (each cycle's state to the EGM face, if any); stats every
     second, a progress line every 5 s."""
@@ -403,8 +350,8 @@ def _run_open_loop(
     while rate.sleep(stop):
         now = read_clocks()
         output = node.cycle(now)
-        if egm is not None:
-            egm.on_cycle(output)
+        for face in faces:
+            face.on_cycle(output)
         payload = to_payload(output.joint_state)
         if publishers.state is not None:
             publishers.state.put(payload)
@@ -427,31 +374,10 @@ def _run_open_loop(
                 stats.commands_accepted,
                 dict(stats.rejected),
                 rate.missed_cycles,
-                "" if egm is None else _egm_line(egm),
+                "".join(f" {text}" for text in (face.progress() for face in faces) if text),
             )
     service.stopping()
     return rate
-
-
-def _egm_line(egm: EgmFace) -> str:
-    stats = egm.stats()
-    return f" egm_sent={stats.sent} egm_received={stats.received} egm_refused={dict(stats.refused)}"
-
-
-def _start_egm(node: OpenControllerNode, egm_address: tuple[str, int] | None) -> EgmFace | None:
-    """The EGM face, started, or None.
-
-    Raises:
-        ConfigError: the PC's host does not resolve or the socket cannot be opened.
-    """
-    if egm_address is None:
-        return None
-    face = EgmFace(node, *egm_address)
-    try:
-        face.start()
-    except OSError as exc:
-        raise ConfigError(f"EGM face cannot send to {egm_address[0]}:{egm_address[1]}: {exc}") from None
-    return face
 
 
 def run_open_controller(
@@ -465,29 +391,29 @@ def run_open_controller(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
-    egm_address: tuple[str, int] | None = None,
+    model: RobotModel,
+    faces: Mapping[str, Any] | None = None,
 ) -> FollowerState:
     """Run an open controller loop until ``stop`` is set. Returns the final state.
 
-    With ``egm_address`` (the PC's UDP address) the references come only from the EGM face
-    (:mod:`controller_emu.egm_face`): no joint command subscription, nothing on the cell's state key (the bridge
-    publishes the state it reads); the ground truth and the stats are published as always.
+    With ``faces`` (kind → address: an open controller's, e.g. EGM toward the PC's UDP address) the references come
+    only from those faces (:mod:`controller_emu.egm_face`): no joint command subscription, nothing on the cell's
+    state key (the bridge publishes the state it reads); the ground truth and the stats are published as always.
 
     Raises:
-        ConfigError: the Zenoh session cannot be opened with these endpoints, or the EGM face cannot be opened.
+        ConfigError: the Zenoh session cannot be opened with these endpoints, or a face cannot be opened.
     """
     node = OpenControllerNode(robot, limits, q0_rad, config)
     command_key = keys.robot_joint_command(cell, robot)
     with _open_session(listen, connect, zenoh_options) as session:
         # the newest commands only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
+        faces = faces or {}
         subscriber = (
-            None
-            if egm_address is not None
-            else declare_newest_wins(session, command_key, _open_callback(node), name="joint-commands")
+            None if faces else declare_newest_wins(session, command_key, _open_callback(node), name="joint-commands")
         )
-        publishers = _declare_publishers(session, cell, robot, state=egm_address is None)
+        publishers = _declare_publishers(session, cell, robot, state=not faces)
         token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        egm = _start_egm(node, egm_address)
+        served = start_faces(FACES, faces, node, model)
         log.info(
             "open controller %s of cell %r: %.0f Hz, acceleration bound %s rad/s², watchdog %.2f s; waiting for joint "
             "commands on %s (protective stop until the first valid one)",
@@ -496,13 +422,13 @@ def run_open_controller(
             1.0 / config.cycle_s,
             [round(float(a), 3) for a in limits.accel_limit_radps2],
             limits.watchdog_s,
-            command_key if egm_address is None else f"EGM (EgmRobot to {egm_address[0]}:{egm_address[1]})",
+            ", ".join(FACES[kind].describe(address) for kind, address in faces.items()) or command_key,
         )
         try:
-            rate = _run_open_loop(node, publishers, stop, egm)
+            rate = _run_open_loop(node, publishers, stop, served)
         finally:
-            if egm is not None:
-                egm.close()
+            for face in served:
+                face.close()
             del token, subscriber  # undeclared when the session closes
     stats = node.stats()
     log.info(
@@ -525,9 +451,7 @@ def main(
     stop: threading.Event,
     *,
     zenoh_options: SessionOptions,
-    rtde_host: str | None = None,
-    rws_address: tuple[str, int] | None = None,
-    egm_address: tuple[str, int] | None = None,
+    faces: Mapping[str, Any] | None = None,
 ) -> int:
     """Load the robot and its program, then run the controller until ``stop`` is set.
 
@@ -537,33 +461,32 @@ def main(
         listen, connect: Zenoh endpoints; with neither, connect to :data:`DEFAULT_ENDPOINT`.
         stop: set to end the loop (SIGINT, SIGTERM, or a test).
         zenoh_options: mutual TLS and access control (``zenoh_session.options_from_args``).
-        rtde_host: serve UR RTDE on this address, port 30004 (overrides only from its speed slider).
-        rws_address: serve ABB RWS on this (host, port) (overrides only from its speed ratio).
-        egm_address: an open controller only: play ABB EGM's controller side toward the PC at this (host, port)
-            (references only from its ``EgmSensor`` replies; EGM's position mode on silence).
+        faces: the vendor faces to serve, kind → address (:data:`controller_emu.faces.FACES`: UR RTDE and ABB RWS
+            for a closed controller, their overrides only from the speed slider or ratio; ABB EGM for an open one,
+            its references only from the PC's ``EgmSensor`` replies, EGM's position mode on silence).
 
     Returns:
         The process exit code (0).
 
     An open controller (``controller.control = "open"``) is run by :func:`run_open_controller`, standing at the
-    program's first waypoint; its only vendor face is EGM.
+    program's first waypoint.
 
     Raises:
         ConfigError: unknown robot, invalid robot model or program, unsafe braking time, unusable
-            Zenoh endpoints, a closed controller's face asked of an open controller or EGM of a closed one.
+            Zenoh endpoints, a face of the other kind of controller.
     """
+    faces = faces or {}
     name = select_robot(config, robot)
     robot_config = config.robots[name]
     model = load_robot_model(name, robot_config)
-    if robot_config.controller.control == "open":
-        if rtde_host is not None or rws_address is not None:
-            raise ConfigError(
-                f'robot {name!r} has an open controller (control = "open"): it serves no RTDE or RWS face; '
-                'allowed: --rtde and --rws with control = "closed" only (--egm serves an open one)'
-            )
-        if not listen and not connect:
-            connect = [DEFAULT_ENDPOINT]
+    control = robot_config.controller.control
+    _check_faces_serve(name, control, faces)
+    if not listen and not connect:
+        connect = [DEFAULT_ENDPOINT]
+    if control == "open":
         q0_rad, _ = load_trajectory(robot_config.program, model).sample(0.0)  # where the closed one starts
+        face_silence = [FACES[kind].on_silence for kind in faces]  # one face at most (_check_faces_serve)
+        on_silence = face_silence[0] if face_silence and face_silence[0] is not None else "keep_speed"
         run_open_controller(
             config.cell,
             name,
@@ -571,7 +494,7 @@ def main(
                 model,
                 robot_config.controller.watchdog_s,
                 stop_time_s=robot_config.controller.braking_time_s,
-                on_silence="keep_speed" if egm_address is None else "hold_reference",
+                on_silence=on_silence,
             ),
             q0_rad.tolist(),
             robot_config.controller,
@@ -579,18 +502,12 @@ def main(
             connect,
             stop,
             zenoh_options=zenoh_options,
-            egm_address=egm_address,
+            model=model,
+            faces=faces,
         )
         return 0
-    if egm_address is not None:
-        raise ConfigError(
-            f"robot {name!r} has a closed controller: EGM streams joint references to an open one; allowed: --egm "
-            'with control = "open" in the robot\'s [controller] (--rtde or --rws for a closed one)'
-        )
     check_braking_time(robot_config.controller, model)
     trajectory = load_trajectory(robot_config.program, model)
-    if not listen and not connect:
-        connect = [DEFAULT_ENDPOINT]
     run_controller(
         config.cell,
         name,
@@ -601,10 +518,26 @@ def main(
         stop,
         zenoh_options=zenoh_options,
         model=model,
-        rtde_host=rtde_host,
-        rws_address=rws_address,
+        faces=faces,
     )
     return 0
+
+
+def _check_faces_serve(robot: str, control: str, faces: Mapping[str, Any]) -> None:
+    """Every face asked for belongs to the robot's kind of controller, and an open one serves one face at most.
+
+    Raises:
+        ConfigError: a face of the other kind, or two open faces.
+    """
+    wrong = [FACES[kind] for kind in faces if FACES[kind].control != control]
+    if wrong:
+        fitting = [f.option for f in FACES.values() if f.control == control]
+        raise ConfigError(
+            f"robot {robot!r}: {wrong[0].option} serves a controller with control = {wrong[0].control!r}, this "
+            f"robot's is {control!r}; allowed with control = {control!r}: {', '.join(fitting) or 'none'}"
+        )
+    if control == "open" and len(faces) > 1:
+        raise ConfigError(f"robot {robot!r}: an open controller follows one face; got {', '.join(faces)}")
 
 
 def cli(argv: list[str] | None = None) -> None:
@@ -614,19 +547,8 @@ def cli(argv: list[str] | None = None) -> None:
     )
     add_config_argument(parser)
     parser.add_argument("--robot", default=None, metavar="NAME", help="robot of the cell (default: its only robot)")
-    parser.add_argument(
-        "--rtde", default=None, metavar="HOST", help="serve UR RTDE on HOST:30004; overrides only from its speed slider"
-    )
-    parser.add_argument(
-        "--rws", default=None, metavar="HOST:PORT", help="serve ABB RWS on HOST:PORT; overrides only from its ratio"
-    )
-    parser.add_argument(
-        "--egm",
-        default=None,
-        metavar="HOST:PORT",
-        help='an open controller (control = "open") plays ABB EGM: EgmRobot every cycle to the PC at HOST:PORT, '
-        "joint references only from its EgmSensor replies",
-    )
+    for face in FACES.values():
+        parser.add_argument(face.option, default=None, metavar=face.metavar, help=face.help)
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
     configure_logging(args.log_level)
@@ -635,8 +557,11 @@ def cli(argv: list[str] | None = None) -> None:
         try:
             config = load_cell_config(args.config)
             zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
-            rws_address = None if args.rws is None else parse_host_port(args.rws)
-            egm_address = None if args.egm is None else parse_host_port(args.egm, "--egm", "127.0.0.1:6510")
+            faces = {
+                kind: face.address(text)
+                for kind, face in FACES.items()
+                if (text := getattr(args, face.option.lstrip("-").replace("-", "_"))) is not None
+            }
             code = main(
                 config,
                 args.robot,
@@ -644,9 +569,7 @@ def cli(argv: list[str] | None = None) -> None:
                 args.zenoh_connect,
                 stop,
                 zenoh_options=zenoh_options,
-                rtde_host=args.rtde,
-                rws_address=rws_address,
-                egm_address=egm_address,
+                faces=faces,
             )
         except ConfigError as exc:
             reason = " ".join(str(exc).split())

@@ -267,6 +267,10 @@ class RtdeFace:
             self._ticks_requested += count
         self._wake()
 
+    def progress(self) -> str:
+        """For the emulator's progress line: nothing (the closed controller's line says what its overrides did)."""
+        return ""
+
     def stats(self) -> RtdeFaceStats:
         """The current figures (any thread)."""
         with self._lock:

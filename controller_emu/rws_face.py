@@ -475,6 +475,10 @@ class RwsFace:
         with self._lock:
             self._refused[reason] += 1
 
+    def progress(self) -> str:
+        """For the emulator's progress line: nothing (the closed controller's line says what its overrides did)."""
+        return ""
+
     def stats(self) -> RwsFaceStats:
         """The current figures (safe from any thread)."""
         server = self._server

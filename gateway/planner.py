@@ -1,0 +1,250 @@
+"""Joint-space planning around people: OMPL's RRT-Connect (paper 2's planner) and TOPP-RA's timing.
+
+One request is one plan: the start (the join ahead on the trajectory the robot follows, with its velocity), the goal
+(a program waypoint), the people grown by a clearance, the robot's limits, a time limit and a seed. The validity
+checker is the robot's link capsules (Pinocchio's forward kinematics) against the grown human capsules (the
+segment distances the gateway checks against coal); joint limits are the state space's bounds. The path is
+simplified (OMPL's shortcutting), then timed by :func:`gateway.plan.time_path` and spliced into the old trajectory.
+
+Blocking and slow (10–400 ms): call it from :class:`gateway.planner_worker.ThreadedPlanner`'s thread, never from the
+safety loop. Deterministic for a given seed (OMPL's RNG is seeded before each solve; the time limit can still cut a
+search short on a loaded machine).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+import pinocchio as pin
+
+from gateway import plan as plan_math
+from gateway.plan import Plan, Sampler, TimingError
+from hrc_contract.humans import HumanCapsules
+from hrc_devices.robots.model import RobotModel
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.intp]
+
+CHECK_RESOLUTION = 0.01
+"""OMPL's motion-check resolution as a fraction of the state space's extent (~0.1 rad over a Panda's 7 joints)."""
+INFLATION_STEPS = (1.0, 0.5, 0.0)
+"""When the start is inside the grown people (a person close by: the request (16)), the clearance is tried at these
+fractions of itself: a plan that starts there must first be allowed to leave."""
+
+
+class PlanRequest(NamedTuple):
+    """What one plan needs (built by :class:`gateway.planner_worker.Replanner` in the loop; immutable).
+
+    Attributes:
+        robot: the robot's name.
+        old: the trajectory the robot follows (the program or the current plan) and its time now.
+        t_now_s, t_join_s: the robot's task time on ``old`` at the request, and the join's (≥ t_now) [s].
+        goals: candidate goals (program waypoints in order) with their program times: (q [rad], τ [s]).
+        humans: the people (seen and lost, grown by the core).
+        clearance_m: the clearance the new path keeps to them [m].
+        start_key: the trajectory and time the plan starts from (checked on adoption).
+        reason: ``"horizon"`` or ``"request"``.
+        seed: OMPL's seed (≥ 1).
+    """
+
+    robot: str
+    old: Sampler
+    t_now_s: float
+    t_join_s: float
+    goals: tuple[tuple[FloatArray, float], ...]
+    humans: HumanCapsules
+    clearance_m: float
+    start_key: tuple[object, ...]
+    reason: str
+    seed: int
+
+
+class PlanOutcome(NamedTuple):
+    """A planner's answer: a plan, or why there is none, and the time it took (wall clock) [s]."""
+
+    robot: str
+    plan: Plan | None
+    failure: str
+    planning_s: float
+    start_key: tuple[object, ...]
+
+
+@dataclass
+class JointPlanner:
+    """RRT-Connect + simplification + TOPP-RA for one robot (its own Pinocchio data: one thread at a time).
+
+    Attributes:
+        robot: the model (links, radii, limits, base pose).
+        active: the joints planned (velocity indices); the others stay at the start's values.
+        qd_max_radps, qdd_max_radps2: the active joints' limits for the timing.
+        time_limit_s: RRT-Connect's time limit per solve [s].
+        simplify_s: the time for OMPL's path simplification [s].
+    """
+
+    robot: RobotModel
+    active: IntArray
+    qd_max_radps: FloatArray
+    qdd_max_radps2: FloatArray
+    time_limit_s: float = 0.3
+    simplify_s: float = 0.05
+    data: pin.Data = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.data = self.robot.model.createData()
+
+    def valid(self, q_rad: FloatArray, humans: HumanCapsules, grow_m: float) -> bool:
+        """The validity checker: a plain ``bool`` (see :func:`gateway.plan.configuration_valid`)."""
+        return plan_math.configuration_valid(self.robot, self.data, q_rad, humans, grow_m)
+
+    def path(
+        self, q_start_rad: FloatArray, q_goal_rad: FloatArray, humans: HumanCapsules, grow_m: float, seed: int
+    ) -> FloatArray | None:
+        """RRT-Connect from ``q_start_rad`` to ``q_goal_rad`` (full configurations; the inactive joints of the goal
+        are taken from the start), simplified: the waypoints (W, n) [rad], or None (no exact solution in time)."""
+        from ompl import base as ob
+        from ompl import geometric as og
+        from ompl import util as ou
+
+        ou.setLogLevel(ou.LOG_NONE)
+        ou.RNG.setSeed(max(1, int(seed)))
+        model = self.robot.model
+        active = self.active
+        n = int(active.size)
+        base = np.array(q_start_rad, dtype=float)
+        space = ob.RealVectorStateSpace(n)
+        bounds = ob.RealVectorBounds(n)
+        for k, j in enumerate(active):
+            bounds.setLow(k, float(model.lowerPositionLimit[j]))
+            bounds.setHigh(k, float(model.upperPositionLimit[j]))
+        space.setBounds(bounds)
+        setup = og.SimpleSetup(space)
+
+        def full(state: object) -> FloatArray:
+            q = base.copy()
+            q[active] = [state[k] for k in range(n)]  # type: ignore[index]
+            return q
+
+        def checker(state: object) -> bool:
+            return bool(self.valid(full(state), humans, grow_m))
+
+        setup.setStateValidityChecker(checker)
+        info = setup.getSpaceInformation()
+        info.setStateValidityCheckingResolution(CHECK_RESOLUTION)
+        start, goal = space.allocState(), space.allocState()
+        for k, j in enumerate(active):
+            start[k] = float(q_start_rad[j])
+            goal[k] = float(q_goal_rad[j])
+        setup.setStartAndGoalStates(start, goal)
+        setup.setPlanner(og.RRTConnect(info))
+        solved = setup.solve(self.time_limit_s)
+        if not bool(solved) or not setup.haveExactSolutionPath():
+            return None
+        setup.simplifySolution(self.simplify_s)
+        result = setup.getSolutionPath()
+        points = np.array([full(result.getState(i)) for i in range(result.getStateCount())], dtype=float)
+        return _drop_repeats(points)
+
+    def solve(self, request: PlanRequest) -> PlanOutcome:
+        """Plan, time and splice one request; never raises for a path it cannot find (the failure says why)."""
+        started = time.perf_counter()
+        outcome = self._solve(request)
+        elapsed = time.perf_counter() - started
+        plan = outcome[0]
+        if plan is not None:
+            plan = Plan(plan.pieces, plan.goal_tau_s, plan.start_key, plan.reason, elapsed)
+        return PlanOutcome(request.robot, plan, outcome[1], elapsed, request.start_key)
+
+    def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:
+        q_join, qd_join = request.old.sample(request.t_join_s)
+        humans = request.humans
+        failure = "no_goal"
+        for fraction in INFLATION_STEPS:
+            grow_m = request.clearance_m * fraction
+            if not self.valid(q_join, humans, grow_m):
+                failure = "start_invalid"
+                continue
+            for q_goal, goal_tau_s in request.goals:
+                goal = np.array(q_goal, dtype=float)
+                inactive = np.setdiff1d(np.arange(goal.size), self.active)
+                goal[inactive] = q_join[inactive]
+                if not self.valid(goal, humans, grow_m):
+                    failure = "goal_invalid"
+                    continue
+                points = self.path(q_join, goal, humans, grow_m, request.seed)
+                if points is None:
+                    failure = "no_path"
+                    continue
+
+                def clear(q_active: FloatArray, g: float = grow_m) -> bool:
+                    return self.valid(_fill(q_join, self.active, q_active), humans, g)
+
+                try:
+                    timed = plan_math.time_path(
+                        points[:, self.active],
+                        qd_join[self.active],
+                        self.qd_max_radps,
+                        self.qdd_max_radps2,
+                        clear,
+                    )
+                except TimingError:
+                    failure = "no_timing"
+                    continue
+                full_path = _FullPath(timed, q_join, self.active)
+                try:
+                    return plan_math.splice(
+                        request.old,
+                        request.t_now_s,
+                        request.t_join_s,
+                        full_path,
+                        goal_tau_s,
+                        request.start_key,
+                        request.reason,
+                    ), ""
+                except ValueError:
+                    failure = "no_join"
+                    continue
+            if failure not in ("start_invalid",):
+                break
+        return None, failure
+
+
+def _fill(q_base_rad: FloatArray, active: IntArray, q_active_rad: FloatArray) -> FloatArray:
+    q = np.array(q_base_rad, dtype=float)
+    q[active] = q_active_rad
+    return q
+
+
+class _FullPath(plan_math.TimedPath):
+    """A timed path of the active joints seen as full configurations (the others held at the start's values)."""
+
+    def __init__(self, timed: plan_math.TimedPath, q_base_rad: FloatArray, active: IntArray) -> None:
+        waypoints = np.repeat(np.asarray(q_base_rad, dtype=float)[None, :], len(timed.waypoints_rad), axis=0)
+        waypoints[:, active] = timed.waypoints_rad
+        base = np.array(q_base_rad, dtype=float)
+
+        def position(t: float) -> FloatArray:
+            q, _ = timed.sample(t)
+            return _fill(base, active, q)
+
+        def velocity(t: float) -> FloatArray:
+            _, qd = timed.sample(t)
+            out = np.zeros_like(base)
+            out[active] = qd
+            return out
+
+        super().__init__(waypoints, timed.duration_s, timed.how, position, velocity)
+
+
+def _drop_repeats(points: FloatArray) -> FloatArray:
+    """Consecutive waypoints closer than 1e-6 rad merged (TOPP-RA's spline needs strictly increasing knots)."""
+    keep = [0]
+    for i in range(1, len(points)):
+        if float(np.max(np.abs(points[i] - points[keep[-1]]))) > 1e-6:
+            keep.append(i)
+    if keep[-1] != len(points) - 1 and len(keep) > 1:
+        keep[-1] = len(points) - 1
+    return points[keep] if len(keep) > 1 else points[[0, -1]]

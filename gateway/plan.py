@@ -182,6 +182,7 @@ def horizon_check(
     human_speed_mps: float,
     clearance_m: float,
     t_end_s: float = math.inf,
+    growth_cap_s: float = math.inf,
 ) -> HorizonVerdict:
     """Alg. 1's check: the configurations of ``path`` at ``t_now_s + t`` for t = step, 2 step, … ≤ ``horizon_s`` (and
     ≤ ``t_end_s`` on the path) against the people grown by ``clearance_m + human_speed_mps · t`` (a person may walk
@@ -192,6 +193,9 @@ def horizon_check(
         humans: the people the decision keeps clear of (seen, and lost grown by the core).
         human_speed_mps: K (``safety.human_speed_mps``) [m/s].
         clearance_m: the protective clearance the planned path keeps [m].
+        t_end_s: the path's end (a plan's duration) [s].
+        growth_cap_s: the growth stops at K times this (the planner's own growth: a path planned around people who
+            stay where they are passes the check; one who steps into it does not) [s].
     """
     if not humans.n_capsules:
         return HorizonVerdict(None, min(horizon_s, max(t_end_s - t_now_s, 0.0)), math.inf)
@@ -203,7 +207,9 @@ def horizon_check(
         if t_now_s + t_ahead > t_end_s + 1e-9:
             break
         q, _ = path.sample(t_now_s + t_ahead)
-        margin = clearance_to_people_m(robot, data, q, humans, clearance_m + human_speed_mps * t_ahead)
+        margin = clearance_to_people_m(
+            robot, data, q, humans, clearance_m + human_speed_mps * min(t_ahead, growth_cap_s)
+        )
         worst = min(worst, margin)
         if margin <= 0.0:
             return HorizonVerdict(t_ahead, last_feasible, worst)

@@ -40,6 +40,8 @@ from controller_emu.open_node import OpenControllerNode
 from gateway.core import RobotDecision
 from gateway.node import GatewayNode
 from gateway.open_robot import OpenRobot
+from gateway.planner import JointPlanner
+from gateway.planner_worker import PlannerBackend, SimulatedPlanner
 from gateway.tracks import TrackEvent
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -313,13 +315,14 @@ class _SimCell:
         program_start_s: Mapping[str, float] | None,
         moving_eps_mps: float,
         trace: Callable[[TraceSample], None] | None = None,
+        planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
     ) -> None:
         self.config = config
         self.trace = trace
         self.scenario = scenario
         self.moving_eps_mps = moving_eps_mps
         self._contact_masses: dict[str, ContactMass] = {}
-        self.gateway = GatewayNode(config, robots)
+        self.gateway = GatewayNode(config, robots, planner_backend=planner_backend or SimulatedPlanner)
         self.gateway_period_ns = round(NS_PER_S / config.gateway.rate_hz)
         self.gateway_next_ns = int(_rng(seed, "gateway-phase").integers(0, self.gateway_period_ns))
         self.controllers = {
@@ -493,6 +496,7 @@ def simulate(
     program_start_s: Mapping[str, float] | None = None,
     moving_eps_mps: float = MOVING_EPS_MPS,
     trace: Callable[[TraceSample], None] | None = None,
+    planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
 ) -> RunResult:
     """Run the cell for ``duration_s`` of simulated time and audit every controller cycle.
 
@@ -507,14 +511,19 @@ def simulate(
         program_start_s: program time at which each robot's program starts; default: drawn from the seed [s].
         moving_eps_mps: the auditor's ε for contact while moving [m/s].
         trace: called with every audited controller cycle (a time series; None: nothing kept).
+        planner_backend: the planner layer's backend when ``planner.enabled`` (default: the synchronous
+            :class:`gateway.planner_worker.SimulatedPlanner`; tests pass faulty ones).
 
     Returns:
         The auditor's summary and the gateway's figures. The same arguments give the same result.
     """
     started_wall_s = time.perf_counter()
     end_ns = round(duration_s * NS_PER_S)
-    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps, trace)
-    cell.run(end_ns)
+    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps, trace, planner_backend)
+    try:
+        cell.run(end_ns)
+    finally:
+        cell.gateway.core.close()
     return cell.result(end_ns, time.perf_counter() - started_wall_s)
 
 

@@ -1,0 +1,243 @@
+"""The planner beside the safety loop: when to ask for a plan, who plans it, when to adopt it (paper 2, Alg. 1–2, (16)).
+
+- :class:`Replanner` (one per open robot, called by the core every loop, pure apart from the backend it is given):
+  every ``planner.check_every_s`` it checks the horizon of the trajectory the robot follows against the people
+  (:func:`gateway.plan.horizon_check`); an infeasible configuration ahead, or the request (16) (δ below
+  ``safety.replan_delta_below`` for ``safety.replan_after_s``), sends a :class:`gateway.planner.PlanRequest`; a
+  returned plan is handed to :meth:`gateway.open_robot.OpenRobot.adopt`, which follows it only from where the robot is.
+- :class:`ThreadedPlanner`: the real backend, its own thread (planning takes 10–400 ms; the 250 Hz loop only submits
+  and polls, never waits).
+- :class:`SimulatedPlanner`: the same interface, synchronous and deterministic, for the simulated cell.
+
+A planner that is late, fails, never answers or returns a path through a person changes only productivity: the LPs
+(9)/(13) bound every command whatever the task follows (tests/hrc_tools/sim/test_planner_cell.py shows it).
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from gateway import plan as plan_math
+from gateway.open_robot import OpenRobot
+from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
+from hrc_contract.config import PlannerConfig
+from hrc_contract.humans import HumanCapsules
+from hrc_devices.robots.program import Trajectory
+
+NS_PER_S = 1_000_000_000
+PENDING_TIMEOUT_FACTOR = 10.0
+"""A request unanswered after this many planner time limits counts as lost (``timeout``)."""
+GOALS_PER_REQUEST = 2
+"""Program waypoints offered as goals (the next one beyond the obstruction, then the one after it)."""
+
+
+class PlannerBackend(Protocol):
+    """Plans requests somewhere else: ``submit`` never blocks the loop; ``poll`` returns the answers so far."""
+
+    def submit(self, request: PlanRequest) -> bool: ...
+
+    def poll(self) -> list[PlanOutcome]: ...
+
+    def close(self) -> None: ...
+
+
+class SimulatedPlanner:
+    """Plans each request at once, in the caller's thread (the simulated cell: simulated time does not pass while it
+    plans; deterministic for a seed). Its answers are returned by the next :meth:`poll`."""
+
+    def __init__(self, planners: dict[str, JointPlanner]) -> None:
+        self.planners = planners
+        self._done: list[PlanOutcome] = []
+
+    def submit(self, request: PlanRequest) -> bool:
+        self._done.append(self.planners[request.robot].solve(request))
+        return True
+
+    def poll(self) -> list[PlanOutcome]:
+        done, self._done = self._done, []
+        return done
+
+    def close(self) -> None:
+        self._done = []
+
+
+class ThreadedPlanner:
+    """Plans requests on its own daemon thread, one at a time, newest request per robot first served; the loop submits
+    and polls without waiting. A request for a robot that already has one queued replaces it."""
+
+    def __init__(self, planners: dict[str, JointPlanner]) -> None:
+        self.planners = planners
+        self._queue: queue.Queue[PlanRequest | None] = queue.Queue()
+        self._done: list[PlanOutcome] = []
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._closed = False
+
+    def submit(self, request: PlanRequest) -> bool:
+        if self._closed:
+            return False
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="hrc-planner", daemon=True)
+            self._thread.start()
+        self._queue.put(request)
+        return True
+
+    def poll(self) -> list[PlanOutcome]:
+        with self._lock:
+            done, self._done = self._done, []
+        return done
+
+    def close(self) -> None:
+        self._closed = True
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        while True:
+            request = self._queue.get()
+            if request is None:
+                return
+            try:
+                outcome = self.planners[request.robot].solve(request)
+            except Exception as exc:  # a planner crash is a failed plan, never a dead loop
+                outcome = PlanOutcome(request.robot, None, f"error:{type(exc).__name__}", 0.0, request.start_key)
+            with self._lock:
+                self._done.append(outcome)
+
+
+def goal_candidates(
+    trajectory: Trajectory, after_tau_s: float, count: int = GOALS_PER_REQUEST
+) -> tuple[tuple[np.ndarray, float], ...]:
+    """The next ``count`` program waypoints reached after program time ``after_tau_s`` (not wrapped): their joints and
+    their arrival times (not wrapped) [rad, s]."""
+    duration = trajectory.duration_s
+    cycle = math.floor(after_tau_s / duration)
+    out: list[tuple[np.ndarray, float]] = []
+    for c in (cycle, cycle + 1, cycle + 2):
+        for k, arrival in enumerate(trajectory.arrival_s):
+            tau = c * duration + float(arrival)
+            if tau > after_tau_s + 1e-9:
+                out.append((np.array(trajectory.waypoints_rad[k], dtype=float), tau))
+    out.sort(key=lambda g: g[1])
+    return tuple(out[:count])
+
+
+@dataclass
+class ReplannerStats:
+    """What the planner layer did for one robot (the status and the bench read it)."""
+
+    requests: Counter[str] = field(default_factory=Counter)
+    """Requests sent, per reason (``horizon``, ``request``)."""
+    adopted: int = 0
+    rejected: int = 0
+    """Plans returned too late (the robot had passed the join) or for another trajectory."""
+    failures: Counter[str] = field(default_factory=Counter)
+    planning_s: list[float] = field(default_factory=list)
+    last_reason: str = ""
+
+
+@dataclass
+class Replanner:
+    """Decides for one open robot when to ask for a plan and adopts the answers (see the module's docstring)."""
+
+    name: str
+    config: PlannerConfig
+    human_speed_mps: float
+    open_robot: OpenRobot
+    data: pin.Data = field(init=False)
+    stats: ReplannerStats = field(default_factory=ReplannerStats)
+    pending: tuple[object, ...] | None = None
+    """The start key of the request in flight (one at a time per robot)."""
+    next_check_ns: int = 0
+    quiet_until_ns: int = 0
+    """No new request before this (after a failure or an adoption) [ns]."""
+    count: int = 0
+    pending_deadline_ns: int = 0
+
+    def __post_init__(self) -> None:
+        self.data = self.open_robot.robot.model.createData()
+
+    def take(self, outcome: PlanOutcome, now_ns: int) -> None:
+        """An answer from the backend: adopt its plan if the robot can still follow it from where it is."""
+        if self.pending is not None and outcome.start_key == self.pending:
+            self.pending = None
+        self.stats.planning_s.append(outcome.planning_s)
+        if outcome.plan is None:
+            self.stats.failures[outcome.failure] += 1
+            self.quiet_until_ns = now_ns + int(self.config.retry_after_s * NS_PER_S)
+            return
+        if self.open_robot.adopt(outcome.plan):
+            self.stats.adopted += 1
+            self.stats.last_reason = outcome.plan.reason
+        else:
+            self.stats.rejected += 1
+
+    def cycle(
+        self, now_ns: int, humans: HumanCapsules, request_16: bool, faulted: bool, backend: PlannerBackend
+    ) -> None:
+        """After the loop's command: check the horizon (every ``check_every_s``) and ask when it is blocked or the
+        request (16) stands. Nothing while faulted (blind: nothing to plan around), or while a request is in flight."""
+        if self.pending is not None and now_ns >= self.pending_deadline_ns:
+            self.pending = None  # a planner that never answers: give up on it and ask again later
+            self.stats.failures["timeout"] += 1
+        if faulted or self.pending is not None or now_ns < self.next_check_ns:
+            return
+        self.next_check_ns = now_ns + int(self.config.check_every_s * NS_PER_S)
+        if now_ns < self.quiet_until_ns:
+            return
+        path, t_now_s, key = self.open_robot.path_now()
+        plan = self.open_robot.plan
+        t_end_s = plan.duration_s if plan is not None else math.inf
+        verdict = plan_math.horizon_check(
+            self.open_robot.robot,
+            self.data,
+            path,
+            t_now_s,
+            self.config.horizon_s,
+            self.config.horizon_step_s,
+            humans,
+            self.human_speed_mps,
+            self.config.clearance_m,
+            t_end_s,
+            self.config.plan_growth_s,
+        )
+        if verdict.infeasible_t_s is not None:
+            reason = "horizon"
+            t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
+            obstruction_s = t_now_s + verdict.infeasible_t_s
+        elif request_16 and humans.n_capsules:
+            reason = "request"
+            t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
+            obstruction_s = t_join_s
+        else:
+            return
+        after_tau_s = plan.goal_tau_s - 1e-6 if plan is not None else obstruction_s
+        goals = goal_candidates(self.open_robot.trajectory, after_tau_s)
+        self.count += 1
+        request = PlanRequest(
+            self.name,
+            path,
+            t_now_s,
+            t_join_s,
+            goals,
+            humans,
+            self.config.clearance_m + self.human_speed_mps * self.config.plan_growth_s,
+            (*key, t_now_s),
+            reason,
+            self.config.seed + self.count,
+        )
+        if backend.submit(request):
+            self.pending = request.start_key
+            self.pending_deadline_ns = now_ns + int(PENDING_TIMEOUT_FACTOR * self.config.time_limit_s * NS_PER_S)
+            self.stats.requests[reason] += 1
+            # after this request, wait before the next (a plan needs time to take the robot away)
+            self.quiet_until_ns = now_ns + int(self.config.retry_after_s * NS_PER_S)

@@ -496,7 +496,9 @@ class SafetyCore:
         state.previous_delta = delta
         request_16 = state.replan.update(now.mono_ns, delta, faulted=bool(faults))
         if state.replanner is not None and self.planner is not None and command is not None:
-            state.replanner.cycle(now.mono_ns, humans.capsules, request_16, bool(faults), self.planner)
+            state.replanner.cycle(
+                now.mono_ns, humans.capsules, request_16, bool(faults), thresholds.resume_m, self.planner
+            )
         return RobotDecision(
             state.name,
             state.zone,

@@ -136,6 +136,8 @@ class OpenRobot:
     """A plan around people the robot follows instead of the program (the planner layer), None on the program."""
     plan_t_s: float = 0.0
     """The task's time on :attr:`plan` [s]."""
+    plan_from_tau_s: float = 0.0
+    """The program time at which the robot left the program for the current plan [s]."""
     plans_adopted: int = 0
     plans_finished: int = 0
 
@@ -186,10 +188,19 @@ class OpenRobot:
         prefix_s = plan.pieces[0].duration_s if len(plan.pieces) > 1 else 0.0
         if offset_s < -1e-9 or offset_s > prefix_s + 1e-9:
             return False
+        self.plan_from_tau_s = self.progress_tau_s()
         self.plan = plan
         self.plan_t_s = max(offset_s, 0.0)
         self.plans_adopted += 1
         return True
+
+    def progress_tau_s(self) -> float:
+        """The program time the robot has made good: τ on the program; on a plan, τ where it left the program moved
+        towards the plan's goal in proportion to the plan's time (production counted as the detour goes) [s]."""
+        if self.plan is None:
+            return self.tau_s
+        fraction = min(self.plan_t_s / self.plan.duration_s, 1.0) if self.plan.duration_s > 0.0 else 1.0
+        return self.plan_from_tau_s + fraction * (self.plan.goal_tau_s - self.plan_from_tau_s)
 
     def _advance(self, dt_s: float) -> None:
         """The task's time moves by ``dt_s`` (δ × elapsed); at a plan's end the program resumes at its goal."""

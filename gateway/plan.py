@@ -382,15 +382,19 @@ def splice(
     goal_tau_s: float,
     start_key: tuple[object, ...],
     reason: str,
+    qd_join_radps: FloatArray | None = None,
     planning_s: float = 0.0,
 ) -> Plan:
     """Alg. 2's merge: the old trajectory from ``t_now_s`` to the join at ``t_join_s`` (on its own clock), then
-    ``new_path``, which must start at the old trajectory's configuration and velocity at the join.
+    ``new_path``, which must start at the old trajectory's configuration at the join and at ``qd_join_radps`` (default:
+    the old trajectory's velocity there; the planner passes the robot's δ times it, see
+    :class:`gateway.planner.PlanRequest`).
 
     Raises:
         ValueError: the new path does not start where the old trajectory is at the join (q or q̇ differ).
     """
-    q_join, qd_join = old.sample(t_join_s)
+    q_join, qd_old = old.sample(t_join_s)
+    qd_join = qd_old if qd_join_radps is None else qd_join_radps
     q_new, qd_new = new_path.sample(0.0)
     if float(np.max(np.abs(q_new - q_join))) > JOIN_TOLERANCE_RAD:
         raise ValueError(f"the new path starts {float(np.max(np.abs(q_new - q_join))):.3g} rad from the join")

@@ -31,9 +31,12 @@ IntArray = npt.NDArray[np.intp]
 
 CHECK_RESOLUTION = 0.01
 """OMPL's motion-check resolution as a fraction of the state space's extent (~0.1 rad over a Panda's 7 joints)."""
-INFLATION_STEPS = (1.0, 0.5, 0.0)
-"""When the start is inside the grown people (a person close by: the request (16)), the clearance is tried at these
-fractions of itself: a plan that starts there must first be allowed to leave."""
+EXTRA_CLEARANCE_M = (0.4, 0.2, 0.0)
+"""The people are first grown by these on top of the request's clearance (largest first): a path farther from
+them is faster as well as feasible (eq. (15) slows any approach within a band beyond Δ)."""
+INFLATION_STEPS = (0.5, 0.0)
+"""When the start is inside the grown people (a person close by: the request (16)), the clearance is then tried at
+these fractions of itself: a plan that starts there must first be allowed to leave."""
 
 
 class PlanRequest(NamedTuple):
@@ -49,6 +52,8 @@ class PlanRequest(NamedTuple):
         start_key: the trajectory and time the plan starts from (checked on adoption).
         reason: ``"horizon"`` or ``"request"``.
         seed: OMPL's seed (≥ 1).
+        speed_fraction: the new path starts at this fraction of the old trajectory's velocity at the join (the robot's
+            δ: a robot the scaling has stopped starts the new path from rest, one at full speed at full speed).
     """
 
     robot: str
@@ -61,6 +66,7 @@ class PlanRequest(NamedTuple):
     start_key: tuple[object, ...]
     reason: str
     seed: int
+    speed_fraction: float = 1.0
 
 
 class PlanOutcome(NamedTuple):
@@ -159,11 +165,13 @@ class JointPlanner:
         return PlanOutcome(request.robot, plan, outcome[1], elapsed, request.start_key)
 
     def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:
-        q_join, qd_join = request.old.sample(request.t_join_s)
+        q_join, qd_nominal = request.old.sample(request.t_join_s)
+        qd_join = min(max(request.speed_fraction, 0.0), 1.0) * qd_nominal
         humans = request.humans
         failure = "no_goal"
-        for fraction in INFLATION_STEPS:
-            grow_m = request.clearance_m * fraction
+        levels = [request.clearance_m + extra for extra in EXTRA_CLEARANCE_M]
+        levels += [request.clearance_m * fraction for fraction in INFLATION_STEPS]
+        for grow_m in levels:
             if not self.valid(q_join, humans, grow_m):
                 failure = "start_invalid"
                 continue
@@ -182,15 +190,22 @@ class JointPlanner:
                 def clear(q_active: FloatArray, g: float = grow_m) -> bool:
                     return self.valid(_fill(q_join, self.active, q_active), humans, g)
 
-                try:
-                    timed = plan_math.time_path(
-                        points[:, self.active],
-                        qd_join[self.active],
-                        self.qd_max_radps,
-                        self.qdd_max_radps2,
-                        clear,
-                    )
-                except TimingError:
+                timed = None
+                # at the join's velocity; failing that from rest (the LPs' (9d) smooths the step of the reference)
+                for qd_start in (qd_join, np.zeros_like(qd_join)):
+                    try:
+                        timed = plan_math.time_path(
+                            points[:, self.active],
+                            qd_start[self.active],
+                            self.qd_max_radps,
+                            self.qdd_max_radps2,
+                            clear,
+                        )
+                    except TimingError:
+                        continue
+                    qd_join = qd_start
+                    break
+                if timed is None:
                     failure = "no_timing"
                     continue
                 full_path = _FullPath(timed, q_join, self.active)
@@ -203,12 +218,13 @@ class JointPlanner:
                         goal_tau_s,
                         request.start_key,
                         request.reason,
+                        qd_join,
                     ), ""
                 except ValueError:
                     failure = "no_join"
                     continue
-            if failure not in ("start_invalid",):
-                break
+            if failure == "no_timing" or (failure == "no_path" and grow_m <= request.clearance_m):
+                break  # a level that fails with valid ends at the request's clearance: lower ones need not be tried
         return None, failure
 
 

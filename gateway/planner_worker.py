@@ -182,10 +182,20 @@ class Replanner:
             self.stats.rejected += 1
 
     def cycle(
-        self, now_ns: int, humans: HumanCapsules, request_16: bool, faulted: bool, backend: PlannerBackend
+        self,
+        now_ns: int,
+        humans: HumanCapsules,
+        request_16: bool,
+        faulted: bool,
+        resume_m: float,
+        backend: PlannerBackend,
     ) -> None:
         """After the loop's command: check the horizon (every ``check_every_s``) and ask when it is blocked or the
-        request (16) stands. Nothing while faulted (blind: nothing to plan around), or while a request is in flight."""
+        request (16) stands. Nothing while faulted (blind: nothing to plan around), or while a request is in flight.
+
+        ``resume_m`` is this decision's resume distance (the zones' protective distance plus hysteresis): a robot
+        nearer than it to anyone is held at δ = 0 by the zones, so a path is feasible only beyond it plus
+        ``planner.clearance_m`` (the protective separation of paper 2's check)."""
         if self.pending is not None and now_ns >= self.pending_deadline_ns:
             self.pending = None  # a planner that never answers: give up on it and ask again later
             self.stats.failures["timeout"] += 1
@@ -206,7 +216,7 @@ class Replanner:
             self.config.horizon_step_s,
             humans,
             self.human_speed_mps,
-            self.config.clearance_m,
+            resume_m + self.config.clearance_m,
             t_end_s,
             self.config.plan_growth_s,
         )
@@ -230,10 +240,11 @@ class Replanner:
             t_join_s,
             goals,
             humans,
-            self.config.clearance_m + self.human_speed_mps * self.config.plan_growth_s,
+            resume_m + self.config.clearance_m + self.human_speed_mps * self.config.plan_growth_s,
             (*key, t_now_s),
             reason,
             self.config.seed + self.count,
+            self.open_robot.delta_prev,
         )
         if backend.submit(request):
             self.pending = request.start_key

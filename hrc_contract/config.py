@@ -323,12 +323,13 @@ class PlannerConfig(_Frozen):
         0.1, description="How often the horizon is checked (the trackers' rate is enough; not every loop) [s]."
     )
     clearance_m: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
-        0.15,
-        description="Planned paths keep the links this far from the people, who are also grown by "
-        "safety.human_speed_mps times the time until the robot gets there (the horizon check) [m].",
+        0.05,
+        description="Planned paths keep the links this far beyond the zones' resume distance (nearer, the zones hold "
+        "the robot at δ = 0) from the people, who are also grown by safety.human_speed_mps times the time until the "
+        "robot gets there, up to plan_growth_s (the horizon check) [m].",
     )
     plan_growth_s: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
-        0.2,
+        0.0,
         description="The planner grows the people by safety.human_speed_mps times this on top of clearance_m, so "
         "that a new path passes the horizon check where it starts [s].",
     )
@@ -337,9 +338,6 @@ class PlannerConfig(_Frozen):
     )
     time_limit_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = Field(
         0.3, description="RRT-Connect's time limit per solve [s]."
-    )
-    request_hold_s: Annotated[float, Field(ge=0.0, le=60.0, allow_inf_nan=False)] = Field(
-        1.0, description="The request (16) (safety.replan_delta_below) must hold this long before it replans [s]."
     )
     retry_after_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] = Field(
         0.5, description="After a failed plan, the same robot asks again no sooner than this [s]."

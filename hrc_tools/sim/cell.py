@@ -209,14 +209,14 @@ class _Controller:
         """Times the program passed its end since the start (an open robot: by the gateway's program time)."""
         if self.task is not None:
             duration = self.trajectory.duration_s
-            return int(self.task.tau_s // duration) - int(self.tau0_s // duration)
+            return int(self.task.progress_tau_s() // duration) - int(self.tau0_s // duration)
         return self.state.cycles_completed
 
     def progress_cycles(self) -> float:
         """Program cycles completed since the start, the unfinished one by its fraction (an open robot: the
         gateway's program time)."""
         if self.task is not None:
-            return (self.task.tau_s - self.tau0_s) / self.trajectory.duration_s
+            return (self.task.progress_tau_s() - self.tau0_s) / self.trajectory.duration_s
         return self.state.cycles_completed + (self.state.tau_s - self.tau0_s) / self.trajectory.duration_s
 
 

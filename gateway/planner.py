@@ -167,65 +167,67 @@ class JointPlanner:
     def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:
         q_join, qd_nominal = request.old.sample(request.t_join_s)
         qd_join = min(max(request.speed_fraction, 0.0), 1.0) * qd_nominal
-        humans = request.humans
         failure = "no_goal"
         levels = [request.clearance_m + extra for extra in EXTRA_CLEARANCE_M]
         levels += [request.clearance_m * fraction for fraction in INFLATION_STEPS]
         for grow_m in levels:
-            if not self.valid(q_join, humans, grow_m):
+            if not self.valid(q_join, request.humans, grow_m):
                 failure = "start_invalid"
                 continue
             for q_goal, goal_tau_s in request.goals:
-                goal = np.array(q_goal, dtype=float)
-                inactive = np.setdiff1d(np.arange(goal.size), self.active)
-                goal[inactive] = q_join[inactive]
-                if not self.valid(goal, humans, grow_m):
-                    failure = "goal_invalid"
-                    continue
-                points = self.path(q_join, goal, humans, grow_m, request.seed)
-                if points is None:
-                    failure = "no_path"
-                    continue
-
-                def clear(q_active: FloatArray, g: float = grow_m) -> bool:
-                    return self.valid(_fill(q_join, self.active, q_active), humans, g)
-
-                timed = None
-                # at the join's velocity; failing that from rest (the LPs' (9d) smooths the step of the reference)
-                for qd_start in (qd_join, np.zeros_like(qd_join)):
-                    try:
-                        timed = plan_math.time_path(
-                            points[:, self.active],
-                            qd_start[self.active],
-                            self.qd_max_radps,
-                            self.qdd_max_radps2,
-                            clear,
-                        )
-                    except TimingError:
-                        continue
-                    qd_join = qd_start
-                    break
-                if timed is None:
-                    failure = "no_timing"
-                    continue
-                full_path = _FullPath(timed, q_join, self.active)
-                try:
-                    return plan_math.splice(
-                        request.old,
-                        request.t_now_s,
-                        request.t_join_s,
-                        full_path,
-                        goal_tau_s,
-                        request.start_key,
-                        request.reason,
-                        qd_join,
-                    ), ""
-                except ValueError:
-                    failure = "no_join"
-                    continue
+                plan, failure = self._solve_goal(request, q_join, qd_join, q_goal, goal_tau_s, grow_m)
+                if plan is not None:
+                    return plan, ""
             if failure == "no_timing" or (failure == "no_path" and grow_m <= request.clearance_m):
                 break  # a level that fails with valid ends at the request's clearance: lower ones need not be tried
         return None, failure
+
+    def _solve_goal(
+        self,
+        request: PlanRequest,
+        q_join: FloatArray,
+        qd_join: FloatArray,
+        q_goal: FloatArray,
+        goal_tau_s: float,
+        grow_m: float,
+    ) -> tuple[Plan | None, str]:
+        """One goal at one clearance: path, timing (at the join's velocity, else from rest: the LPs' (9d) smooths the
+        step of the reference), splice; the plan or why not."""
+        humans = request.humans
+        goal = np.array(q_goal, dtype=float)
+        inactive = np.setdiff1d(np.arange(goal.size), self.active)
+        goal[inactive] = q_join[inactive]
+        if not self.valid(goal, humans, grow_m):
+            return None, "goal_invalid"
+        points = self.path(q_join, goal, humans, grow_m, request.seed)
+        if points is None:
+            return None, "no_path"
+
+        def clear(q_active: FloatArray) -> bool:
+            return self.valid(_fill(q_join, self.active, q_active), humans, grow_m)
+
+        for qd_start in (qd_join, np.zeros_like(qd_join)):
+            try:
+                timed = plan_math.time_path(
+                    points[:, self.active], qd_start[self.active], self.qd_max_radps, self.qdd_max_radps2, clear
+                )
+            except TimingError:
+                continue
+            try:
+                plan = plan_math.splice(
+                    request.old,
+                    request.t_now_s,
+                    request.t_join_s,
+                    _FullPath(timed, q_join, self.active),
+                    goal_tau_s,
+                    request.start_key,
+                    request.reason,
+                    qd_start,
+                )
+            except ValueError:
+                return None, "no_join"
+            return plan, ""
+        return None, "no_timing"
 
 
 def _fill(q_base_rad: FloatArray, active: IntArray, q_active_rad: FloatArray) -> FloatArray:

@@ -240,8 +240,8 @@ def time_path_toppra(
     """TOPP-RA's time-optimal timing of the cubic spline through ``waypoints_rad`` (W ≥ 2), starting with joint velocity
     ``qd_start_radps`` and ending at rest, within ±``qd_max_radps`` and ±``qdd_max_radps2``; None when it finds none.
 
-    The spline's parameter is the pseudo-time of :func:`_pseudo_times`, so that its derivative at the start can be the
-    start velocity itself (ṡ = 1 there)."""
+    The spline's parameter is the pseudo-time of :func:`_pseudo_times`; its start tangent points along the start
+    velocity, whose size sets ṡ at the start."""
     import toppra
     import toppra.algorithm
     import toppra.constraint
@@ -250,7 +250,12 @@ def time_path_toppra(
     ss = _pseudo_times(waypoints_rad, qd_max_radps)
     moving = bool(np.any(np.abs(qd_start_radps) > 1e-9))
     zeros = np.zeros(waypoints_rad.shape[1])
-    bc = ((1, np.asarray(qd_start_radps, dtype=float)), (2, zeros)) if moving else ((2, zeros), (2, zeros))
+    # ṡ at the start: the first segment's own rate, so that the spline's start tangent dq/ds = q̇_start / ṡ has the
+    # segment's magnitude (a tiny or huge tangent forces a loop or a kink that no acceleration limit allows)
+    segment_rate = float(np.linalg.norm(waypoints_rad[1] - waypoints_rad[0])) / float(ss[1] - ss[0])
+    sd_start = float(np.linalg.norm(qd_start_radps)) / max(segment_rate, 1e-9) if moving else 0.0
+    tangent = np.asarray(qd_start_radps, dtype=float) / sd_start if moving else zeros
+    bc = ((1, tangent), (2, zeros)) if moving else ((2, zeros), (2, zeros))
     path = toppra.SplineInterpolator(ss, waypoints_rad, bc_type=bc)
     constraints = [
         toppra.constraint.JointVelocityConstraint(np.stack((-qd_max_radps, qd_max_radps), axis=1)),
@@ -259,7 +264,7 @@ def time_path_toppra(
     grid = None if gridpoints is None else np.linspace(0.0, float(ss[-1]), gridpoints)
     algorithm = toppra.algorithm.TOPPRA(constraints, path, gridpoints=grid, parametrizer="ParametrizeConstAccel")
     try:
-        trajectory = algorithm.compute_trajectory(sd_start=1.0 if moving else 0.0, sd_end=0.0)
+        trajectory = algorithm.compute_trajectory(sd_start=sd_start, sd_end=0.0)
     except Exception:
         return None
     if trajectory is None or not math.isfinite(float(trajectory.duration)) or trajectory.duration <= 0.0:

@@ -222,7 +222,7 @@ class JointPlanner:
                     goal_tau_s,
                     request.start_key,
                     request.reason,
-                    qd_start,
+                    _fill(np.zeros_like(qd_start), self.active, qd_start[self.active]),  # the others are held
                 )
             except ValueError:
                 return None, "no_join"

@@ -201,7 +201,7 @@ def horizon_check(
         return HorizonVerdict(None, min(horizon_s, max(t_end_s - t_now_s, 0.0)), math.inf)
     last_feasible = 0.0
     worst = math.inf
-    n = max(1, math.floor(horizon_s / step_s + 1e-9))
+    n = math.floor(horizon_s / step_s + 1e-9)  # 0 when the horizon is shorter than a step: nothing checked
     for k in range(1, n + 1):
         t_ahead = k * step_s
         if t_now_s + t_ahead > t_end_s + 1e-9:

@@ -144,6 +144,21 @@ class ReplannerStats:
     planning_s: list[float] = field(default_factory=list)
     last_reason: str = ""
 
+    def to_dict(self) -> dict[str, object]:
+        """A JSON-ready summary: requests per reason, adopted, rejected, failures per reason, planning time p50/p99/max
+        (wall clock; None without answers) [s]."""
+        times = np.asarray(self.planning_s, dtype=float)
+        quantiles = np.quantile(times, [0.5, 0.99]) if times.size else (None, None)
+        return {
+            "requests": dict(self.requests),
+            "adopted": self.adopted,
+            "rejected": self.rejected,
+            "failures": dict(self.failures),
+            "planning_p50_s": None if quantiles[0] is None else float(quantiles[0]),
+            "planning_p99_s": None if quantiles[1] is None else float(quantiles[1]),
+            "planning_max_s": float(times.max()) if times.size else None,
+        }
+
 
 @dataclass
 class Replanner:

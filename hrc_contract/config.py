@@ -314,7 +314,9 @@ class PlannerConfig(_Frozen):
 
     enabled: bool = Field(False, description="Replan open robots' paths around people (off: they scale and wait).")
     horizon_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = Field(
-        0.6, description="How far ahead the trajectory is checked against the people, every check [s]."
+        0.6,
+        description="How far ahead the trajectory is checked against the people, every check; shorter than "
+        "horizon_step_s: no configuration is checked (only the request (16) replans) [s].",
     )
     horizon_step_s: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
         0.1, description="Spacing of the configurations checked along the horizon [s]."

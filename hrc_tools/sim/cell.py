@@ -109,6 +109,9 @@ class RunResult:
     tracks: Mapping[str, int] = field(default_factory=dict)
     lost_at_end: int = 0
     bridges: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    planner: Mapping[str, Mapping[str, Any]] = field(default_factory=dict, compare=False)
+    """Per open robot with the planner layer on, what it did (:meth:`gateway.planner_worker.ReplannerStats.to_dict`;
+    planning times are wall clock: left out of :meth:`to_dict`)."""
 
     @property
     def speedup(self) -> float:
@@ -482,6 +485,13 @@ class _SimCell:
             tracks=MappingProxyType(dict(self.tally.tracks)),
             lost_at_end=len(self.gateway.core.tracks.lost()),
             bridges=MappingProxyType({n: c.bridge.summary() for n, c in self.controllers.items() if c.bridge}),
+            planner=MappingProxyType(
+                {
+                    name: state.replanner.stats.to_dict()
+                    for name, state in self.gateway.core.states.items()
+                    if state.replanner is not None
+                }
+            ),
         )
 
 

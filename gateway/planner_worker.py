@@ -35,8 +35,9 @@ from hrc_devices.robots.program import Trajectory
 NS_PER_S = 1_000_000_000
 PENDING_TIMEOUT_FACTOR = 10.0
 """A request unanswered after this many planner time limits counts as lost (``timeout``)."""
-GOALS_PER_REQUEST = 2
-"""Program waypoints offered as goals (the next one beyond the obstruction, then the one after it)."""
+GOALS_PER_REQUEST = 1
+"""Program waypoints offered as goals: the next one beyond the obstruction only (a later one would skip a station of
+the task, a pick or a place, and count as production that was not done)."""
 
 
 class PlannerBackend(Protocol):

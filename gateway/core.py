@@ -25,7 +25,7 @@ from gateway.link_ends import LinkEnds
 from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
 from gateway.planner import JointPlanner
-from gateway.planner_worker import PlannerBackend, Replanner, ThreadedPlanner
+from gateway.planner_worker import PlannerBackend, PlanView, Replanner, ThreadedPlanner
 from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -68,6 +68,7 @@ class RobotDecision(NamedTuple):
             ``limits``, ``zone`` or ``none``); None for the others.
         open_command: an open robot's joint command of this decision (LP (9)/(13) or the ramp stop); None for a
             closed robot, and for an open robot before its first joint state (nothing to command from).
+        plan: an open robot's planner layer after this decision (``planner.enabled``); None otherwise.
     """
 
     robot: str
@@ -87,6 +88,7 @@ class RobotDecision(NamedTuple):
     links: LinkEnds | None = None
     bounded_by: str | None = None
     open_command: OpenCommand | None = None
+    plan: PlanView | None = None
 
 
 class TrackReset(NamedTuple):
@@ -517,6 +519,7 @@ class SafetyCore:
             links,
             None if command is None else (command.solution.bounded_by or command.solution.how),
             command,
+            None if state.replanner is None else state.replanner.view(),
         )
 
     def _bound(

@@ -20,7 +20,7 @@ import queue
 import threading
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -132,6 +132,31 @@ def goal_candidates(
     return tuple(out[:count])
 
 
+class PlanView(NamedTuple):
+    """The planner layer of one robot at one decision, for the status (plain values, frozen).
+
+    Attributes:
+        following: the robot follows a plan (not its program).
+        plan_time_s, plan_duration_s: where it is along the plan and the plan's length (None on the program) [s].
+        path_waypoints: the planned piece's waypoints (None on the program).
+        reason: why the current or last adopted plan was asked for (``horizon``, ``request``; empty before any).
+        requests, failures: per reason, since the start.
+        adopted, rejected: plans adopted, and returned too late or for another trajectory.
+        planning_last_s: the planner's time for the latest answer (wall clock; None before any) [s].
+    """
+
+    following: bool
+    plan_time_s: float | None
+    plan_duration_s: float | None
+    path_waypoints: int | None
+    reason: str
+    requests: dict[str, int]
+    adopted: int
+    rejected: int
+    failures: dict[str, int]
+    planning_last_s: float | None
+
+
 @dataclass
 class ReplannerStats:
     """What the planner layer did for one robot (the status and the bench read it)."""
@@ -181,6 +206,24 @@ class Replanner:
 
     def __post_init__(self) -> None:
         self.data = self.open_robot.robot.model.createData()
+
+    def view(self) -> PlanView:
+        """What the status shows of this robot's planner layer now."""
+        plan = self.open_robot.plan
+        new = None if plan is None else plan.new_path
+        stats = self.stats
+        return PlanView(
+            plan is not None,
+            None if plan is None else self.open_robot.plan_t_s,
+            None if plan is None else plan.duration_s,
+            None if new is None else len(new.waypoints_rad),
+            stats.last_reason,
+            dict(stats.requests),
+            stats.adopted,
+            stats.rejected,
+            dict(stats.failures),
+            stats.planning_s[-1] if stats.planning_s else None,
+        )
 
     def take(self, outcome: PlanOutcome, now_ns: int) -> None:
         """An answer from the backend: adopt its plan if the robot can still follow it from where it is."""

@@ -11,12 +11,17 @@ import numpy as np
 import pytest
 
 from gateway import plan as plan_math
+from gateway.core import RobotDecision
+from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
 from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
 from gateway.planner_worker import Replanner, SimulatedPlanner, goal_candidates
+from gateway.status import robot_status
+from gateway.zones import ZoneThresholds
 from hrc_contract.config import CellConfig, PlannerConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
+from hrc_contract.vocabulary import Zone
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.config import load_cell_config
@@ -322,3 +327,39 @@ def test_the_simulated_planner_answers_at_the_next_poll(planner: JointPlanner, p
     assert len(done) == 1
     assert done[0].plan is not None
     assert backend.poll() == []
+
+
+def test_the_status_shows_the_plan_the_robot_follows(
+    config: CellConfig, panda: RobotModel, program: Trajectory, planner: JointPlanner
+) -> None:
+    robot = open_robot(config, panda, program)
+    robot.tau_s = 0.35
+    replanner = Replanner("panda", PlannerConfig(enabled=True), 1.6, robot)
+    replanner.take(PlanOutcome("panda", plan_from(program, 0.35, planner), "", 0.042, ("program", 0.35)), 0)
+    replanner.take(PlanOutcome("panda", None, "no_path", 0.3, ("program", 1.0)), 0)
+    decision = RobotDecision(
+        "panda",
+        Zone.REDUCED_SPEED,
+        0.5,
+        0.5,
+        1.3,
+        None,
+        DelayBudget(0.04, 0.03, 0.004, 0.012, 0.004, 0.004),
+        1.0,
+        ZoneThresholds(1.0, 1.15, 1.9, 2.4),
+        (),
+        {"joint_state": 0.004},
+        "running",
+        plan=replanner.view(),
+    )
+    shown = robot_status(decision, 1).plan
+    assert shown is not None
+    assert shown.following
+    assert shown.plan_time_s == 0.0
+    assert shown.plan_duration_s is not None
+    assert shown.plan_duration_s > 0.0
+    assert shown.path_waypoints is not None
+    assert shown.path_waypoints >= 2
+    assert (shown.adopted, shown.rejected, shown.failures) == (1, 0, {"no_path": 1})
+    assert shown.planning_last_s == 0.3
+    assert robot_status(decision._replace(plan=None), 1).plan is None

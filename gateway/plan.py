@@ -88,6 +88,8 @@ class Plan:
             time on it at which the plan starts; :meth:`gateway.open_robot.OpenRobot.adopt` checks it.
         reason: why it was planned (``"horizon"``, ``"request"``).
         planning_s: the planner's time for it (wall clock, for the status; 0 when unknown) [s].
+        clearance_m: how far the new path was planned from the people (their capsules grown by it) [m]: the horizon
+            check holds the plan to no more (a plan that had to start near someone is not replanned for it at once).
     """
 
     pieces: tuple[Piece, ...]
@@ -95,6 +97,7 @@ class Plan:
     start_key: tuple[object, ...]
     reason: str = ""
     planning_s: float = 0.0
+    clearance_m: float = math.inf
 
     @property
     def duration_s(self) -> float:
@@ -389,6 +392,7 @@ def splice(
     reason: str,
     qd_join_radps: FloatArray | None = None,
     planning_s: float = 0.0,
+    clearance_m: float = math.inf,
 ) -> Plan:
     """Alg. 2's merge: the old trajectory from ``t_now_s`` to the join at ``t_join_s`` (on its own clock), then
     ``new_path``, which must start at the old trajectory's configuration at the join and at ``qd_join_radps`` (default:
@@ -408,4 +412,4 @@ def splice(
     pieces: tuple[Piece, ...] = (Piece(new_path, 0.0, new_path.duration_s),)
     if t_join_s > t_now_s:
         pieces = (Piece(old, t_now_s, t_join_s - t_now_s), *pieces)
-    return Plan(pieces, goal_tau_s, start_key, reason, planning_s)
+    return Plan(pieces, goal_tau_s, start_key, reason, planning_s, clearance_m)

@@ -161,7 +161,7 @@ class JointPlanner:
         elapsed = time.perf_counter() - started
         plan = outcome[0]
         if plan is not None:
-            plan = Plan(plan.pieces, plan.goal_tau_s, plan.start_key, plan.reason, elapsed)
+            plan = Plan(plan.pieces, plan.goal_tau_s, plan.start_key, plan.reason, elapsed, plan.clearance_m)
         return PlanOutcome(request.robot, plan, outcome[1], elapsed, request.start_key)
 
     def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:
@@ -223,6 +223,7 @@ class JointPlanner:
                     request.start_key,
                     request.reason,
                     _fill(np.zeros_like(qd_start), self.active, qd_start[self.active]),  # the others are held
+                    clearance_m=grow_m,
                 )
             except ValueError:
                 return None, "no_join"

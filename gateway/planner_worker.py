@@ -266,6 +266,10 @@ class Replanner:
         path, t_now_s, key = self.open_robot.path_now()
         plan = self.open_robot.plan
         t_end_s = plan.duration_s if plan is not None else math.inf
+        growth_m = self.human_speed_mps * self.config.plan_growth_s
+        clearance_m = resume_m + self.config.clearance_m
+        if plan is not None:  # held to no more than it was planned with (it may have had to start near someone)
+            clearance_m = min(clearance_m, plan.clearance_m - growth_m)
         verdict = plan_math.horizon_check(
             self.open_robot.robot,
             self.data,
@@ -275,7 +279,7 @@ class Replanner:
             self.config.horizon_step_s,
             humans,
             self.human_speed_mps,
-            resume_m + self.config.clearance_m,
+            clearance_m,
             t_end_s,
             self.config.plan_growth_s,
         )
@@ -299,7 +303,7 @@ class Replanner:
             t_join_s,
             goals,
             humans,
-            resume_m + self.config.clearance_m + self.human_speed_mps * self.config.plan_growth_s,
+            resume_m + self.config.clearance_m + growth_m,
             (*key, t_now_s),
             reason,
             self.config.seed + self.count,

@@ -6,6 +6,7 @@ the open robot, and when the replanner asks."""
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
 from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import Replanner, SimulatedPlanner, goal_candidates
+from gateway.planner_worker import Replanner, SimulatedPlanner, ThreadedPlanner, goal_candidates
 from gateway.status import robot_status
 from gateway.zones import ZoneThresholds
 from hrc_contract.config import CellConfig, PlannerConfig
@@ -363,3 +364,43 @@ def test_the_status_shows_the_plan_the_robot_follows(
     assert (shown.adopted, shown.rejected, shown.failures) == (1, 0, {"no_path": 1})
     assert shown.planning_last_s == 0.3
     assert robot_status(decision._replace(plan=None), 1).plan is None
+
+
+class Crashes(JointPlanner):
+    def solve(self, request: PlanRequest) -> PlanOutcome:
+        raise RuntimeError("boom")
+
+
+def wait_for(backend: ThreadedPlanner) -> list[PlanOutcome]:
+    """Poll until an answer comes (at most 30 s: a planner thread that never answers fails the test)."""
+    for _ in range(3000):
+        done = backend.poll()
+        if done:
+            return done
+        time.sleep(0.01)
+    raise AssertionError("the planner thread never answered")
+
+
+def test_the_threaded_planner_answers_from_its_own_thread_and_survives_a_crash(
+    planner: JointPlanner, panda: RobotModel, program: Trajectory
+) -> None:
+    backend = ThreadedPlanner({"panda": planner})
+    try:
+        assert backend.poll() == []
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        done = wait_for(backend)
+        assert done[0].plan is not None
+        assert done[0].robot == "panda"
+    finally:
+        backend.close()
+    assert not backend.submit(request(program, person(1.0, 0.0), 5))  # closed
+    crashing = ThreadedPlanner({"panda": Crashes(panda, planner.active, planner.qd_max_radps, planner.qdd_max_radps2)})
+    try:
+        crashing.submit(request(program, person(1.0, 0.0), 5))
+        outcome = wait_for(crashing)[0]
+        assert outcome.plan is None
+        assert outcome.failure == "error:RuntimeError"
+        crashing.submit(request(program, person(1.0, 0.0), 6))
+        assert wait_for(crashing)[0].failure == "error:RuntimeError"  # the thread lives on
+    finally:
+        crashing.close()

@@ -71,8 +71,9 @@ class SimulatedPlanner:
 
 
 class ThreadedPlanner:
-    """Plans requests on its own daemon thread, one at a time, newest request per robot first served; the loop submits
-    and polls without waiting. A request for a robot that already has one queued replaces it."""
+    """Plans requests on its own daemon thread, one at a time in order of arrival; the loop submits and polls without
+    waiting (each :class:`Replanner` keeps at most one request in flight). The thread starts with the first request;
+    a planner that raises gives a failed plan (``error:<exception>``), never a dead thread."""
 
     def __init__(self, planners: dict[str, JointPlanner]) -> None:
         self.planners = planners

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gateway import plan as plan_math
-from gateway.core import RobotDecision
+from gateway.core import RobotDecision, SafetyCore
 from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
@@ -404,3 +404,18 @@ def test_the_threaded_planner_answers_from_its_own_thread_and_survives_a_crash(
         assert wait_for(crashing)[0].failure == "error:RuntimeError"  # the thread lives on
     finally:
         crashing.close()
+
+
+def test_the_core_builds_the_planner_layer_only_when_enabled(config: CellConfig, panda: RobotModel) -> None:
+    core = SafetyCore(config, {"panda": panda})  # the gateway's default backend: the planner's own thread
+    try:
+        assert isinstance(core.planner, ThreadedPlanner)
+        assert core.states["panda"].replanner is not None
+    finally:
+        core.close()
+    off = config.model_copy(update={"planner": config.planner.model_copy(update={"enabled": False})})
+    plain = SafetyCore(off, {"panda": panda})
+    assert plain.planner is None
+    assert plain.states["panda"].replanner is None
+    simulated = SafetyCore(config, {"panda": panda}, SimulatedPlanner)
+    assert isinstance(simulated.planner, SimulatedPlanner)

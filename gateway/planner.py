@@ -231,6 +231,15 @@ class JointPlanner:
         return None, "no_timing"
 
 
+def warm_up() -> None:
+    """Import OMPL and TOPP-RA (1–2 s on a loaded 2-core machine): done once before the first request, so that the
+    first plan is not late by the imports."""
+    import ompl.base
+    import ompl.geometric  # noqa: F401
+    import toppra.algorithm
+    import toppra.constraint  # noqa: F401
+
+
 def _fill(q_base_rad: FloatArray, active: IntArray, q_active_rad: FloatArray) -> FloatArray:
     q = np.array(q_base_rad, dtype=float)
     q[active] = q_active_rad

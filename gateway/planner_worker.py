@@ -27,7 +27,7 @@ import pinocchio as pin
 
 from gateway import plan as plan_math
 from gateway.open_robot import OpenRobot
-from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
+from gateway.planner import JointPlanner, PlanOutcome, PlanRequest, warm_up
 from hrc_contract.config import PlannerConfig
 from hrc_contract.humans import HumanCapsules
 from hrc_devices.robots.program import Trajectory
@@ -57,6 +57,7 @@ class SimulatedPlanner:
     def __init__(self, planners: dict[str, JointPlanner]) -> None:
         self.planners = planners
         self._done: list[PlanOutcome] = []
+        warm_up()
 
     def submit(self, request: PlanRequest) -> bool:
         self._done.append(self.planners[request.robot].solve(request))
@@ -72,23 +73,21 @@ class SimulatedPlanner:
 
 class ThreadedPlanner:
     """Plans requests on its own daemon thread, one at a time in order of arrival; the loop submits and polls without
-    waiting (each :class:`Replanner` keeps at most one request in flight). The thread starts with the first request;
-    a planner that raises gives a failed plan (``error:<exception>``), never a dead thread."""
+    waiting (each :class:`Replanner` keeps at most one request in flight). The thread starts at once and imports the
+    libraries; a planner that raises gives a failed plan (``error:<exception>``), never a dead thread."""
 
     def __init__(self, planners: dict[str, JointPlanner]) -> None:
         self.planners = planners
         self._queue: queue.Queue[PlanRequest | None] = queue.Queue()
         self._done: list[PlanOutcome] = []
         self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
         self._closed = False
+        self._thread = threading.Thread(target=self._run, name="hrc-planner", daemon=True)
+        self._thread.start()  # it imports the libraries first (warm_up), before any request
 
     def submit(self, request: PlanRequest) -> bool:
         if self._closed:
             return False
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="hrc-planner", daemon=True)
-            self._thread.start()
         self._queue.put(request)
         return True
 
@@ -98,12 +97,14 @@ class ThreadedPlanner:
         return done
 
     def close(self) -> None:
+        if self._closed:
+            return
         self._closed = True
-        if self._thread is not None:
-            self._queue.put(None)
-            self._thread.join(timeout=5.0)
+        self._queue.put(None)
+        self._thread.join(timeout=5.0)
 
     def _run(self) -> None:
+        warm_up()
         while True:
             request = self._queue.get()
             if request is None:

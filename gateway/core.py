@@ -291,7 +291,13 @@ class SafetyCore:
             planners[name] = JointPlanner(
                 state.robot, state.open.active, limits.qd_max_radps, limits.qdd_max_radps2, settings.time_limit_s
             )
-            state.replanner = Replanner(name, settings, self.config.safety.human_speed_mps, state.open)
+            state.replanner = Replanner(
+                name,
+                settings,
+                self.config.safety.human_speed_mps,
+                state.open,
+                request_after_s=self.config.safety.replan_after_s,
+            )
         if not planners:
             return None
         return (backend or ThreadedPlanner)(planners)

@@ -205,6 +205,10 @@ class Replanner:
     """No new request before this (after a failure or an adoption) [ns]."""
     count: int = 0
     pending_deadline_ns: int = 0
+    request_after_s: float = 1.0
+    """After a plan is adopted, the request (16) replans again only after this (``safety.replan_after_s``: δ must
+    have stayed low on the new path as long as on the old one) [s]."""
+    request_quiet_until_ns: int = 0
 
     def __post_init__(self) -> None:
         self.data = self.open_robot.robot.model.createData()
@@ -239,6 +243,7 @@ class Replanner:
         if self.open_robot.adopt(outcome.plan):
             self.stats.adopted += 1
             self.stats.last_reason = outcome.plan.reason
+            self.request_quiet_until_ns = now_ns + int(self.request_after_s * NS_PER_S)
         else:
             self.stats.rejected += 1
 
@@ -289,7 +294,7 @@ class Replanner:
             reason = "horizon"
             t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
             obstruction_s = t_now_s + verdict.infeasible_t_s
-        elif request_16 and humans.n_capsules:
+        elif request_16 and humans.n_capsules and now_ns >= self.request_quiet_until_ns:
             reason = "request"
             t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
             obstruction_s = t_join_s

@@ -146,13 +146,20 @@ def clearance_to_people_m(
 
 
 def configuration_valid(
-    robot: RobotModel, data: pin.Data, q_rad: FloatArray, humans: HumanCapsules, grow_m: float
+    robot: RobotModel,
+    data: pin.Data,
+    q_rad: FloatArray,
+    humans: HumanCapsules,
+    grow_m: float,
+    limits_rad: tuple[FloatArray, FloatArray] | None = None,
 ) -> bool:
-    """True when ``q_rad`` is within the joint limits and keeps every link clear of every grown capsule.
+    """True when ``q_rad`` is within the joint limits (``limits_rad`` = (lower, upper); default the model's) and keeps
+    every link clear of every grown capsule.
 
     A plain Python ``bool`` (OMPL's validity checker crashes the solve on a numpy bool)."""
     model = robot.model
-    if not bool(np.all(q_rad >= model.lowerPositionLimit) and np.all(q_rad <= model.upperPositionLimit)):
+    lower, upper = (model.lowerPositionLimit, model.upperPositionLimit) if limits_rad is None else limits_rad
+    if not bool(np.all(q_rad >= lower) and np.all(q_rad <= upper)):
         return False
     return bool(clearance_to_people_m(robot, data, q_rad, humans, grow_m) > 0.0)
 

@@ -31,6 +31,10 @@ IntArray = npt.NDArray[np.intp]
 
 CHECK_RESOLUTION = 0.01
 """OMPL's motion-check resolution as a fraction of the state space's extent (~0.1 rad over a Panda's 7 joints)."""
+LIMIT_MARGIN_RAD = 0.3
+"""Planned paths keep the active joints this far inside their limits [rad]: a ramp stop (LP (9) infeasible, a zone
+at δ = 0) continues along the current direction for up to the stop time, and a reference beyond a limit makes (9f)
+and so LP (9) infeasible: the robot would be stuck at the limit (seen in an end-to-end run before this margin)."""
 EXTRA_CLEARANCE_M = (0.4, 0.2, 0.0)
 """The people are first grown by these on top of the request's clearance (largest first): a path farther from
 them is faster as well as feasible (eq. (15) slows any approach within a band beyond Δ)."""
@@ -97,14 +101,30 @@ class JointPlanner:
     qdd_max_radps2: FloatArray
     time_limit_s: float = 0.3
     simplify_s: float = 0.05
+    limit_margin_rad: float = LIMIT_MARGIN_RAD
     data: pin.Data = field(init=False)
+    limits_rad: tuple[FloatArray, FloatArray] = field(init=False)
+    """The joint range planned in (lower, upper): the model's, the active joints' narrowed by the margin [rad]."""
 
     def __post_init__(self) -> None:
         self.data = self.robot.model.createData()
+        self.limits_rad = self._range(None)
+
+    def _range(self, q_start_rad: FloatArray | None) -> tuple[FloatArray, FloatArray]:
+        """The model's limits, the active joints' narrowed by the margin and widened again to take in the start."""
+        lower = np.array(self.robot.model.lowerPositionLimit, dtype=float)
+        upper = np.array(self.robot.model.upperPositionLimit, dtype=float)
+        lower[self.active] += self.limit_margin_rad
+        upper[self.active] -= self.limit_margin_rad
+        if q_start_rad is not None:
+            lower = np.minimum(lower, q_start_rad)
+            upper = np.maximum(upper, q_start_rad)
+        return lower, upper
 
     def valid(self, q_rad: FloatArray, humans: HumanCapsules, grow_m: float) -> bool:
-        """The validity checker: a plain ``bool`` (see :func:`gateway.plan.configuration_valid`)."""
-        return plan_math.configuration_valid(self.robot, self.data, q_rad, humans, grow_m)
+        """The validity checker: a plain ``bool`` (see :func:`gateway.plan.configuration_valid`), in the planned range
+        :attr:`limits_rad`."""
+        return plan_math.configuration_valid(self.robot, self.data, q_rad, humans, grow_m, self.limits_rad)
 
     def path(
         self, q_start_rad: FloatArray, q_goal_rad: FloatArray, humans: HumanCapsules, grow_m: float, seed: int
@@ -117,15 +137,15 @@ class JointPlanner:
 
         ou.setLogLevel(ou.LOG_NONE)
         ou.RNG.setSeed(max(1, int(seed)))
-        model = self.robot.model
         active = self.active
         n = int(active.size)
         base = np.array(q_start_rad, dtype=float)
         space = ob.RealVectorStateSpace(n)
         bounds = ob.RealVectorBounds(n)
+        lower, upper = self.limits_rad
         for k, j in enumerate(active):
-            bounds.setLow(k, float(model.lowerPositionLimit[j]))
-            bounds.setHigh(k, float(model.upperPositionLimit[j]))
+            bounds.setLow(k, float(lower[j]))
+            bounds.setHigh(k, float(upper[j]))
         space.setBounds(bounds)
         setup = og.SimpleSetup(space)
 
@@ -167,6 +187,7 @@ class JointPlanner:
     def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:
         q_join, qd_nominal = request.old.sample(request.t_join_s)
         qd_join = min(max(request.speed_fraction, 0.0), 1.0) * qd_nominal
+        self.limits_rad = self._range(q_join)
         failure = "no_goal"
         levels = [request.clearance_m + extra for extra in EXTRA_CLEARANCE_M]
         levels += [request.clearance_m * fraction for fraction in INFLATION_STEPS]

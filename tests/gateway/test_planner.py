@@ -209,9 +209,13 @@ def test_plans_go_around_the_person_within_the_limits_and_repeat_for_a_seed(
     np.testing.assert_array_equal(new.waypoints_rad, same.waypoints_rad)
     assert len(new.waypoints_rad) >= 3  # not the straight swing: that passes through the person
     data = planner.robot.model.createData()
+    lower = planner.robot.model.lowerPositionLimit[:7] + planner.limit_margin_rad
+    upper = planner.robot.model.upperPositionLimit[:7] - planner.limit_margin_rad
     for t in np.arange(0.0, first.plan.duration_s, 0.02):
         q, _ = first.plan.sample(float(t))
         assert plan_math.clearance_to_people_m(planner.robot, data, q, humans, 0.3) > -1e-3
+        assert np.all(q[:7] >= lower - 1e-6)  # inside the limits by the margin: a ramp stop cannot cross them
+        assert np.all(q[:7] <= upper + 1e-6)
     speeds = np.array([np.abs(new.sample(float(t))[1][:7]) for t in np.arange(0.0, new.duration_s, 0.01)])
     assert np.all(speeds <= 1.02 * planner.qd_max_radps)
     np.testing.assert_allclose(first.plan.sample(first.plan.duration_s)[0][:7], PLACE[:7], atol=1e-6)

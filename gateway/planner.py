@@ -92,7 +92,8 @@ class JointPlanner:
         active: the joints planned (velocity indices); the others stay at the start's values.
         qd_max_radps, qdd_max_radps2: the active joints' limits for the timing.
         time_limit_s: RRT-Connect's time limit per solve [s].
-        simplify_s: the time for OMPL's path simplification [s].
+        simplify_s: the time for OMPL's path simplification; 0: until it no longer improves (deterministic: a time
+            budget would give another path on a loaded machine) [s].
     """
 
     robot: RobotModel
@@ -100,7 +101,7 @@ class JointPlanner:
     qd_max_radps: FloatArray
     qdd_max_radps2: FloatArray
     time_limit_s: float = 0.3
-    simplify_s: float = 0.05
+    simplify_s: float = 0.0
     limit_margin_rad: float = LIMIT_MARGIN_RAD
     data: pin.Data = field(init=False)
     limits_rad: tuple[FloatArray, FloatArray] = field(init=False)

@@ -51,7 +51,9 @@ def steps_into_the_swing(duration_s: float) -> Scenario:
 def cell(planner: bool, **overrides: Any) -> tuple[CellConfig, dict[str, RobotModel]]:
     raw = load_cell_config("configs/cell_open_panda_planner.toml").model_dump()
     raw["trackers"] = {"front": {"rate_hz": 30.0, "noise_std_m": 0.0, "drop_probability": 0.0, "latency_s": 0.03}}
-    raw["planner"] = {**raw["planner"], "enabled": planner, **overrides}
+    # a generous RRT-Connect time limit: the simulated planner is synchronous (simulated time does not pass while it
+    # plans), and a seeded search that is not cut short by a loaded machine gives the same plans every run
+    raw["planner"] = {**raw["planner"], "enabled": planner, "time_limit_s": 3.0, **overrides}
     config = CellConfig.model_validate(raw)
     return config, {name: load_robot_model(name, r) for name, r in config.robots.items()}
 

@@ -109,6 +109,19 @@ class Plan:
         source = self.pieces[-1].source
         return source if isinstance(source, TimedPath) else None
 
+    def pieces_between(self, t0_s: float, t1_s: float) -> tuple[Piece, ...]:
+        """The stretch of this plan from its time ``t0_s`` to ``t1_s`` as pieces of its own sources: a plan spliced
+        into a plan keeps only that stretch, not the old plan (no chain of plans grows with every replan)."""
+        out: list[Piece] = []
+        start = 0.0
+        for piece in self.pieces:
+            end = start + piece.duration_s
+            lo, hi = max(t0_s, start), min(t1_s, end)
+            if hi > lo:
+                out.append(Piece(piece.source, piece.t0_s + (lo - start), hi - lo))
+            start = end
+        return tuple(out)
+
     def sample(self, t_s: float) -> tuple[FloatArray, FloatArray]:
         """q [rad] and q̇ [rad/s] at plan time ``t_s`` (from the plan's start)."""
         t = max(t_s, 0.0)
@@ -418,5 +431,10 @@ def splice(
         raise ValueError(f"the new path starts at another velocity ({qd_new} rad/s, the join's {qd_join} rad/s)")
     pieces: tuple[Piece, ...] = (Piece(new_path, 0.0, new_path.duration_s),)
     if t_join_s > t_now_s:
-        pieces = (Piece(old, t_now_s, t_join_s - t_now_s), *pieces)
+        before = (
+            old.pieces_between(t_now_s, t_join_s)
+            if isinstance(old, Plan)
+            else (Piece(old, t_now_s, t_join_s - t_now_s),)
+        )
+        pieces = (*before, *pieces)
     return Plan(pieces, goal_tau_s, start_key, reason, planning_s, clearance_m)

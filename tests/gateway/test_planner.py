@@ -423,3 +423,20 @@ def test_the_core_builds_the_planner_layer_only_when_enabled(config: CellConfig,
     assert plain.states["panda"].replanner is None
     simulated = SafetyCore(config, {"panda": panda}, SimulatedPlanner)
     assert isinstance(simulated.planner, SimulatedPlanner)
+
+
+def test_a_plan_spliced_into_a_plan_keeps_only_the_stretch_it_needs(program: Trajectory, planner: JointPlanner) -> None:
+    first = plan_from(program, 0.35, planner)
+    t_now, t_join = 0.05, 0.3  # across the first plan's join (0.1 s after its start)
+    q_join, _ = first.sample(t_join)
+    again = planner.solve(
+        PlanRequest(
+            "panda", first, t_now, t_join, ((PLACE, 2.5),), person(1.0, 0.0), 0.3, ("plan", 1, t_now), "h", 3, 0.0
+        )
+    )
+    assert again.plan is not None, again.failure
+    second = again.plan
+    assert not any(isinstance(piece.source, Plan) for piece in second.pieces)  # no chain of plans
+    for t in np.linspace(0.0, t_join - t_now - 1e-6, 7):
+        np.testing.assert_allclose(second.sample(float(t))[0], first.sample(t_now + float(t))[0], atol=1e-9)
+    np.testing.assert_allclose(second.sample(t_join - t_now)[0][:7], q_join[:7], atol=1e-6)

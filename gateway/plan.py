@@ -17,6 +17,7 @@ Safety never depends on anything here: the LPs (9)/(13) bound every command what
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections.abc import Callable
@@ -297,8 +298,8 @@ def time_path_toppra(
         np.array(waypoints_rad, dtype=float),
         float(trajectory.duration),
         how,
-        lambda t: trajectory(t),
-        lambda t: trajectory(t, 1),
+        trajectory,
+        functools.partial(_derivative, trajectory),
     )
 
 
@@ -306,7 +307,7 @@ def time_path_trapezoid(waypoints_rad: FloatArray, qd_max_radps: FloatArray, qdd
     """The fallback: straight joint-space moves between the waypoints, each joint-synchronised on a trapezoidal (or
     triangular) profile within the limits, at rest at every waypoint. Starts at rest."""
     starts = [0.0]
-    moves = []
+    moves: list[tuple[FloatArray, FloatArray, float, float, float, float]] = []
     for q0, q1 in itertools.pairwise(waypoints_rad):
         delta = q1 - q0
         # the slowest joint sets the move: time at speed and accelerating, as a fraction of the path s ∈ [0, 1]
@@ -321,29 +322,41 @@ def time_path_trapezoid(waypoints_rad: FloatArray, qd_max_radps: FloatArray, qdd
         moves.append((q0, delta, v, a, t_acc, duration))
         starts.append(starts[-1] + duration)
 
-    def s_of(t: float, v: float, a: float, t_acc: float, duration: float) -> tuple[float, float]:
+    profile = _Trapezoid(tuple(moves), tuple(starts))
+    return TimedPath(
+        np.array(waypoints_rad, dtype=float),
+        starts[-1],
+        "trapezoid",
+        functools.partial(profile.at, derivative=False),
+        functools.partial(profile.at, derivative=True),
+    )
+
+
+def _derivative(trajectory: Callable[..., FloatArray], t_s: float) -> FloatArray:
+    """dq/dt of a TOPP-RA trajectory at ``t_s`` (a module-level function: plans are pickled to the planner process)."""
+    return trajectory(t_s, 1)
+
+
+@dataclass(frozen=True)
+class _Trapezoid:
+    """The fallback's moves (q0, Δq, v, a, t_acc, duration) and their start times; picklable."""
+
+    moves: tuple[tuple[FloatArray, FloatArray, float, float, float, float], ...]
+    starts: tuple[float, ...]
+
+    def at(self, t_s: float, derivative: bool) -> FloatArray:
+        """q (or q̇ with ``derivative``) at ``t_s`` [rad, rad/s]."""
+        i = max(min(int(np.searchsorted(self.starts, t_s, side="right")) - 1, len(self.moves) - 1), 0)
+        q0, delta, v, a, t_acc, duration = self.moves[i]
+        t = min(t_s - self.starts[i], duration)
         if t < t_acc:
-            return 0.5 * a * t * t, a * t
-        left = duration - t
-        if left < t_acc:
-            return 1.0 - 0.5 * a * left * left, a * left
-        return 0.5 * a * t_acc * t_acc + v * (t - t_acc), v
-
-    def locate(t: float) -> tuple[int, float]:
-        i = min(int(np.searchsorted(starts, t, side="right")) - 1, len(moves) - 1)
-        return max(i, 0), t - starts[max(i, 0)]
-
-    def position(t: float) -> FloatArray:
-        i, local = locate(t)
-        q0, delta, v, a, t_acc, duration = moves[i]
-        return np.asarray(q0 + delta * s_of(min(local, duration), v, a, t_acc, duration)[0], dtype=float)
-
-    def velocity(t: float) -> FloatArray:
-        i, local = locate(t)
-        _, delta, v, a, t_acc, duration = moves[i]
-        return np.asarray(delta * s_of(min(local, duration), v, a, t_acc, duration)[1], dtype=float)
-
-    return TimedPath(np.array(waypoints_rad, dtype=float), starts[-1], "trapezoid", position, velocity)
+            s, rate = 0.5 * a * t * t, a * t
+        elif duration - t < t_acc:
+            left = duration - t
+            s, rate = 1.0 - 0.5 * a * left * left, a * left
+        else:
+            s, rate = 0.5 * a * t_acc * t_acc + v * (t - t_acc), v
+        return np.asarray(delta * rate if derivative else q0 + delta * s, dtype=float)
 
 
 def within_limits(path: TimedPath, qd_max_radps: FloatArray, qdd_max_radps2: FloatArray, step_s: float) -> bool:

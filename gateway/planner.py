@@ -13,6 +13,7 @@ search short on a loaded machine).
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import NamedTuple
@@ -275,18 +276,21 @@ class _FullPath(plan_math.TimedPath):
         waypoints = np.repeat(np.asarray(q_base_rad, dtype=float)[None, :], len(timed.waypoints_rad), axis=0)
         waypoints[:, active] = timed.waypoints_rad
         base = np.array(q_base_rad, dtype=float)
-
-        def position(t: float) -> FloatArray:
-            q, _ = timed.sample(t)
-            return _fill(base, active, q)
-
-        def velocity(t: float) -> FloatArray:
-            _, qd = timed.sample(t)
-            out = np.zeros_like(base)
-            out[active] = qd
-            return out
-
+        position = functools.partial(_filled, timed, base, active, False)
+        velocity = functools.partial(_filled, timed, base, active, True)
         super().__init__(waypoints, timed.duration_s, timed.how, position, velocity)
+
+
+def _filled(
+    timed: plan_math.TimedPath, base_rad: FloatArray, active: IntArray, derivative: bool, t_s: float
+) -> FloatArray:
+    """q (the others at ``base_rad``) or q̇ (the others 0) of a timed path of the active joints (picklable)."""
+    q, qd = timed.sample(t_s)
+    if derivative:
+        out = np.zeros_like(base_rad)
+        out[active] = qd
+        return out
+    return _fill(base_rad, active, q)
 
 
 def _drop_repeats(points: FloatArray) -> FloatArray:

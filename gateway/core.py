@@ -25,7 +25,7 @@ from gateway.link_ends import LinkEnds
 from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
 from gateway.planner import JointPlanner
-from gateway.planner_worker import PlannerBackend, PlanView, Replanner, ThreadedPlanner
+from gateway.planner_worker import PlannerBackend, PlanView, ProcessPlanner, Replanner
 from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -216,7 +216,7 @@ class SafetyCore:
         planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
     ) -> None:
         """``planner_backend`` builds the planner layer's backend from the robots' planners when ``planner.enabled``
-        (default: :class:`gateway.planner_worker.ThreadedPlanner`; the simulated cell passes the synchronous one)."""
+        (default: :class:`gateway.planner_worker.ProcessPlanner`; the simulated cell passes the synchronous one)."""
         self.config = config
         self.robots = robots
         safety = config.safety
@@ -300,7 +300,7 @@ class SafetyCore:
             )
         if not planners:
             return None
-        return (backend or ThreadedPlanner)(planners)
+        return (backend or ProcessPlanner)(planners)
 
     def close(self) -> None:
         """Stop the planner layer's backend (its thread), if any."""

@@ -17,7 +17,7 @@ from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
 from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import Replanner, SimulatedPlanner, ThreadedPlanner, goal_candidates
+from gateway.planner_worker import ProcessPlanner, Replanner, SimulatedPlanner, ThreadedPlanner, goal_candidates
 from gateway.status import robot_status
 from gateway.zones import ZoneThresholds
 from hrc_contract.config import CellConfig, PlannerConfig
@@ -375,7 +375,7 @@ class Crashes(JointPlanner):
         raise RuntimeError("boom")
 
 
-def wait_for(backend: ThreadedPlanner) -> list[PlanOutcome]:
+def wait_for(backend: ThreadedPlanner | ProcessPlanner) -> list[PlanOutcome]:
     """Poll until an answer comes (at most 30 s: a planner thread that never answers fails the test)."""
     for _ in range(3000):
         done = backend.poll()
@@ -411,9 +411,9 @@ def test_the_threaded_planner_answers_from_its_own_thread_and_survives_a_crash(
 
 
 def test_the_core_builds_the_planner_layer_only_when_enabled(config: CellConfig, panda: RobotModel) -> None:
-    core = SafetyCore(config, {"panda": panda})  # the gateway's default backend: the planner's own thread
+    core = SafetyCore(config, {"panda": panda})  # the gateway's default backend: the planner's own process
     try:
-        assert isinstance(core.planner, ThreadedPlanner)
+        assert isinstance(core.planner, ProcessPlanner)
         assert core.states["panda"].replanner is not None
     finally:
         core.close()
@@ -440,3 +440,22 @@ def test_a_plan_spliced_into_a_plan_keeps_only_the_stretch_it_needs(program: Tra
     for t in np.linspace(0.0, t_join - t_now - 1e-6, 7):
         np.testing.assert_allclose(second.sample(float(t))[0], first.sample(t_now + float(t))[0], atol=1e-9)
     np.testing.assert_allclose(second.sample(t_join - t_now)[0][:7], q_join[:7], atol=1e-6)
+
+
+def test_the_process_planner_answers_from_its_own_process(planner: JointPlanner, program: Trajectory) -> None:
+    backend = ProcessPlanner({"panda": planner})
+    try:
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        outcome = wait_for(backend)[0]
+        assert outcome.plan is not None, outcome.failure
+        here = planner.solve(request(program, person(1.0, 0.0), 5)).plan
+        assert here is not None
+        new, theirs = here.new_path, outcome.plan.new_path
+        assert new is not None
+        assert theirs is not None
+        np.testing.assert_array_equal(theirs.waypoints_rad, new.waypoints_rad)  # the same seed, the same plan
+        assert backend.submit(request(program, person(1.0, 0.0), 5)._replace(robot="nobody"))
+        assert wait_for(backend)[0].failure == "error:KeyError"
+    finally:
+        backend.close()
+    assert not backend.submit(request(program, person(1.0, 0.0), 5))

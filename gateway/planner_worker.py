@@ -130,6 +130,9 @@ class ProcessPlanner:
     """
 
     def __init__(self, planners: dict[str, JointPlanner]) -> None:
+        # the plans come back holding TOPP-RA's trajectories: unpickling the first one would import toppra in the
+        # loop's thread (~0.5 s late, measured end to end); import it here, at start-up
+        warm_up()
         context = multiprocessing.get_context("spawn")
         self._requests: multiprocessing.queues.Queue[PlanRequest | None] = context.Queue()
         self._answers: multiprocessing.queues.Queue[PlanOutcome] = context.Queue()

@@ -6,9 +6,10 @@ checker is the robot's link capsules (Pinocchio's forward kinematics) against th
 segment distances the gateway checks against coal); joint limits are the state space's bounds. The path is
 simplified (OMPL's shortcutting), then timed by :func:`gateway.plan.time_path` and spliced into the old trajectory.
 
-Blocking and slow (10–400 ms): call it from :class:`gateway.planner_worker.ThreadedPlanner`'s thread, never from the
-safety loop. Deterministic for a given seed (OMPL's RNG is seeded before each solve; the time limit can still cut a
-search short on a loaded machine).
+Blocking and slow (10–400 ms): call it in :class:`gateway.planner_worker.ProcessPlanner`'s process, never from the
+safety loop (nor from a thread of its process: OMPL and TOPP-RA hold the interpreter lock for long stretches).
+Deterministic for a given seed (OMPL's RNG is seeded before each solve; the time limit can still cut a search short on
+a loaded machine).
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import operator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -23,6 +24,8 @@ from gateway.kernels import RobotKernels, capsule_columns
 from gateway.link_ends import LinkEnds
 from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
+from gateway.planner import JointPlanner
+from gateway.planner_worker import PlannerBackend, PlanView, ProcessPlanner, Replanner
 from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -65,6 +68,7 @@ class RobotDecision(NamedTuple):
             ``limits``, ``zone`` or ``none``); None for the others.
         open_command: an open robot's joint command of this decision (LP (9)/(13) or the ramp stop); None for a
             closed robot, and for an open robot before its first joint state (nothing to command from).
+        plan: an open robot's planner layer after this decision (``planner.enabled``); None otherwise.
     """
 
     robot: str
@@ -84,6 +88,7 @@ class RobotDecision(NamedTuple):
     links: LinkEnds | None = None
     bounded_by: str | None = None
     open_command: OpenCommand | None = None
+    plan: PlanView | None = None
 
 
 class TrackReset(NamedTuple):
@@ -129,6 +134,8 @@ class RobotState:
     """An open robot's task and reference (``controller.control = "open"``); None for a closed one."""
     zone: Zone = Zone.SAFETY_EXCEPTION
     previous_delta: float = 0.0
+    replanner: Replanner | None = None
+    """An open robot's planner layer (``planner.enabled``); None otherwise."""
 
 
 def tracker_faults(tracker: str, frame: HumanFrame | None, age: float | None, max_age_s: float) -> list[Fault]:
@@ -202,7 +209,14 @@ class SafetyCore:
             Pinocchio's.
     """
 
-    def __init__(self, config: CellConfig, robots: dict[str, RobotModel]) -> None:
+    def __init__(
+        self,
+        config: CellConfig,
+        robots: dict[str, RobotModel],
+        planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
+    ) -> None:
+        """``planner_backend`` builds the planner layer's backend from the robots' planners when ``planner.enabled``
+        (default: :class:`gateway.planner_worker.ProcessPlanner`; the simulated cell passes the synchronous one)."""
         self.config = config
         self.robots = robots
         safety = config.safety
@@ -221,6 +235,7 @@ class SafetyCore:
             )
             for name, robot in robots.items()
         }
+        self.planner: PlannerBackend | None = self._planner_layer(planner_backend)
         self._delay_aware = not safety.unsafe_ignore_delay_for_tests
         self._method: OverrideMethod = build_method(
             safety, robots, {name: config.robots[name].program for name in robots if name in config.robots}
@@ -251,10 +266,46 @@ class SafetyCore:
         ``resets``: operators' resets of lost tracks received since the previous step."""
         humans = self._humans_view(inputs, now.mono_ns, resets)
         self.capsules = humans.capsules
+        if self.planner is not None:  # plans that came back since the last step: adopted before this step's commands
+            for outcome in self.planner.poll():
+                replanner = self.states[outcome.robot].replanner
+                if replanner is not None:
+                    replanner.take(outcome, now.mono_ns)
         return {
             name: self._decide(state, inputs, now, humans, _until_next_decision_s(gateway_period_s, state.watchdog_s))
             for name, state in self.states.items()
         }
+
+    def _planner_layer(
+        self, backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None
+    ) -> PlannerBackend | None:
+        """The planner layer's replanners (open robots) and backend, when ``planner.enabled``; else None."""
+        settings = self.config.planner
+        if not settings.enabled:
+            return None
+        planners: dict[str, JointPlanner] = {}
+        for name, state in self.states.items():
+            if state.open is None:
+                continue
+            limits = state.open.limits
+            planners[name] = JointPlanner(
+                state.robot, state.open.active, limits.qd_max_radps, limits.qdd_max_radps2, settings.time_limit_s
+            )
+            state.replanner = Replanner(
+                name,
+                settings,
+                self.config.safety.human_speed_mps,
+                state.open,
+                request_after_s=self.config.safety.replan_after_s,
+            )
+        if not planners:
+            return None
+        return (backend or ProcessPlanner)(planners)
+
+    def close(self) -> None:
+        """Stop the planner layer's backend (its thread), if any."""
+        if self.planner is not None:
+            self.planner.close()
 
     def track_records(self) -> tuple[TrackRecord, ...]:
         """Every track (seen, lost, recently released), for the status."""
@@ -404,7 +455,7 @@ class SafetyCore:
         chosen = [0.0]  # δ* as the cap saw it
         rows, usable = None, False
         if joint is not None:
-            _, qd_program = open_robot.trajectory.sample(open_robot.tau_s)
+            _, qd_program = open_robot.reference_sample()
             kernel_links, speed_mps, rows, (i, j, distance_m), finite = state.kernels.cycle(
                 joint.q_rad, np.array(qd_program, dtype=np.float64), humans.columns, t_delay_s
             )
@@ -451,6 +502,11 @@ class SafetyCore:
         # a ramp stop is a commanded stop (δ = 0); its solution's δ only paces the task's time along the stop
         delta = 0.0 if command is None or command.solution.how.startswith("ramp_stop") else command.solution.delta
         state.previous_delta = delta
+        request_16 = state.replan.update(now.mono_ns, delta, faulted=bool(faults))
+        if state.replanner is not None and self.planner is not None and command is not None:
+            state.replanner.cycle(
+                now.mono_ns, humans.capsules, request_16, bool(faults), thresholds.resume_m, self.planner
+            )
         return RobotDecision(
             state.name,
             state.zone,
@@ -464,11 +520,12 @@ class SafetyCore:
             tuple(faults),
             {"joint_state": joint_age, **humans.ages_s},
             joint.mode if joint else None,
-            state.replan.update(now.mono_ns, delta, faulted=bool(faults)),
+            request_16,
             joint.override if joint else None,
             links,
             None if command is None else (command.solution.bounded_by or command.solution.how),
             command,
+            None if state.replanner is None else state.replanner.view(),
         )
 
     def _bound(

@@ -594,6 +594,7 @@ def run_gateway(
         finally:
             out.last_word(node.stop_overrides(read_clocks()))  # to every controller, a bounded wait: stop
             out.status_thread.close()
+            node.core.close()  # the planner layer's thread, if any
             out.http.offer_events(out.events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
             out.http.close()
             del token, subscribers  # undeclared when the session closes

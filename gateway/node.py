@@ -19,6 +19,8 @@ from typing import Any, NamedTuple, Protocol
 from gateway.core import RobotDecision, SafetyCore, TrackReset
 from gateway.delay import NS_PER_S
 from gateway.inputs import InputSnapshot, InputStore
+from gateway.planner import JointPlanner
+from gateway.planner_worker import PlannerBackend
 from gateway.tracks import TrackEvent, TrackRecord
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -95,10 +97,11 @@ class GatewayNode:
         robots: Mapping[str, RobotModel],
         on_tracker_change: Callable[[], None] | None = None,
         recorder: NodeRecorder | None = None,
+        planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
     ) -> None:
         self.config = config
         self.robots = dict(robots)
-        self.core = SafetyCore(config, self.robots)
+        self.core = SafetyCore(config, self.robots, planner_backend)
         self._open = frozenset(name for name, state in self.core.states.items() if state.open is not None)
         self.inputs = InputStore(config, self.robots, on_tracker_change)
         self.seq = 0

@@ -162,19 +162,23 @@ def velocity_bounds(
     qd_prev_radps: FloatArray, q_ref_rad: FloatArray, limits: Limits, dt_s: float
 ) -> tuple[FloatArray, FloatArray]:
     """Lower and upper bounds on q̇_{k+1} from (9d)–(9f), per joint [rad/s]. Empty (lower > upper) where the joint
-    cannot keep every limit: the LP is then infeasible."""
+    cannot keep every limit: the LP is then infeasible.
+
+    A reference already beyond a position limit (a ramp stop runs along the current direction and may cross one) may
+    stay or come back, never go deeper: (9f) then bounds q̇ by 0 instead of demanding the way back within one cycle,
+    which (9d) forbids (LP (9) would stay infeasible at standstill, the robot stuck at the limit for good)."""
     lower = np.maximum.reduce(
         (
             qd_prev_radps - limits.qdd_max_radps2 * dt_s,
             -limits.qd_max_radps,
-            (limits.q_min_rad - q_ref_rad) / dt_s,
+            np.minimum((limits.q_min_rad - q_ref_rad) / dt_s, 0.0),
         )
     )
     upper = np.minimum.reduce(
         (
             qd_prev_radps + limits.qdd_max_radps2 * dt_s,
             limits.qd_max_radps,
-            (limits.q_max_rad - q_ref_rad) / dt_s,
+            np.maximum((limits.q_max_rad - q_ref_rad) / dt_s, 0.0),
         )
     )
     return lower, upper

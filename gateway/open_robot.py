@@ -19,6 +19,7 @@ import pinocchio as pin
 from gateway import open_control
 from gateway.kinematics import LinkKinematics
 from gateway.open_control import Limits, SafetyRows, Solution, Task
+from gateway.plan import Plan, Sampler
 from gateway.separation import ConstraintRows
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
@@ -131,6 +132,14 @@ class OpenRobot:
     """q̇ of the previous command, every joint [rad/s]."""
     delta_prev: float = 0.0
     last_mono_ns: int | None = None
+    plan: Plan | None = None
+    """A plan around people the robot follows instead of the program (the planner layer), None on the program."""
+    plan_t_s: float = 0.0
+    """The task's time on :attr:`plan` [s]."""
+    plan_from_tau_s: float = 0.0
+    """The program time at which the robot left the program for the current plan [s]."""
+    plans_adopted: int = 0
+    plans_finished: int = 0
 
     def __post_init__(self) -> None:
         robot = self.robot
@@ -152,6 +161,59 @@ class OpenRobot:
             np.asarray(robot.model.upperPositionLimit, dtype=float)[self.active],
             self.stop_time_s,
         )
+
+    # -- the path the task follows: the program, or a plan around people --------------------------------
+
+    def path_now(self) -> tuple[Sampler, float, tuple[object, ...]]:
+        """The trajectory the task follows, the task's time on it, and its key (what a plan must splice into)."""
+        if self.plan is not None:
+            return self.plan, self.plan_t_s, ("plan", id(self.plan))
+        return self.trajectory, self.tau_s, ("program",)
+
+    def reference_sample(self) -> tuple[FloatArray, FloatArray]:
+        """The task's joints [rad] and nominal joint velocities [rad/s] now (at δ = 1)."""
+        path, t_s, _ = self.path_now()
+        return path.sample(t_s)
+
+    def adopt(self, plan: Plan) -> bool:
+        """Follow ``plan`` from where the task is now, if it starts on the trajectory the task follows at or before
+        the task's time and the task has not yet passed its join: then q and q̇ of the task are continuous (the plan's
+        first piece is that trajectory). Otherwise reject it (False): a late plan, or one for another trajectory.
+        """
+        _, t_now_s, key = self.path_now()
+        if plan.start_key[:-1] != key:
+            return False
+        t_start_s = float(plan.start_key[-1])  # type: ignore[arg-type]
+        offset_s = t_now_s - t_start_s
+        prefix_s = plan.pieces[0].duration_s if len(plan.pieces) > 1 else 0.0
+        if offset_s < -1e-9 or offset_s > prefix_s + 1e-9:
+            return False
+        self.plan_from_tau_s = self.progress_tau_s()
+        self.plan = plan
+        self.plan_t_s = max(offset_s, 0.0)
+        self.plans_adopted += 1
+        return True
+
+    def progress_tau_s(self) -> float:
+        """The program time the robot has made good: τ on the program; on a plan, τ where it left the program moved
+        towards the plan's goal in proportion to the plan's time (production counted as the detour goes) [s]."""
+        if self.plan is None:
+            return self.tau_s
+        fraction = min(self.plan_t_s / self.plan.duration_s, 1.0) if self.plan.duration_s > 0.0 else 1.0
+        return self.plan_from_tau_s + fraction * (self.plan.goal_tau_s - self.plan_from_tau_s)
+
+    def _advance(self, dt_s: float) -> None:
+        """The task's time moves by ``dt_s`` (δ × elapsed); at a plan's end the program resumes at its goal."""
+        if self.plan is None:
+            self.tau_s += dt_s
+            return
+        self.plan_t_s += dt_s
+        duration = self.plan.duration_s
+        if self.plan_t_s >= duration:
+            self.tau_s = self.plan.goal_tau_s + (self.plan_t_s - duration)
+            self.plan = None
+            self.plan_t_s = 0.0
+            self.plans_finished += 1
 
     # -- kinematics ------------------------------------------------------------------------------------
 
@@ -193,7 +255,7 @@ class OpenRobot:
 
     def task(self, q_ref_rad: FloatArray) -> tuple[Task, FloatArray]:
         """The task equality at τ and the reference, and the program's joints at τ (for the posture pull)."""
-        q_prog, qd_prog = self.trajectory.sample(self.tau_s)
+        q_prog, qd_prog = self.reference_sample()
         target, jac_prog = self._tool(q_prog)
         x_rate = jac_prog @ qd_prog
         current, jac_ref = self._tool(q_ref_rad)
@@ -245,7 +307,7 @@ class OpenRobot:
         elapsed_s = self.period_s if self.last_mono_ns is None else max(0.0, (now_mono_ns - self.last_mono_ns) / 1e9)
         elapsed_s = min(elapsed_s, 1.0)
         self.last_mono_ns = now_mono_ns
-        self.tau_s += elapsed_s * self.delta_prev
+        self._advance(elapsed_s * self.delta_prev)
         self.q_ref_rad = self.q_ref_rad + elapsed_s * self.qd_prev_radps
         if float(np.max(np.abs(self.q_ref_rad - q_meas_rad)[self.active], initial=0.0)) > RESYNC_RAD:
             self.start_from(q_meas_rad, qd_meas_radps)

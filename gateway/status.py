@@ -21,6 +21,7 @@ from pydantic import TypeAdapter
 from gateway.core import RobotDecision
 from gateway.inputs import InputSnapshot
 from gateway.node import GatewayCycle
+from gateway.planner_worker import PlanView
 from gateway.tracks import NS_PER_S, TrackRecord, TrackState, reach_speed_mps
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules
@@ -236,8 +237,27 @@ def robot_status(
         "links": _link_entries(decision, link_names, link_radius_m),
         "bridge": bridge,
         "open_command": _open_command(decision),
+        "plan": None if decision.plan is None else _plan(decision.plan),
     }
     return RobotStatus.model_validate(entry)
+
+
+def _plan(view: PlanView) -> dict[str, object]:
+    def time_s(x: float | None) -> float | None:
+        return None if x is None or not math.isfinite(x) else max(0.0, _rounded(x))
+
+    return {
+        "following": view.following,
+        "plan_time_s": time_s(view.plan_time_s),
+        "plan_duration_s": time_s(view.plan_duration_s),
+        "path_waypoints": view.path_waypoints,
+        "reason": view.reason,
+        "requests": view.requests,
+        "adopted": view.adopted,
+        "rejected": view.rejected,
+        "failures": view.failures,
+        "planning_last_s": time_s(view.planning_last_s),
+    }
 
 
 def _open_command(decision: RobotDecision) -> dict[str, object] | None:

@@ -306,6 +306,47 @@ class ZonesConfig(_Frozen):
     )
 
 
+class PlannerConfig(_Frozen):
+    """The planner layer above the scaling (paper 2, Pupa et al. 2021; docs/planner.md): open robots only.
+
+    Safety never depends on it: the LPs (9)/(13) bound every command whatever trajectory the robot follows.
+    """
+
+    enabled: bool = Field(False, description="Replan open robots' paths around people (off: they scale and wait).")
+    horizon_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = Field(
+        0.6,
+        description="How far ahead the trajectory is checked against the people, every check; shorter than "
+        "horizon_step_s: no configuration is checked (only the request (16) replans) [s].",
+    )
+    horizon_step_s: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.1, description="Spacing of the configurations checked along the horizon [s]."
+    )
+    check_every_s: Annotated[float, Field(gt=0.0, le=1.0, allow_inf_nan=False)] = Field(
+        0.1, description="How often the horizon is checked (the trackers' rate is enough; not every loop) [s]."
+    )
+    clearance_m: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.05,
+        description="Planned paths keep the links this far beyond the zones' resume distance (nearer, the zones hold "
+        "the robot at δ = 0) from the people, who are also grown by safety.human_speed_mps times the time until the "
+        "robot gets there, up to plan_growth_s (the horizon check) [m].",
+    )
+    plan_growth_s: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.0,
+        description="The planner grows the people by safety.human_speed_mps times this on top of clearance_m, so "
+        "that a new path passes the horizon check where it starts [s].",
+    )
+    join_lead_s: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+        0.1, description="The new path starts this far ahead on the trajectory (the robot moves while it plans) [s]."
+    )
+    time_limit_s: Annotated[float, Field(gt=0.0, le=5.0, allow_inf_nan=False)] = Field(
+        0.3, description="RRT-Connect's time limit per solve [s]."
+    )
+    retry_after_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] = Field(
+        0.5, description="After a failed plan, the same robot asks again no sooner than this [s]."
+    )
+    seed: Annotated[int, Field(ge=1)] = Field(1, description="OMPL's seed (each request adds its number to it).")
+
+
 class GatewayConfig(_Frozen):
     """The gateway's loop: fixed-rate ticks, plus a decision at once when a tracker frame arrives."""
 
@@ -909,6 +950,7 @@ class CellConfig(_Frozen):
     streams: StreamsConfig = StreamsConfig()
     tracking: TrackingConfig = TrackingConfig()
     ros2: Ros2Config = Ros2Config()
+    planner: PlannerConfig = PlannerConfig()
     robots: dict[Name, RobotConfig]
     trackers: dict[Name, TrackerConfig]
     default_scenario: str = "walk_in_reach_leave"

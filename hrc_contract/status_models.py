@@ -127,6 +127,26 @@ class OpenCommandStatus(_Strict):
     qd_radps: list[Finite] = Field(description="The reference velocity sent [rad/s].")
 
 
+class PlanStatus(_Strict):
+    """An open robot's planner layer (``[planner] enabled``; docs/planner.md): display only, no decision uses it."""
+
+    following: bool = Field(description="The robot follows a plan around people (false: its program).")
+    plan_time_s: NonNegative | None = Field(description="Where it is along the plan; null on the program [s].")
+    plan_duration_s: NonNegative | None = Field(description="The plan's length; null on the program [s].")
+    path_waypoints: Count | None = Field(description="Waypoints of the planned path; null on the program.")
+    reason: str = Field(
+        max_length=32, description="Why the current or last plan was asked for: ``horizon``, ``request``, or empty."
+    )
+    requests: dict[str, Count] = Field(description="Plans asked for since the start, per reason.")
+    adopted: Count = Field(description="Plans the robot took up.")
+    rejected: Count = Field(description="Plans returned after the robot had passed their join (or for another path).")
+    failures: dict[str, Count] = Field(
+        description="Requests without a plan, per reason (``no_path``, ``no_timing``, ``goal_invalid``, "
+        "``start_invalid``, ``no_join``, ``timeout``, ``error:<exception>``)."
+    )
+    planning_last_s: NonNegative | None = Field(description="The planner's time for its latest answer [s].")
+
+
 class BridgeStatus(_Strict):
     """The controller bridge of a robot whose ``interface`` is ``ur_rtde`` or ``abb_rws``, from the statistics it
     puts on ``hrc/<cell>/robot/<robot>/bridge_stats`` every second. For display only: no decision uses it (the
@@ -206,6 +226,9 @@ class RobotStatus(_Strict):
         None,
         description="An open robot's joint command (LP (9)/(13)); null for a closed robot (it takes ``delta`` as its "
         "override) and before an open robot's first joint state.",
+    )
+    plan: PlanStatus | None = Field(
+        None, description="An open robot's planner layer (``[planner] enabled``); null otherwise."
     )
 
 

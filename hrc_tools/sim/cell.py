@@ -39,6 +39,8 @@ from controller_emu.open_node import OpenControllerNode
 from gateway.core import RobotDecision
 from gateway.node import GatewayNode
 from gateway.open_robot import OpenRobot
+from gateway.planner import JointPlanner
+from gateway.planner_worker import PlannerBackend, SimulatedPlanner
 from gateway.tracks import TrackEvent
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -107,6 +109,9 @@ class RunResult:
     tracks: Mapping[str, int] = field(default_factory=dict)
     lost_at_end: int = 0
     bridges: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    planner: Mapping[str, Mapping[str, Any]] = field(default_factory=dict, compare=False)
+    """Per open robot with the planner layer on, what it did (:meth:`gateway.planner_worker.ReplannerStats.to_dict`;
+    planning times are wall clock: left out of :meth:`to_dict`)."""
 
     @property
     def speedup(self) -> float:
@@ -207,14 +212,14 @@ class _Controller:
         """Times the program passed its end since the start (an open robot: by the gateway's program time)."""
         if self.task is not None:
             duration = self.trajectory.duration_s
-            return int(self.task.tau_s // duration) - int(self.tau0_s // duration)
+            return int(self.task.progress_tau_s() // duration) - int(self.tau0_s // duration)
         return self.state.cycles_completed
 
     def progress_cycles(self) -> float:
         """Program cycles completed since the start, the unfinished one by its fraction (an open robot: the
         gateway's program time)."""
         if self.task is not None:
-            return (self.task.tau_s - self.tau0_s) / self.trajectory.duration_s
+            return (self.task.progress_tau_s() - self.tau0_s) / self.trajectory.duration_s
         return self.state.cycles_completed + (self.state.tau_s - self.tau0_s) / self.trajectory.duration_s
 
 
@@ -313,13 +318,14 @@ class _SimCell:
         program_start_s: Mapping[str, float] | None,
         moving_eps_mps: float,
         trace: Callable[[TraceSample], None] | None = None,
+        planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
     ) -> None:
         self.config = config
         self.trace = trace
         self.scenario = scenario
         self.moving_eps_mps = moving_eps_mps
         self._contact_masses: dict[str, ContactMass] = {}
-        self.gateway = GatewayNode(config, robots)
+        self.gateway = GatewayNode(config, robots, planner_backend=planner_backend or SimulatedPlanner)
         self.gateway_period_ns = round(NS_PER_S / config.gateway.rate_hz)
         self.gateway_next_ns = int(_rng(seed, "gateway-phase").integers(0, self.gateway_period_ns))
         self.controllers = {
@@ -479,6 +485,13 @@ class _SimCell:
             tracks=MappingProxyType(dict(self.tally.tracks)),
             lost_at_end=len(self.gateway.core.tracks.lost()),
             bridges=MappingProxyType({n: c.bridge.summary() for n, c in self.controllers.items() if c.bridge}),
+            planner=MappingProxyType(
+                {
+                    name: state.replanner.stats.to_dict()
+                    for name, state in self.gateway.core.states.items()
+                    if state.replanner is not None
+                }
+            ),
         )
 
 
@@ -493,6 +506,7 @@ def simulate(
     program_start_s: Mapping[str, float] | None = None,
     moving_eps_mps: float = MOVING_EPS_MPS,
     trace: Callable[[TraceSample], None] | None = None,
+    planner_backend: Callable[[dict[str, JointPlanner]], PlannerBackend] | None = None,
 ) -> RunResult:
     """Run the cell for ``duration_s`` of simulated time and audit every controller cycle.
 
@@ -507,14 +521,19 @@ def simulate(
         program_start_s: program time at which each robot's program starts; default: drawn from the seed [s].
         moving_eps_mps: the auditor's ε for contact while moving [m/s].
         trace: called with every audited controller cycle (a time series; None: nothing kept).
+        planner_backend: the planner layer's backend when ``planner.enabled`` (default: the synchronous
+            :class:`gateway.planner_worker.SimulatedPlanner`; tests pass faulty ones).
 
     Returns:
         The auditor's summary and the gateway's figures. The same arguments give the same result.
     """
     started_wall_s = time.perf_counter()
     end_ns = round(duration_s * NS_PER_S)
-    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps, trace)
-    cell.run(end_ns)
+    cell = _SimCell(config, robots, scenario, links, seed, program_start_s, moving_eps_mps, trace, planner_backend)
+    try:
+        cell.run(end_ns)
+    finally:
+        cell.gateway.core.close()
     return cell.result(end_ns, time.perf_counter() - started_wall_s)
 
 

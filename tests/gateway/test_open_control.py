@@ -215,3 +215,19 @@ def test_an_open_controller_whose_stop_outlasts_a_links_braking_time_is_refused(
     OpenRobot(robot, trajectory, DT_S, shortest)  # at the limit: accepted
     with pytest.raises(ConfigError, match="braking_time_s"):
         OpenRobot(robot, trajectory, DT_S, shortest + 0.01)
+
+
+def test_a_reference_beyond_a_position_limit_may_stay_or_come_back_never_go_deeper() -> None:
+    limits = _limits(7)
+    q_ref = np.zeros(7)
+    q_ref[2] = float(limits.q_min_rad[2]) - 0.05  # crossed by a ramp stop
+    q_ref[4] = float(limits.q_max_rad[4]) + 0.05
+    lower, upper = open_control.velocity_bounds(np.zeros(7), q_ref, limits, DT_S)
+    assert (lower <= upper).all()  # standing still is allowed: LP (9) has its stop
+    assert lower[2] == 0.0  # not deeper below the lower limit
+    assert upper[2] > 0.0  # and back up
+    assert upper[4] == 0.0
+    assert lower[4] < 0.0
+    inside = np.zeros(7)
+    near_lower, _ = open_control.velocity_bounds(np.zeros(7), inside + limits.q_min_rad + 1e-4, limits, DT_S)
+    assert near_lower == pytest.approx(np.full(7, -1e-4 / DT_S))  # inside the range (9f) is unchanged

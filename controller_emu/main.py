@@ -523,6 +523,11 @@ def main(
     return 0
 
 
+def _a(control: str) -> str:
+    """``a closed`` / ``an open``."""
+    return f"an {control}" if control[:1] in "aeiou" else f"a {control}"
+
+
 def _check_faces_serve(robot: str, control: str, faces: Mapping[str, Any]) -> None:
     """Every face asked for belongs to the robot's kind of controller, and an open one serves one face at most.
 
@@ -533,8 +538,8 @@ def _check_faces_serve(robot: str, control: str, faces: Mapping[str, Any]) -> No
     if wrong:
         fitting = [f.option for f in FACES.values() if f.control == control]
         raise ConfigError(
-            f"robot {robot!r}: {wrong[0].option} serves a controller with control = {wrong[0].control!r}, this "
-            f"robot's is {control!r}; allowed with control = {control!r}: {', '.join(fitting) or 'none'}"
+            f"robot {robot!r} has {_a(control)} controller (control = {control!r}): {wrong[0].option} serves "
+            f"{_a(wrong[0].control)} one; allowed with control = {control!r}: {', '.join(fitting) or 'none'}"
         )
     if control == "open" and len(faces) > 1:
         raise ConfigError(f"robot {robot!r}: an open controller follows one face; got {', '.join(faces)}")

@@ -40,9 +40,10 @@ def test_every_bridged_vendor_is_served_by_the_face_its_emulator_args_name() -> 
 def test_a_face_of_the_other_kind_of_controller_is_refused() -> None:
     _check_faces_serve("ur5", "closed", {"ur_rtde": "127.0.0.2"})
     _check_faces_serve("panda", "open", {"abb_egm": ("127.0.0.1", 6510)})
-    with pytest.raises(ConfigError, match="--rtde serves a controller with control = 'closed'"):
+    allowed = r"--rtde serves a closed one; allowed with control = 'open': --egm"
+    with pytest.raises(ConfigError, match=r"has an open controller \(control = 'open'\): " + allowed):
         _check_faces_serve("panda", "open", {"ur_rtde": "127.0.0.2"})
-    with pytest.raises(ConfigError, match="--egm serves a controller with control = 'open'"):
+    with pytest.raises(ConfigError, match=r"has a closed controller \(control = 'closed'\): --egm serves an open one"):
         _check_faces_serve("ur5", "closed", {"abb_egm": ("127.0.0.1", 6510)})
 
 

@@ -127,7 +127,7 @@ def test_controller_follows_overrides_and_stops_on_its_own(
         (["--zenoh-listen", "tcp/127.0.0.1:notaport"], "cannot open a Zenoh session"),
         (
             ["--egm", "127.0.0.1:6510", "--zenoh-listen", "tcp/127.0.0.1:7999"],
-            "robot 'ur5': --egm serves a controller with control = 'open', this robot's is 'closed'",
+            "robot 'ur5' has a closed controller (control = 'closed'): --egm serves an open one",
         ),
         (["--egm", "nohost"], "--egm 'nohost'; expected HOST:PORT"),
     ],

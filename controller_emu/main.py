@@ -561,12 +561,13 @@ def cli(argv: list[str] | None = None) -> None:
     with stop_on_signals() as stop:
         try:
             config = load_cell_config(args.config)
-            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
+            # the command line is checked before anything is created (a first run makes the cell's CA)
             faces = {
                 kind: face.address(text)
                 for kind, face in FACES.items()
                 if (text := getattr(args, face.option.lstrip("-").replace("-", "_"))) is not None
             }
+            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
             code = main(
                 config,
                 args.robot,

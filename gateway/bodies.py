@@ -7,7 +7,8 @@ capsule of the detection, grown by the lost person's reach (:func:`covers`: one 
 view of the legs never stands for a whole person, whatever the reach and whatever the parts are called).
 
 A capsule (segment a–b, radius r) lies inside another grown by g when both its end spheres do: the grown capsule is
-convex and a capsule is the convex hull of its end spheres. Pure numpy; no state.
+convex and a capsule is the convex hull of its end spheres. No state; :func:`within` is compiled
+(:func:`gateway.kernels.capsules_within`), :func:`within_reference` is its numpy reference.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from gateway.kernels import capsules_within
+from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
 FloatArray = npt.NDArray[np.float64]
@@ -43,12 +46,18 @@ def inside_matrix(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> Bo
     return (dist[:n] <= limit) & (dist[n:] <= limit)
 
 
-def within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
+def within_reference(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
     """Every capsule of ``small`` lies inside some capsule of ``big`` grown by ``grow_m`` [m] (``small`` could be a
-    part of the body ``big`` after it moved at most ``grow_m``)."""
+    part of the body ``big`` after it moved at most ``grow_m``): numpy, the reference of :func:`within`."""
     if small.n_capsules == 0:
         return False
     return bool(inside_matrix(small, big, grow_m).any(axis=1).all())
+
+
+def within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
+    """:func:`within_reference`, compiled (:func:`gateway.kernels.capsules_within`): the tracks ask it for every
+    pair of people whose boxes may nest, every frame."""
+    return capsules_within(small, big, grow_m)
 
 
 def near(x: HumanCapsules, y: HumanCapsules, grow_m: float) -> bool:
@@ -90,3 +99,27 @@ def _perfect_matching(fits: BoolArray) -> bool:
 
     # rows with the fewest options first: the usual case (one-to-one, each part near its own) needs no backtracking
     return all(augment(i, [False] * m) for i in sorted(range(n), key=lambda i: len(options[i])))
+
+
+CHECK_PAIRS = 64
+CHECK_SEED = 20211115
+
+
+def check_within(seed: int = CHECK_SEED) -> None:
+    """Hold the compiled :func:`within` to :func:`within_reference` on seeded random bodies (and compile it, or load
+    it from numba's cache, before the first frame).
+
+    Raises:
+        ConfigError: the two disagree on a pair.
+    """
+    rng = np.random.default_rng(seed)
+    for k in range(CHECK_PAIRS):
+        bodies = []
+        for n in (int(rng.integers(1, 6)), int(rng.integers(1, 16))):
+            a = rng.uniform(-1.0, 1.0, (n, 3))
+            b = a + rng.uniform(-0.4, 0.4, (n, 3)) * (rng.random((n, 1)) < 0.8)  # some points (a == b)
+            bodies.append(HumanCapsules(a, b, rng.uniform(0.0, 0.3, n), ("x",) * n, ("p",) * n))
+        grow_m = float(rng.uniform(0.0, 1.5))
+        for small, big in (bodies, bodies[::-1]):
+            if within(small, big, grow_m) != within_reference(small, big, grow_m):
+                raise ConfigError(f"the compiled body test differs from its numpy reference on seeded pair {k}")

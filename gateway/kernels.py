@@ -582,6 +582,62 @@ def _clearance_parameters(safety: SafetyConfig) -> tuple[float, float, float, fl
 # -- one robot: checked against Pinocchio and compiled at start-up, one call per cycle -----------------
 
 
+# -- bodies: one set of human capsules inside another ------------------------------------------------------------
+
+
+@_inlined
+def _point_segment_m(px: float, py: float, pz: float, a: Any, d: Any, dd: float) -> float:
+    """Distance of point p to the segment from ``a`` along ``d`` (``dd`` = ‖d‖², 1 for a point) [m]: the steps of
+    :func:`gateway.bodies._point_segment_distance_m`."""
+    rx, ry, rz = px - a[0], py - a[1], pz - a[2]
+    t = _clip01((rx * d[0] + ry * d[1] + rz * d[2]) / dd)
+    ox, oy, oz = rx - t * d[0], ry - t * d[1], rz - t * d[2]
+    return float(np.sqrt(ox * ox + oy * oy + oz * oz))
+
+
+@_compiled
+def _within(s_a: Any, s_b: Any, s_r: Any, b_a: Any, b_b: Any, b_r: Any, grow_m: float) -> bool:
+    n, m = s_a.shape[0], b_a.shape[0]
+    if n == 0:
+        return False
+    d = b_b - b_a
+    dd = np.empty(m)
+    for j in range(m):
+        norm2 = d[j, 0] * d[j, 0] + d[j, 1] * d[j, 1] + d[j, 2] * d[j, 2]
+        dd[j] = norm2 if norm2 > 0.0 else 1.0
+    for i in range(n):
+        found = False
+        for j in range(m):
+            limit = b_r[j] + grow_m - s_r[i]
+            if _point_segment_m(s_a[i, 0], s_a[i, 1], s_a[i, 2], b_a[j], d[j], dd[j]) > limit:
+                continue
+            if _point_segment_m(s_b[i, 0], s_b[i, 1], s_b[i, 2], b_a[j], d[j], dd[j]) <= limit:
+                found = True
+                break
+        if not found:
+            return False
+    return True
+
+
+def capsules_within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
+    """Every capsule of ``small`` lies inside some capsule of ``big`` grown by ``grow_m`` [m]: the compiled
+    :func:`gateway.bodies.within_reference` (stops at the first capsule that fits nowhere; ~1 µs for two bodies of
+    15 capsules against ~50 µs in numpy, and the tracks ask it for every pair of people whose boxes may nest)."""
+    if small.n_capsules == 0 or big.n_capsules == 0 or not np.isfinite(grow_m):
+        return False
+    return bool(
+        _within(
+            _kernel_array(small.h_a_world),
+            _kernel_array(small.h_b_world),
+            _kernel_array(small.radius_m),
+            _kernel_array(big.h_a_world),
+            _kernel_array(big.h_b_world),
+            _kernel_array(big.radius_m),
+            float(grow_m),
+        )
+    )
+
+
 def check_chain(robot: RobotModel, chain: KinematicChain, seed: int = CHECK_SEED) -> None:
     """Compare the compiled kinematics of ``chain`` with Pinocchio's on seeded random states of ``robot``.
 

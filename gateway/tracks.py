@@ -40,7 +40,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.bodies import covers, near, within
+from gateway.bodies import check_within, covers, near, within
 from hrc_contract.config import CellConfig, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
 
@@ -281,6 +281,7 @@ class TrackSet:
     """
 
     def __init__(self, config: CellConfig, *, release_by_id_unsafe: bool | None = None) -> None:
+        check_within()  # the compiled body test, held to its reference and compiled before the first frame
         self.tracking = config.tracking
         self.reach_speed_mps = reach_speed_mps(config)
         self._noise_m = {name: NOISE_SIGMAS * t.noise_std_m for name, t in config.trackers.items()}

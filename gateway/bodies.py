@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from gateway.kernels import capsules_within
+from gateway.kernels import capsules_near, capsules_within
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -62,8 +62,13 @@ def within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> bool:
 
 def near(x: HumanCapsules, y: HumanCapsules, grow_m: float) -> bool:
     """Whether ``x`` and ``y`` could be (parts of) one body, ``grow_m`` apart in motion and noise [m]: one lies inside
-    the other grown by ``grow_m``."""
-    return within(x, y, grow_m) or within(y, x, grow_m)
+    the other grown by ``grow_m`` (compiled: :func:`gateway.kernels.capsules_near`)."""
+    return capsules_near(x, y, grow_m)
+
+
+def near_reference(x: HumanCapsules, y: HumanCapsules, grow_m: float) -> bool:
+    """:func:`near` in numpy."""
+    return within_reference(x, y, grow_m) or within_reference(y, x, grow_m)
 
 
 def covers(lost: HumanCapsules, detection: HumanCapsules, grow_m: float) -> bool:
@@ -123,3 +128,5 @@ def check_within(seed: int = CHECK_SEED) -> None:
         for small, big in (bodies, bodies[::-1]):
             if within(small, big, grow_m) != within_reference(small, big, grow_m):
                 raise ConfigError(f"the compiled body test differs from its numpy reference on seeded pair {k}")
+        if near(bodies[0], bodies[1], grow_m) != near_reference(bodies[0], bodies[1], grow_m):
+            raise ConfigError(f"the compiled body test differs from its numpy reference on seeded pair {k}")

@@ -200,12 +200,13 @@ def centre(capsules: HumanCapsules) -> FloatArray:
 
 
 def part(capsules: HumanCapsules, start: int, end: int) -> HumanCapsules:
-    """Capsules ``start:end`` of a frame (views of its arrays)."""
+    """Capsules ``start:end`` of a frame, copied into contiguous arrays once (the compiled body tests take them as
+    they are, for every pair of people whose boxes may nest)."""
     c = capsules
     return HumanCapsules(
-        c.h_a_world[start:end],
-        c.h_b_world[start:end],
-        c.radius_m[start:end],
+        np.array(c.h_a_world[start:end], dtype=np.float64),
+        np.array(c.h_b_world[start:end], dtype=np.float64),
+        np.array(c.radius_m[start:end], dtype=np.float64),
         c.human_ids[start:end],
         c.capsule_names[start:end],
     )

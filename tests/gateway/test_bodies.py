@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gateway import bodies
-from gateway.bodies import check_within, within, within_reference
+from gateway.bodies import check_within, near, near_reference, within, within_reference
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -29,6 +29,7 @@ def test_the_compiled_body_test_agrees_with_the_reference_on_seeded_bodies() -> 
         grow_m = float(rng.uniform(0.0, 2.0))
         expected = within_reference(small, big, grow_m)
         assert within(small, big, grow_m) == expected
+        assert near(small, big, grow_m) == near_reference(small, big, grow_m)
         outcomes.add(expected)
     assert outcomes == {True, False}  # both answers were exercised
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gateway.core import Fault, RobotDecision
+from gateway.planner_worker import PlanView
 from gateway.tracks import TrackEvent
 from hrc_contract.status_models import Event, EventKind
 from hrc_contract.vocabulary import Zone
@@ -42,6 +43,8 @@ class _RobotLog:
     candidate: Zone | None = None
     candidate_since_ns: int = 0
     faults: tuple[Fault, ...] = ()
+    plans_adopted: int = 0
+    plans_rejected: int = 0
 
 
 class EventLog:
@@ -109,6 +112,38 @@ class EventLog:
                 events += self._zone_events(name, robot, decision.zone, mono_ns, stamp_ns)
             else:
                 robot.candidate = None
+            if decision.plan is not None:
+                events += self._plan_events(name, robot, decision.plan, stamp_ns)
+        return events
+
+    def _plan_events(self, robot: str, log: _RobotLog, plan: PlanView, stamp_ns: int) -> list[Event]:
+        """A plan the robot took up, or one that came back too late (the planner layer's counts grew)."""
+        events = []
+        if plan.adopted > log.plans_adopted:
+            planned = "" if plan.planning_last_s is None else f", planned in {plan.planning_last_s * 1e3:.0f} ms"
+            length = "" if plan.plan_duration_s is None else f", {plan.plan_duration_s:.1f} s long"
+            why = {"horizon": "a person ahead on the path", "request": "δ held low (request (16))"}.get(
+                plan.reason, plan.reason or "-"
+            )
+            events.append(
+                self._event(
+                    stamp_ns,
+                    "plan_adopted",
+                    f"plan adopted: {why}{length}{planned}",
+                    robot=robot,
+                    cause=plan.reason or None,
+                )
+            )
+        if plan.rejected > log.plans_rejected:
+            events.append(
+                self._event(
+                    stamp_ns,
+                    "plan_rejected",
+                    f"plan rejected: it came back after the robot had passed its join ({plan.rejected} so far)",
+                    robot=robot,
+                )
+            )
+        log.plans_adopted, log.plans_rejected = plan.adopted, plan.rejected
         return events
 
     def _fault_events(

@@ -398,6 +398,8 @@ EventKind = Literal[
     "track_lost",
     "track_released",
     "loop_stall",
+    "plan_adopted",
+    "plan_rejected",
 ]
 """What an :class:`Event` records (contract, "Events")."""
 
@@ -419,7 +421,8 @@ class Event(_Strict):
     cause: str | None = Field(
         default=None,
         description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom); "
-        "``loop_stall``: the stall's cause (``loop.stalls``).",
+        "``loop_stall``: the stall's cause (``loop.stalls``); ``plan_adopted``: why the plan was asked for "
+        "(``horizon``, ``request``).",
     )
 
 

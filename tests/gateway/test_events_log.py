@@ -9,6 +9,7 @@ from pathlib import Path
 from gateway.core import ClosestPair, Fault, RobotDecision
 from gateway.delay import DelayBudget
 from gateway.events import EventFile, EventLog, EventRing
+from gateway.planner_worker import PlanView
 from gateway.zones import ZoneThresholds
 from hrc_contract.status_models import Event
 from hrc_contract.vocabulary import Zone
@@ -111,3 +112,26 @@ def test_the_file_is_json_lines_and_rotates_by_size(tmp_path: Path) -> None:
     assert seqs == sorted(seqs)
     assert seqs[-1] == written[-1].seq, "the newest event is in the current file"
     assert Event.model_validate(kept[-1]) == written[-1]
+
+
+def _plan(adopted: int, rejected: int, reason: str = "horizon") -> PlanView:
+    return PlanView(True, 0.4, 3.2, 5, reason, {reason: adopted + rejected}, adopted, rejected, {}, 0.112)
+
+
+def test_a_plan_taken_up_or_returned_too_late_is_logged_once() -> None:
+    log = EventLog()
+    stamp = 1_790_000_000_000_000_000
+
+    def cycle(t_ms: int, plan: PlanView | None) -> list[Event]:
+        d = decision(Zone.REDUCED_SPEED)._replace(plan=plan)
+        return [e for e in log.observe(t_ms * MS, stamp + t_ms * MS, {"ur5": d}) if e.kind.startswith("plan_")]
+
+    assert cycle(0, None) == []
+    assert cycle(4, _plan(0, 0)) == []
+    adopted = cycle(8, _plan(1, 0))
+    assert [(e.kind, e.robot, e.cause) for e in adopted] == [("plan_adopted", "ur5", "horizon")]
+    assert "a person ahead on the path, 3.2 s long, planned in 112 ms" in adopted[0].message
+    assert cycle(12, _plan(1, 0)) == []  # the same plan: nothing new
+    both = cycle(16, _plan(2, 1, "request"))
+    assert [(e.kind, e.cause) for e in both] == [("plan_adopted", "request"), ("plan_rejected", None)]
+    assert "request (16)" in both[0].message

@@ -18,6 +18,7 @@ import json
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,8 @@ STAMP_NS = 1_790_000_000_000_000_000
 SIZES = {"1 × 15": (1, 15), "2 × 1000": (2, 1000)}
 
 
-def frame_payload(rng: np.random.Generator, people: int, parts: int) -> bytes:
+def random_frame(rng: np.random.Generator, people: int, parts: int, seq: int = 1) -> dict[str, Any]:
+    """A valid ``hrc.humans/1`` frame of tracker ``front``: ``people`` × ``parts`` random capsules within 3 m."""
     humans = []
     for k in range(people):
         capsules = []
@@ -41,8 +43,11 @@ def frame_payload(rng: np.random.Generator, people: int, parts: int) -> bytes:
             radius = float(rng.uniform(0, 0.2))
             capsules.append({"name": f"part{j}", "a": a.tolist(), "b": b.tolist(), "radius": radius})
         humans.append({"id": f"p{k}", "capsules": capsules})
-    frame = {"schema": "hrc.humans/1", "tracker": "front", "seq": 1, "stamp_ns": STAMP_NS, "humans": humans}
-    return json.dumps(frame).encode()
+    return {"schema": "hrc.humans/1", "tracker": "front", "seq": seq, "stamp_ns": STAMP_NS, "humans": humans}
+
+
+def frame_payload(rng: np.random.Generator, people: int, parts: int) -> bytes:
+    return json.dumps(random_frame(rng, people, parts)).encode()
 
 
 def _reference(payload: bytes) -> object:

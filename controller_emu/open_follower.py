@@ -59,7 +59,7 @@ from hrc_contract.config import ConfigError
 from hrc_contract.messages import JointCommand, JointState
 from hrc_contract.vocabulary import ControllerMode
 from hrc_devices.robots.model import RobotModel
-from hrc_devices.robots.time_scaling import MAX_FUTURE_STAMP_S
+from hrc_devices.robots.time_scaling import stamp_rejection
 from hrc_runtime.clocks import Clocks
 
 FloatArray = npt.NDArray[np.float64]
@@ -235,14 +235,7 @@ def check_command(
         return "wrong_robot"
     if len(msg.q) != n_joints:
         return "wrong_joint_count"
-    if msg.stamp_ns <= newest_stamp_ns:
-        return "old_or_repeated"
-    age_s = (now_wall_ns - msg.stamp_ns) / 1e9
-    if age_s > watchdog_s:
-        return "stale"
-    if -age_s > MAX_FUTURE_STAMP_S:
-        return "stamp_in_future"
-    return None
+    return stamp_rejection(msg.stamp_ns, newest_stamp_ns, now_wall_ns, watchdog_s)
 
 
 def apply_command(state: FollowerState, msg: JointCommand, received: Clocks, limits: FollowerLimits) -> FollowerState:

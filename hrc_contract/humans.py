@@ -77,6 +77,11 @@ def capsules_from_message(tracker: str, message: Humans) -> HumanCapsules:
             values.extend(capsule.b)
             values.append(capsule.radius)
     rows = np.array(values, dtype=np.float64).reshape(-1, 7)
+    return _from_rows(rows, human_ids, names)
+
+
+def _from_rows(rows: FloatArray, human_ids: list[str], names: list[str]) -> HumanCapsules:
+    """Capsules as views of one (H, 7) array, rows ``a``, ``b``, ``radius``."""
     return HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], tuple(human_ids), tuple(names))
 
 
@@ -173,7 +178,7 @@ def _humans_fast(payload: bytes) -> tuple[HumansHeader, HumanCapsules] | None:
     if not np.isfinite(rows).all():
         return None
     header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
-    return header, HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], tuple(human_ids), tuple(names))
+    return header, _from_rows(rows, human_ids, names)
 
 
 # -- packed frames: the capsules as one binary array per person ----------------------------------------------------
@@ -271,7 +276,7 @@ def humans_from_packed(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     if radius.size and not ((radius >= 0.0) & (radius <= 2.0)).all():
         raise MessageError("invalid", "a capsule radius outside 0 to 2 m")
     header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
-    return header, HumanCapsules(rows[:, 0:3], rows[:, 3:6], radius, tuple(human_ids), tuple(names))
+    return header, _from_rows(rows, human_ids, names)
 
 
 def merge_humans(frames: list[HumanCapsules]) -> HumanCapsules:

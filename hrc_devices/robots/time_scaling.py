@@ -101,9 +101,20 @@ def check_override(
     """
     if msg.robot != robot_name:
         return "wrong_robot"
-    if msg.stamp_ns <= newest_stamp_ns:
+    return stamp_rejection(msg.stamp_ns, newest_stamp_ns, now_wall_ns, watchdog_s)
+
+
+StampRejection = Literal["old_or_repeated", "stale", "stamp_in_future"]
+"""Why a command's stamp cannot be accepted (:func:`stamp_rejection`)."""
+
+
+def stamp_rejection(stamp_ns: int, newest_stamp_ns: int, now_wall_ns: int, watchdog_s: float) -> StampRejection | None:
+    """Why a command stamped ``stamp_ns`` cannot be accepted at ``now_wall_ns``, or None: not newer than the newest
+    accepted (``old_or_repeated``), older than ``watchdog_s`` (``stale``), more than :data:`MAX_FUTURE_STAMP_S` ahead
+    (``stamp_in_future``). Shared by the closed controller's overrides and the open one's joint commands."""
+    if stamp_ns <= newest_stamp_ns:
         return "old_or_repeated"
-    age_s = (now_wall_ns - msg.stamp_ns) / 1e9
+    age_s = (now_wall_ns - stamp_ns) / 1e9
     if age_s > watchdog_s:
         return "stale"
     if -age_s > MAX_FUTURE_STAMP_S:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from support.payload_mutations import mutate_payload, random_float_token
 
+from bench.door import STAMP_NS, random_frame
 from hrc_contract import humans as door
 from hrc_contract.humans import (
     PACKED_ROW_BYTES,
@@ -30,20 +31,11 @@ from hrc_contract.messages import (
     parse_message_reference,
 )
 
-STAMP = 1_790_000_000_000_000_000
+STAMP = STAMP_NS
 
 
 def _frame(rng: np.random.Generator, people: int, parts: int) -> dict:
-    humans = []
-    for k in range(people):
-        capsules = []
-        for j in range(parts):
-            a = rng.uniform(-3.0, 3.0, 3)
-            b = a + rng.uniform(-0.2, 0.2, 3)
-            radius = float(rng.uniform(0, 0.2))
-            capsules.append({"name": f"part{j}", "a": a.tolist(), "b": b.tolist(), "radius": radius})
-        humans.append({"id": f"p{k}", "capsules": capsules})
-    return {"schema": "hrc.humans/1", "tracker": "front", "seq": 88, "stamp_ns": STAMP, "humans": humans}
+    return random_frame(rng, people, parts, seq=88)
 
 
 def _reference(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:

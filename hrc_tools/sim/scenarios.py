@@ -317,8 +317,15 @@ may run at speed beside them, near enough that a rule releasing a lost person by
 place releases the hidden one."""
 BYSTANDER_BEARING_OFFSET_RAD = (math.radians(15.0), math.radians(40.0))
 """How far round from the hidden person's bearing the bystander stands (either side) [rad]."""
+ALONE_WITH_BYSTANDER_SHARE = 0.5
+"""Share of the cases with a bystander where the hidden person and the bystander are the only people, hidden from
+every sensor and nobody merged or refused: nothing but the release rule then holds the robot (the cases where a rule
+releasing the hidden person by the bystander drives the robot into them)."""
 STAMP_LATE_S = (0.05, 0.14)
-"""How late one tracker stamps its frames (within the data age limit with its latency capped) [s]."""
+"""How late one tracker stamps its frames [s], within what its data age leaves (:func:`_stamp_late_within`)."""
+STAMP_LATE_HEADROOM_SHARE = 0.8
+"""The late stamp takes at most this share of what the data age limit leaves beyond the tracker's latency, its
+link's worst delay and one frame interval: late, yet fresh enough that the robot works beside it."""
 
 
 def _companion_behind(
@@ -373,19 +380,45 @@ def _bystander_beyond(
     return _clip_to("bystander", False, frames, duration_s), beyond_m
 
 
+def _hiding_from_the_rest(
+    rng: np.random.Generator, spot: tuple[float, float], trackers: Mapping[str, TrackerConfig]
+) -> list[Fixture]:
+    """A hiding shelf toward every placed sensor that no shelf stands toward yet (the far side's too): the hidden
+    person is then hidden from every sensor once at the robot."""
+    return [
+        _hiding_cabinet(rng, spot, (t.position_m[0], t.position_m[1]))
+        for t in trackers.values()
+        if t.position_m is not None and spot[0] * t.position_m[0] + spot[1] * t.position_m[1] <= 0
+    ]
+
+
 def _standing_xy_m(script: HumanScript) -> tuple[float, float]:
     """Where a script ends [m]."""
     return script.keyframes[-1].xy_m
 
 
-def _hostile_trackers(rng: np.random.Generator, trackers: Mapping[str, TrackerConfig]) -> dict[str, dict[str, Any]]:
-    """Per tracker, what it does wrong: one stamps late (its latency capped), ids renewed, one joining late, now and
-    then one merging people or naming parts by kind."""
+def _stamp_late_within(
+    drawn_s: float, tracker: TrackerConfig, latency_s: float, link_worst_s: float, max_data_age_s: float
+) -> float:
+    """How late a tracker stamps: ``drawn_s``, capped to :data:`STAMP_LATE_HEADROOM_SHARE` of what the data age limit
+    leaves beyond its latency, its link's worst delay and one frame interval (never below 0) [s]."""
+    headroom_s = max_data_age_s - latency_s - link_worst_s - 1.0 / tracker.rate_hz
+    return max(0.0, min(drawn_s, STAMP_LATE_HEADROOM_SHARE * headroom_s))
+
+
+def _hostile_trackers(
+    rng: np.random.Generator, trackers: Mapping[str, TrackerConfig], link_worst_s: float, max_data_age_s: float
+) -> dict[str, dict[str, Any]]:
+    """Per tracker, what it does wrong: one stamps late (its latency capped, the stamp within its age budget), ids
+    renewed, one joining late, now and then one merging people or naming parts by kind."""
     names = sorted(trackers)
     updates: dict[str, dict[str, Any]] = {name: {} for name in names}
     late = names[int(rng.integers(0, len(names)))]
-    updates[late]["stamp_late_s"] = float(rng.uniform(*STAMP_LATE_S))
-    updates[late]["latency_s"] = min(trackers[late].latency_s, 0.02)
+    latency_s = min(trackers[late].latency_s, 0.02)
+    updates[late]["stamp_late_s"] = _stamp_late_within(
+        float(rng.uniform(*STAMP_LATE_S)), trackers[late], latency_s, link_worst_s, max_data_age_s
+    )
+    updates[late]["latency_s"] = latency_s
     for name in names:
         updates[name]["id_renew_probability"] = float(rng.choice([0.0, rng.uniform(0.0, 0.02)]))
     if rng.random() < 0.5:
@@ -397,19 +430,49 @@ def _hostile_trackers(rng: np.random.Generator, trackers: Mapping[str, TrackerCo
     return updates
 
 
+def _with_bystander(
+    own: np.random.Generator,
+    hidden: HumanScript,
+    humans: list[HumanScript],
+    trackers: Mapping[str, TrackerConfig],
+    duration_s: float,
+    coverage: Box,
+    drawn: dict[str, Any],
+) -> tuple[list[HumanScript], list[Fixture]]:
+    """In half the cases a bystander beyond the hidden person (:func:`_bystander_beyond`), and in
+    :data:`ALONE_WITH_BYSTANDER_SHARE` of those only the two of them, the hidden one hidden from every sensor; the
+    people and the shelves it adds. Writes what it drew into ``drawn``."""
+    if own.random() >= 0.5:
+        return humans, []
+    bystander, beyond_m = _bystander_beyond(own, _standing_xy_m(hidden), duration_s, coverage)
+    if bystander is None:
+        return humans, []
+    drawn["bystander_beyond_m"] = round(beyond_m, 3)
+    if own.random() >= ALONE_WITH_BYSTANDER_SHARE:
+        return [*humans, bystander], []
+    drawn["alone_with_bystander"] = True
+    return [hidden, bystander], _hiding_from_the_rest(own, _standing_xy_m(hidden), trackers)
+
+
 def with_hostile_tracking(
     rng: np.random.Generator,
     humans: list[HumanScript],
     trackers: dict[str, TrackerConfig],
     duration_s: float,
     coverage: Box = DEFAULT_COVERAGE,
+    *,
+    link_worst_s: float = 0.0,
+    max_data_age_s: float = 0.2,
 ) -> tuple[list[HumanScript], dict[str, TrackerConfig], list[Fixture], dict[str, Any]]:
     """The cases that broke the release rule before persons (issue 32): a companion walking behind the first person,
     a second tracker where there was one, one tracker stamping late, trackers renewing ids, one joining late, and
     now and then one that merges people or names parts by kind (the door refuses those: the robots stop). In half
     the cases someone walks up to the robot, reaches toward it and vanishes behind shelves there, from every sensor
     that saw them come in (the one who must stay held); in half of those, a bystander stands in view 1.6–2.6 m
-    farther out (whom a rule releasing the lost by anyone who could have reached their place takes for them).
+    farther out (whom a rule releasing the lost by anyone who could have reached their place takes for them), and in
+    half of those again the two are alone, the hidden one hidden from every sensor, nobody merged or refused (the
+    cases where such a rule drives the robot into the hidden person). The late tracker's stamps stay within what
+    the data age limit leaves beyond its link's worst delay (``link_worst_s``, ``max_data_age_s``).
 
     Returns:
         The people, the trackers, the hiding shelves and what was drawn (for the case's parameters).
@@ -435,12 +498,13 @@ def with_hostile_tracking(
             drawn["hidden_at_m"] = round(at_m, 3)
             # drawn from a stream of its own, so that every other draw of the case stays as it was
             own = rng.spawn(1)[0]
-            if own.random() < 0.5:
-                bystander, beyond_m = _bystander_beyond(own, _standing_xy_m(hidden), duration_s, coverage)
-                if bystander is not None:
-                    humans = [*humans, bystander]
-                    drawn["bystander_beyond_m"] = round(beyond_m, 3)
-    updates = _hostile_trackers(rng, trackers)
+            humans, more_shelves = _with_bystander(own, hidden, humans, trackers, duration_s, coverage, drawn)
+            shelves = [*shelves, *more_shelves]
+    updates = _hostile_trackers(rng, trackers, link_worst_s, max_data_age_s)
+    if drawn.get("alone_with_bystander"):
+        for update in updates.values():  # nobody merged or refused: only the release rule decides what the robot does
+            update.pop("merge_within_m", None)
+            update.pop("part_names_by_kind", None)
     trackers = {n: TrackerConfig.model_validate(trackers[n].model_dump() | u) for n, u in updates.items()}
     drawn["shelves"] = len(shelves)
     drawn["trackers"] = {
@@ -584,7 +648,16 @@ def generate_case(
     hostile: dict[str, Any] = {}
     if hostile_tracking:
         hostile_rng = np.random.default_rng([sweep_seed, index, PERSONS_STREAM])
-        humans, trackers, shelves, hostile = with_hostile_tracking(hostile_rng, humans, trackers, duration_s, coverage)
+        tracker_link = links.tracker_to_gateway
+        humans, trackers, shelves, hostile = with_hostile_tracking(
+            hostile_rng,
+            humans,
+            trackers,
+            duration_s,
+            coverage,
+            link_worst_s=tracker_link.delay_s + tracker_link.jitter_s,
+            max_data_age_s=max_data_age_s,
+        )
         fixtures = [*fixtures, *shelves]
     scenario = Scenario(
         description=f"generated case {index} of sweep {sweep_seed}",

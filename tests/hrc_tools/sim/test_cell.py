@@ -293,3 +293,28 @@ def test_program_progress_is_the_integral_of_the_applied_override(cell_config: C
     assert got.program_progress_cycles > 1.0
     integral_s = got.audit.mean_delta_applied * got.audit.duration_s
     assert got.program_progress_cycles * duration_s == pytest.approx(integral_s, abs=0.01)  # 2.5 cycles of 4 ms
+
+
+def test_hostile_tracking_keeps_the_late_stamp_within_the_age_budget_and_draws_lone_pairs() -> None:
+    """The late tracker's frames are late yet fresh (latency + link's worst delay + one frame + the late stamp within
+    the data age limit, unless its link is the one drawn beyond budget), and some cases leave the hidden person and a
+    bystander alone, hidden from every sensor, with no tracker merging people or naming parts by kind."""
+    max_data_age_s = 0.2
+    late = alone = 0
+    for index in range(200):
+        case = generate_case(3, index, 10.0, max_data_age_s, occlusion=True, hostile_tracking=True)
+        drawn = case.params["hostile_tracking"]
+        link = case.links.tracker_to_gateway
+        for name, tracker in case.trackers.items():
+            if tracker.stamp_late_s > 0.0:
+                late += 1
+                age_s = tracker.latency_s + link.delay_s + link.jitter_s + 1.0 / tracker.rate_hz + tracker.stamp_late_s
+                assert age_s <= max_data_age_s or case.params["beyond_budget"] == "tracker_to_gateway", (index, name)
+        if drawn.get("alone_with_bystander"):
+            alone += 1
+            assert {h.id for h in case.scenario.humans} == {"h8", "bystander"}
+            shelves = [f for f in case.scenario.fixtures if f.name == "shelf"]
+            assert len(shelves) >= len(case.trackers)  # one toward every sensor, whichever side it stands
+            assert not any(t.merge_within_m or t.part_names_by_kind for t in case.trackers.values())
+    assert late > 100
+    assert 10 <= alone <= 45  # an eighth of the cases

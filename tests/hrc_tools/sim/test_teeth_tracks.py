@@ -150,3 +150,29 @@ def test_the_forgetting_gateway_violates_on_a_sweep_case_where_the_real_one_does
     assert real.tracks["track_lost"] >= 1  # the person was lost, kept, and released only when seen again
     assert "released_forgotten_unsafe_test_only" not in real.tracks
     assert real.mean_delta > 0.2  # the robot worked: not merely stopped all along
+
+
+# -- persons' teeth in the hostile-tracking sweep ----------------------------------------------------------
+
+HOSTILE_CASE = 45
+"""Case 45 of sweep 0 with ``--occlusion --hostile-tracking``: the hidden person and a bystander alone in the cell
+(``alone_with_bystander``); the hidden one vanishes behind shelves at the robot, the bystander stands in view
+farther out."""
+
+
+def test_releasing_by_id_violates_on_a_hostile_sweep_case_where_persons_do_not(
+    cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv(UNSAFE_ENV_VAR, "unsafe_release_by_id_for_tests")
+    runs = {}
+    for by_id in (True, False):
+        config = CellVariant(occlusion=True, hostile_tracking=True, unsafe_release_by_id=by_id).apply(cell_config)
+        robots = {name: load_robot_model(name, r) for name, r in config.robots.items()}
+        runs[by_id] = run_case(config, robots, SWEEP_SEED, HOSTILE_CASE, 10.0, occlusion=True, hostile_tracking=True)
+    by_id, persons = runs[True], runs[False]
+    assert by_id.params["hostile_tracking"].get("alone_with_bystander"), by_id.params["hostile_tracking"]
+    assert not by_id.beyond_k  # within the guarantee: the violations are the rule's
+    assert by_id.violations > 10, by_id
+    assert persons.violations == 0, persons
+    assert persons.tracks["track_lost"] >= 1
+    assert persons.mean_delta > 0.1  # the robot worked beside the bystander before the person hid

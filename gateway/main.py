@@ -22,6 +22,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Mapping
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -547,35 +548,19 @@ def run_gateway(
 
     The loop decides at every tick of ``gateway.rate_hz`` and, given ``wake`` (set by the node when a tracker
     frame arrives, see :class:`GatewayNode`), also at once between ticks (an event cycle, see :class:`RateLoop`).
+    A shell: its resources (:func:`_open_gateway`, closed in reverse order whatever happens) and the loop.
     """
-    with (
-        zenoh.open(session_config(listen, connect, zenoh_options)) as session,
-        running_ros2_face(config, node.robots, ros2_options) as ros2,
-        running_ros2_trackers(  # ROS 2 body trackers through the same door (gateway/ros2_trackers.py)
-            config, None if ros2 is None else ros2.node.session, node.on_message, node.inputs.count_rejection
-        ),
-    ):
-        states_key, humans_key = keys.gateway_subscriptions(config.cell)
-        on_sample = _callback(node, config.gateway.io_realtime_priority)
-        subscribers = [
-            session.declare_subscriber(k, on_sample)
-            for k in (states_key, humans_key, keys.operator_track_reset(config.cell))
-        ]
-        token = session.liveliness().declare_token(keys.alive(config.cell, "gateway"))
-        effective = effective_config(config)
-        http = HttpServerProcess(http_host, http_port, effective, events_log, config.gateway.io_realtime_priority)
-        bridges = BridgeView(config)
-        if bridges.interfaces:  # display only: the bridges' read-back figures (gateway/bridge_view.py)
-            subscribers.append(session.declare_subscriber(bridges.key, bridges.on_sample))
-        status_pub = session.declare_publisher(keys.gateway_status(config.cell))
-        sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
-        out = _Outputs(
-            _declare_overrides(session, config),
-            http,
-            StatusThread(sink.publish, config.gateway.io_realtime_priority),
-            config.gateway.io_realtime_priority,
+    with ExitStack() as resources:
+        out = _open_gateway(
+            resources,
+            config,
+            node,
+            session_config(listen, connect, zenoh_options),
+            (http_host, http_port),
+            stop,
+            events_log=events_log,
+            ros2_options=ros2_options,
         )
-        out.http.offer_events(out.events.started(time.time_ns(), config.cell, effective.config_sha256))
         log.info(
             "gateway for cell %r: %d robot(s), %d tracker(s), %.0f Hz%s; status: http://%s:%d/api/v1/status",
             config.cell,
@@ -589,15 +574,60 @@ def run_gateway(
         if config.gateway.loop_realtime_priority:
             _use_realtime_scheduling(config.gateway.loop_realtime_priority)
         sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)  # the loop gets the interpreter lock soon after it wakes
-        try:
-            return _loop(config, node, out, stop, wake)
-        finally:
-            out.last_word(node.stop_overrides(read_clocks()))  # to every controller, a bounded wait: stop
-            out.status_thread.close()
-            node.core.close()  # the planner layer's thread, if any
-            out.http.offer_events(out.events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
-            out.http.close()
-            del token, subscribers  # undeclared when the session closes
+        return _loop(config, node, out, stop, wake)
+
+
+def _open_gateway(
+    resources: ExitStack,
+    config: CellConfig,
+    node: GatewayNode,
+    zenoh_config: zenoh.Config,
+    http_address: tuple[str, int],
+    stop: StopEvent,
+    *,
+    events_log: Path | None,
+    ros2_options: SessionOptions | None,
+) -> _Outputs:
+    """Open the gateway's resources on ``resources``, each closed in reverse order when it unwinds (also when a later
+    one fails to open): the Zenoh session, the ROS 2 face and trackers, the subscriptions, the HTTP server process,
+    the status thread; on the way out the controllers get the last word (δ = 0) first, the event log its "stopped"
+    event before the HTTP server closes."""
+    session = resources.enter_context(zenoh.open(zenoh_config))
+    ros2 = resources.enter_context(running_ros2_face(config, node.robots, ros2_options))
+    resources.enter_context(
+        running_ros2_trackers(  # ROS 2 body trackers through the same door (gateway/ros2_trackers.py)
+            config, None if ros2 is None else ros2.node.session, node.on_message, node.inputs.count_rejection
+        )
+    )
+    states_key, humans_key = keys.gateway_subscriptions(config.cell)
+    on_sample = _callback(node, config.gateway.io_realtime_priority)
+    declared: list[Any] = [
+        session.declare_subscriber(k, on_sample)
+        for k in (states_key, humans_key, keys.operator_track_reset(config.cell))
+    ]
+    declared.append(session.liveliness().declare_token(keys.alive(config.cell, "gateway")))
+    resources.callback(declared.clear)  # kept alive until here; undeclared when the session closes
+    effective = effective_config(config)
+    http = HttpServerProcess(*http_address, effective, events_log, config.gateway.io_realtime_priority)
+    resources.callback(http.close)
+    bridges = BridgeView(config)
+    if bridges.interfaces:  # display only: the bridges' read-back figures (gateway/bridge_view.py)
+        declared.append(session.declare_subscriber(bridges.key, bridges.on_sample))
+    status_pub = session.declare_publisher(keys.gateway_status(config.cell))
+    sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
+    events = EventLog()
+    http.offer_events(events.started(time.time_ns(), config.cell, effective.config_sha256))
+    resources.callback(
+        lambda: http.offer_events(events.stopped(time.time_ns(), "stop requested" if stop.is_set() else "error"))
+    )
+    resources.callback(node.core.close)  # the planner layer's thread, if any
+    status_thread = StatusThread(sink.publish, config.gateway.io_realtime_priority)
+    resources.callback(status_thread.close)
+    out = _Outputs(
+        _declare_overrides(session, config), http, status_thread, config.gateway.io_realtime_priority, events=events
+    )
+    resources.callback(lambda: out.last_word(node.stop_overrides(read_clocks())))  # to every controller: stop
+    return out
 
 
 def build_node(config: CellConfig, wake: threading.Event | None, recorder: NodeRecorder | None = None) -> GatewayNode:

@@ -6,10 +6,13 @@ from __future__ import annotations
 import json
 import logging
 import os
+import socket
 import threading
 import time
+import urllib.request
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -23,13 +26,14 @@ from gateway.handoff import LatestJobThread
 from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode
 from gateway.status import effective_config
+from hrc_contract import keys
 from hrc_contract.config import CellConfig, GatewayConfig
 from hrc_contract.messages import Override, parse_message
 from hrc_contract.status_models import HumanCapsuleStatus
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
-from hrc_runtime.zenoh_session import session_config
+from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, session_config
 from hrc_tools.cell.procs import free_port, load_scale, running_cell
 
 
@@ -535,3 +539,96 @@ def test_the_status_thread_runs_under_fifo_at_the_io_priority() -> None:
         status.offer_last(object())  # type: ignore[arg-type]
         assert status.close(GIVE_UP_S)
         assert seen == [(policy, priority)]
+
+
+@pytest.mark.e2e
+def test_the_gateway_shell_opens_its_resources_runs_and_closes_them_with_the_last_word_first(
+    tmp_path: Path, cell_config: CellConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``run_gateway`` in process over a real Zenoh session: it serves the status on HTTP and publishes overrides
+    (δ = 0: no inputs); on stop every robot gets a last override stamped after the stop, the event log ends with
+    ``stop`` ("stop requested"), the HTTP server is gone and the exit code is 0; the closing order is the last word
+    (δ = 0 to every robot), the status thread, the event, the HTTP server."""
+    closed: list[str] = []
+    for cls, name in (
+        (gateway_main._Outputs, "last_word"),
+        (gateway_main.StatusThread, "close"),
+        (HttpServerProcess, "close"),
+    ):
+        original = getattr(cls, name)
+
+        def spy(self: Any, *args: Any, _original: Any = original, _name: str = f"{cls.__name__}.{name}") -> Any:
+            if _name == "_Outputs.last_word":
+                _name += str(sorted((robot, m.delta) for robot, m in args[0].items()))
+            closed.append(_name)
+            return _original(self, *args)
+
+        monkeypatch.setattr(cls, name, spy)
+    endpoint, http_port = f"tcp/127.0.0.1:{_free_port()}", _free_port()
+    events_log = tmp_path / "events.jsonl"
+    node = gateway_main.build_node(cell_config, None)
+    stop = StopEvent()
+    code: list[int] = []
+    gateway = threading.Thread(
+        target=lambda: code.append(
+            gateway_main.run_gateway(
+                cell_config,
+                node,
+                [endpoint],
+                [],
+                "127.0.0.1",
+                http_port,
+                stop,
+                zenoh_options=PLAIN_TCP_LOOPBACK,
+                events_log=events_log,
+            )
+        ),
+        daemon=True,
+    )
+    received: list[Override] = []
+    with zenoh.open(session_config([], [endpoint], PLAIN_TCP_LOOPBACK)) as session:
+        keys_of_robots = [keys.robot_override(cell_config.cell, name) for name in cell_config.robots]
+        subscribers = [
+            session.declare_subscriber(k, lambda s: received.append(parse_message(s.payload.to_bytes(), Override)))
+            for k in keys_of_robots
+        ]
+        gateway.start()
+        deadline_s = time.monotonic() + 30.0 * load_scale()
+        while not (received and _http_answers(http_port)) and time.monotonic() < deadline_s:
+            time.sleep(0.05)
+        assert received, "no override published"
+        assert _http_answers(http_port), "no status served"
+        stopped_ns = time.time_ns()
+        stop.set()
+        gateway.join(30.0 * load_scale())
+        assert not gateway.is_alive(), "the gateway did not stop"
+        time.sleep(0.2)  # the last word's delivery
+        del subscribers
+    assert code == [0]
+    last_words = {m.robot: m for m in received if m.stamp_ns >= stopped_ns}
+    assert set(last_words) == set(cell_config.robots), [(m.robot, m.stamp_ns, m.delta) for m in received[-5:]]
+    assert all(m.delta == 0.0 for m in last_words.values())
+    events = [json.loads(line) for line in events_log.read_text().splitlines()]
+    assert [e["kind"] for e in events[:2]] == ["start", "config_loaded"]
+    assert events[-1]["kind"] == "stop", events[-1]
+    assert "stop requested" in events[-1]["message"], events[-1]
+    assert not _http_answers(http_port)
+    assert closed == [
+        "_Outputs.last_word" + str(sorted((robot, 0.0) for robot in cell_config.robots)),
+        "StatusThread.close",
+        "HttpServerProcess.close",
+    ]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _http_answers(port: int) -> bool:
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/v1/status", timeout=1.0) as response:
+            return bool(response.status == 200)
+    except OSError:
+        return False

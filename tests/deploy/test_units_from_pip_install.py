@@ -22,6 +22,7 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
 from collections.abc import Iterator
 from contextlib import suppress
 from pathlib import Path
@@ -37,7 +38,13 @@ pytestmark = [
 
 UNITS_DIR = REPO_ROOT / "deploy" / "systemd"
 INSTALLED_BIN = "/opt/hrc-gateway/.venv/bin/"
-PACKAGES = ("hrc_contract", "hrc_runtime", "gateway", "controller_emu", "controller_bridge", "tracker_emu", "hrc_tools")
+PACKAGES = tuple(
+    pattern.rstrip("*")
+    for pattern in tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"][
+        "include"
+    ]
+)
+"""The project's import names, as the wheel is told to find them: every one must come from the install."""
 READY_TIMEOUT_S = 150.0  # the first start compiles the kernels (numba) into the unit's cache folder
 STOP_TIMEOUT_S = 20.0
 
@@ -170,13 +177,14 @@ def test_the_units_run_the_cell_from_a_pip_install(
 
     env = _unit_env("hrc-gateway.service", root, bin_dir, pip_installed, "")
     where = subprocess.run(
-        [sys.executable, "-c", "import gateway, hrc_runtime; print(gateway.__file__); print(hrc_runtime.__file__)"],
+        [sys.executable, "-c", f"import {', '.join(PACKAGES)}\nfor m in ({', '.join(PACKAGES)}): print(m.__file__)"],
         capture_output=True,
         text=True,
         env=env,
         cwd=workdir,
         timeout=60,
     )
+    assert len(where.stdout.split()) == len(PACKAGES), where.stdout + where.stderr
     assert all(Path(p).is_relative_to(pip_installed) for p in where.stdout.split()), where.stdout + where.stderr
 
     pre = _unit_command("hrc-gateway.service", "ExecStartPre", root, bin_dir, "", env)

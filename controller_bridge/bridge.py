@@ -80,7 +80,10 @@ samples are not exactly the receive times apart: the controller serves q of its 
 round trip varies, so the samples may be up to j = ``sample_jitter_s`` closer than the Δt between receipts (and v up
 to Δt / (Δt − j) faster than Δq / Δt: in the simulated cell the poll waits for writes, and Δq / Δt swings ±20 %). The
 bridge therefore uses ``v = Δq / (Δt − j)`` (an upper bound of the mean velocity) and reports ``qd = Δq / Δt`` with
-``override = a_lo · (Δt − j) / Δt``, so ``override · qd_nominal = qd`` still. What remains is the lag of a mean: an
+``override = a_lo · (Δt − j) / Δt``, so ``override · qd_nominal = qd`` still. A reading that waited in the bridge
+(a busy host between the answer's arrival and the clock read) shortens the next interval by more than j; q is then
+differenced over an earlier reading (:func:`difference_base`, up to :data:`DIFF_BASES` back within
+``max_diff_gap_s``), the newest over which its change is a velocity the joints can have. What remains is the lag of a mean: an
 accelerating program's velocity at the last sample exceeds the interval's mean by up to |dp/dt| · Δt / 2 (half a
 poll; a program model has none). A history
 the bridge cannot vouch for counts as 0 (the controller may be accelerating from standstill): before the first
@@ -159,6 +162,8 @@ MAX_AWAITING_WRITES = 1024
 beyond this is forgotten, which is safe: a value is written again only as a raise, and a raise waits for the newest
 write's read-back, after which no older write's value can show again."""
 
+DIFF_BASES = 4
+"""How many earlier readings q may be differenced against (:func:`difference_base`)."""
 MODEL_STANDSTILL_RADPS = 0.01
 """Where the program model's velocity is below this on every joint, the ratio is not measured along it (U is
 reported instead): ``|qd − U · p| ≤ U · |p|`` stays within the gateway's absolute tolerance (0.01 rad/s) [rad/s]."""
@@ -438,6 +443,33 @@ def nominal_velocity(
     return NominalVelocity(sign * velocity_limit_radps, scaling_lo * share, "velocity_limits")
 
 
+def difference_base(
+    q_rad: FloatArray,
+    received_mono_ns: int,
+    earlier: Sequence[ControllerReading],
+    velocity_limit_radps: FloatArray,
+    max_gap_s: float,
+) -> ControllerReading | None:
+    """The reading to difference ``q_rad`` against: the newest of ``earlier`` (oldest first) over which the change
+    of q is a velocity the joints can have (within their limits), else the newest within ``max_gap_s``; None if
+    none is that recent.
+
+    Receive times are not the instants the controller took q: a reading that waited in the bridge (the host busy
+    between the answer's arrival and the clock read) makes the next interval look shorter than it was, and q's
+    difference over it faster than any joint moves (seen at load 6: ``qd_above_limit`` at the gateway, a false
+    stop). Over a longer interval the same error weighs less. A velocity beyond the limits over every base is
+    reported as it is: the gateway refuses it."""
+    newest: ControllerReading | None = None
+    for base in reversed(earlier):
+        dt_s = (received_mono_ns - base.received_mono_ns) / NS_PER_S
+        if not 0.0 < dt_s <= max_gap_s:
+            continue
+        newest = base if newest is None else newest
+        if np.all(np.abs(q_rad - np.asarray(base.q_rad, dtype=float)) <= velocity_limit_radps * dt_s):
+            return base
+    return newest
+
+
 def reading_problem(reading: ControllerReading, n_joints: int, previous_mono_ns: int | None) -> str | None:
     """Why a reading cannot be used (``wrong_joint_count``, ``non_finite``, ``out_of_range``, ``time_backwards``)."""
     vectors = [reading.q_rad, reading.qd_radps, reading.target_qd_radps]
@@ -549,6 +581,7 @@ class Bridge:
         self._watchdog_expired = False
         # readings
         self._previous: ControllerReading | None = None
+        self._bases: deque[ControllerReading] = deque(maxlen=DIFF_BASES)  # what q may be differenced against
         self._envelope: float | None = None
         self._window = ReadbackWindow()
         self._override_seq = -1
@@ -682,6 +715,7 @@ class Bridge:
             gap_s = self.settings.max_diff_gap_s
             if previous_t_s is None or dt_s is None or not (0.0 < t_s - previous_t_s <= gap_s) or dt_s > gap_s:
                 self._window.reset(t_s)  # a history the bridge cannot vouch for: the controller may be accelerating
+                self._bases.clear()
             self._window.push(t_s, applied)
             self._envelope = envelope = braking_envelope(
                 self._envelope,
@@ -696,12 +730,11 @@ class Bridge:
             if reading.qd_radps is not None:
                 qd = np.asarray(reading.qd_radps, dtype=float)
                 start_s = t_s - self.settings.rise_time_s
-            elif previous is not None and dt_s is not None and dt_s <= self.settings.max_diff_gap_s:
-                qd = (q - np.asarray(previous.q_rad, dtype=float)) / dt_s
-                start_s = _time_s(previous) - self.settings.rise_time_s  # qd: the mean since the previous reading
-                share = max(dt_s - self.settings.sample_jitter_s, 0.5 * dt_s) / dt_s
             else:
-                return None  # nothing to differentiate yet: no joint state rather than a guessed velocity
+                differenced = self._differenced(q, reading)
+                if differenced is None:
+                    return None  # nothing to differentiate yet: no joint state rather than a guessed velocity
+                qd, start_s, share = differenced
             target = None if reading.target_qd_radps is None else np.asarray(reading.target_qd_radps, dtype=float)
             pending = [w.value for w in self._awaiting] + ([] if self._handed is None else [self._handed.value])
             readback_min = min([self._window.minimum(start_s)] + [scaling * w for w in pending])
@@ -732,6 +765,19 @@ class Bridge:
             self._last_applied = state.override
             self._mode = mode
             return state
+
+    def _differenced(self, q: FloatArray, reading: ControllerReading) -> tuple[FloatArray, float, float] | None:
+        """(lock held) q differenced against :func:`difference_base`: the velocity [rad/s], the start of the
+        read-back window it needs [s] and the share of the interval the samples may really be apart [1]; None
+        without a base."""
+        base = difference_base(q, reading.received_mono_ns, self._bases, self._limits, self.settings.max_diff_gap_s)
+        self._bases.append(reading)
+        if base is None:
+            return None
+        span_s = (reading.received_mono_ns - base.received_mono_ns) / NS_PER_S
+        qd: FloatArray = (q - np.asarray(base.q_rad, dtype=float)) / span_s
+        start_s = _time_s(base) - self.settings.rise_time_s  # qd: the mean since the base reading
+        return qd, start_s, max(span_s - self.settings.sample_jitter_s, 0.5 * span_s) / span_s
 
     def silence_s(self, now_mono_ns: int) -> float | None:
         """Time since the last valid reading, None before any [s]."""

@@ -739,6 +739,36 @@ def test_without_velocities_q_is_differentiated_over_the_sample_times() -> None:
     assert consistent(state)
 
 
+def test_a_reading_that_waited_in_the_bridge_does_not_make_the_next_velocity_impossible() -> None:
+    """Joint 1 at 0.9 × its limit, sampled every 20 ms; the second reading waited 8 ms in the bridge (received at
+    28 ms), so the third, received on time at 40 ms, is 12 ms after it: q's difference over those 12 ms is 1.5 × the
+    limit (the gateway's ``qd_above_limit``: a false stop). The bridge differences over the reading before (40 ms):
+    0.9 × the limit, consistent, and its window starts there."""
+    speed_radps = 0.9 * LIMITS[0]
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.0))
+    for received_s, sampled_s in ((0.0, 0.0), (0.028, 0.02)):
+        bridge.on_reading(reading(received_s, 1.0, q=(speed_radps * sampled_s, 0.0, 0.0), qd=None, scaling=None))
+    state = bridge.on_reading(reading(0.04, 1.0, q=(speed_radps * 0.04, 0.0, 0.0), qd=None, scaling=None))
+    assert state is not None
+    assert state.qd[0] == pytest.approx(speed_radps)  # not 1.5 × the limit
+    assert abs(state.qd[0]) <= LIMITS[0]
+    assert consistent(state)
+    assert within_limits(state)
+
+
+def test_a_joint_really_beyond_its_limit_is_reported_as_it_is() -> None:
+    """Over every earlier reading q moves at 1.5 × the limit: no base makes it possible, and the bridge reports the
+    newest interval's velocity (the gateway refuses it) rather than hide it."""
+    speed_radps = 1.5 * LIMITS[0]
+    bridge = Bridge(settings("abb_rws", rise_time_s=0.0))
+    states = [
+        bridge.on_reading(reading(t_s, 1.0, q=(speed_radps * t_s, 0.0, 0.0), qd=None, scaling=None))
+        for t_s in (0.0, 0.02, 0.04, 0.06)
+    ]
+    assert states[0] is None
+    assert all(s is not None and s.qd[0] == pytest.approx(speed_radps) for s in states[1:])
+
+
 def test_q_is_not_differentiated_over_a_gap() -> None:
     bridge = Bridge(settings("abb_rws"))
     bridge.on_reading(reading(0.0, 0.5, qd=None, scaling=None))

@@ -83,9 +83,9 @@ bridge therefore uses ``v = Δq / (Δt − j)`` (an upper bound of the mean velo
 ``override = a_lo · (Δt − j) / Δt``, so ``override · qd_nominal = qd`` still. A reading that waited in the bridge
 (a busy host between the answer's arrival and the clock read) shortens the next interval by more than j; q is then
 differenced over an earlier reading (:func:`difference_base`, up to :data:`DIFF_BASES` back within
-``max_diff_gap_s``), the newest over which its change is a velocity the joints can have. What remains is the lag of a mean: an
-accelerating program's velocity at the last sample exceeds the interval's mean by up to |dp/dt| · Δt / 2 (half a
-poll; a program model has none). A history
+``max_diff_gap_s``), the newest over which its change is a velocity the joints can have. What remains is the lag of
+a mean: an accelerating program's velocity at the last sample exceeds the interval's mean by up to |dp/dt| · Δt / 2
+(half a poll, or half the longer interval over an earlier reading; a program model has none). A history
 the bridge cannot vouch for counts as 0 (the controller may be accelerating from standstill): before the first
 reading, after a gap longer than ``max_diff_gap_s`` and when the controller's clock goes back or leaps.
 

@@ -178,6 +178,20 @@ def configuration_valid(
     return bool(clearance_to_people_m(robot, data, q_rad, humans, grow_m) > 0.0)
 
 
+def tool_path_world_m(
+    robot: RobotModel, data: pin.Data, path: Sampler, t0_s: float, t1_s: float, points: int
+) -> FloatArray:
+    """The tool's positions (the end of the robot's last link capsule) in the world frame at ``points`` (≥ 2) times
+    evenly spaced from ``t0_s`` to ``t1_s`` on ``path`` (Pinocchio's forward kinematics), shape (points, 3) [m].
+
+    What the operator page and the recording draw of a plan: computed once per adopted plan, not per status."""
+    out = np.empty((max(points, 2), 3))
+    for k, t_s in enumerate(np.linspace(t0_s, t1_s, len(out))):
+        q, _ = path.sample(float(t_s))
+        out[k] = link_ends_world(robot, data, q)[1][-1]
+    return out
+
+
 # -- the horizon check (Alg. 1) -------------------------------------------------------------------------
 
 

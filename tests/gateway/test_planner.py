@@ -5,7 +5,10 @@ the open robot, and when the replanner asks."""
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
+import signal
 import time
 
 import numpy as np
@@ -17,7 +20,15 @@ from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
 from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import ProcessPlanner, Replanner, SimulatedPlanner, ThreadedPlanner, goal_candidates
+from gateway.planner_worker import (
+    DIED,
+    PATH_POINTS,
+    ProcessPlanner,
+    Replanner,
+    SimulatedPlanner,
+    ThreadedPlanner,
+    goal_candidates,
+)
 from gateway.status import robot_status
 from gateway.zones import ZoneThresholds
 from hrc_contract.config import CellConfig, PlannerConfig
@@ -26,6 +37,7 @@ from hrc_contract.vocabulary import Zone
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.config import load_cell_config
+from hrc_tools.cell.procs import load_scale
 
 CONFIG = "configs/cell_open_panda_planner.toml"
 PICK = np.array([1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.785, 0.03, 0.03])
@@ -367,6 +379,24 @@ def test_the_status_shows_the_plan_the_robot_follows(
     assert shown.path_waypoints >= 2
     assert (shown.adopted, shown.rejected, shown.failures) == (1, 0, {"no_path": 1})
     assert shown.planning_last_s == 0.3
+    assert shown.planning_total_s == pytest.approx(0.342)
+    # the plan as the tool's path: bounded, from where the robot took it up to the plan's end, by forward kinematics
+    path = shown.path_tool_m
+    assert path is not None
+    assert len(path) == PATH_POINTS
+    plan = robot.plan
+    assert plan is not None
+    data = panda.model.createData()
+    start = plan_math.link_ends_world(panda, data, plan.sample(0.0)[0])[1][-1]
+    end = plan_math.link_ends_world(panda, data, plan.sample(plan.duration_s)[0])[1][-1]
+    np.testing.assert_allclose(path[0], start, atol=1e-4)
+    np.testing.assert_allclose(path[-1], end, atol=1e-4)
+    assert max(math.dist(a, b) for a, b in itertools.pairwise(path)) < 0.5  # a line, not scattered points
+    assert (shown.planner_running, shown.planner_deaths, shown.planner_restarts) == (True, 0, 0)
+    # the same plan view is shown at every decision without computing it again; gone once the plan is done
+    assert replanner.view().path_tool_world_m is replanner.view().path_tool_world_m
+    robot.plan = None
+    assert robot_status(decision._replace(plan=replanner.view()), 1).plan.path_tool_m is None  # type: ignore[union-attr]
     assert robot_status(decision._replace(plan=None), 1).plan is None
 
 
@@ -456,6 +486,38 @@ def test_the_process_planner_answers_from_its_own_process(planner: JointPlanner,
         np.testing.assert_array_equal(theirs.waypoints_rad, new.waypoints_rad)  # the same seed, the same plan
         assert backend.submit(request(program, person(1.0, 0.0), 5)._replace(robot="nobody"))
         assert wait_for(backend)[0].failure == "error:KeyError"
+    finally:
+        backend.close()
+    assert not backend.submit(request(program, person(1.0, 0.0), 5))
+
+
+def test_a_dead_planner_process_is_counted_its_request_failed_and_it_is_started_again(
+    planner: JointPlanner, program: Trajectory
+) -> None:
+    backend = ProcessPlanner({"panda": planner})
+    try:
+        first = backend.pid
+        assert first is not None
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        os.kill(first, signal.SIGKILL)  # while it imports the libraries or plans: the request is in flight
+        deadline = time.monotonic() + 10.0 * load_scale()
+        answers: list[PlanOutcome] = []
+        while backend.health().deaths == 0 and time.monotonic() < deadline:
+            answers += backend.poll()
+            time.sleep(0.01)
+        health = backend.health()
+        assert (health.running, health.deaths, health.restarts) == (False, 1, 0)
+        assert health.last_exit == "signal SIGKILL"
+        assert [a.failure for a in answers if a.plan is None] == [DIED]  # not left waiting for the time-out
+        assert not backend.submit(request(program, person(1.0, 0.0), 5))  # refused until it runs again
+        while backend.health().restarts == 0 and time.monotonic() < deadline:  # after the first backoff step
+            backend.poll()
+            time.sleep(0.01)
+        assert backend.health() == (True, 1, 1, "signal SIGKILL")
+        assert backend.pid not in (None, first)
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        outcome = wait_for(backend)[0]
+        assert outcome.plan is not None, outcome.failure
     finally:
         backend.close()
     assert not backend.submit(request(program, person(1.0, 0.0), 5))

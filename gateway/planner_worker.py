@@ -45,9 +45,6 @@ from hrc_devices.robots.program import Trajectory
 NS_PER_S = 1_000_000_000
 PENDING_TIMEOUT_FACTOR = 10.0
 """A request unanswered after this many planner time limits counts as lost (``timeout``)."""
-PATH_POINTS = 32
-"""The tool's positions along an adopted plan shown in the status (the plan's path as a line: operator page,
-recording); evenly spaced in plan time, so the size of the status stays bounded whatever the plan."""
 RESTART_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 """A dead planner process is started again after these waits, one more step per death in a row (the last one
 repeats) [s]."""
@@ -381,8 +378,9 @@ class PlanView(NamedTuple):
         adopted, rejected: plans adopted, and returned too late or for another trajectory.
         planning_last_s: the planner's time for the latest answer (wall clock; None before any) [s].
         planning_total_s: the planner's time for all answers since the start (wall clock) [s].
-        path_tool_world_m: the tool's positions along the plan followed, :data:`PATH_POINTS` evenly spaced in plan
-            time from its start to its end, world frame, shape (PATH_POINTS, 3) (None on the program) [m].
+        path_tool_world_m: the tool's positions along the plan followed (its
+            :attr:`gateway.plan.Plan.tool_path_world_m`: made by the planner, not per status), world frame, shape
+            (N, 3) (None on the program) [m].
         backend: the planner's own state (its process: running, deaths, restarts).
     """
 
@@ -452,9 +450,6 @@ class Replanner:
     """After a plan is adopted, the request (16) replans again only after this (``safety.replan_after_s``: δ must
     have stayed low on the new path as long as on the old one) [s]."""
     request_quiet_until_ns: int = 0
-    path_shown: tuple[plan_math.Plan, np.ndarray] | None = None
-    """The plan adopted last and its tool path (:data:`PATH_POINTS` × 3, world frame) [m]: forward kinematics once
-    per adopted plan, not per status."""
 
     def __post_init__(self) -> None:
         self.data = self.open_robot.robot.model.createData()
@@ -464,8 +459,7 @@ class Replanner:
         plan = self.open_robot.plan
         new = None if plan is None else plan.new_path
         stats = self.stats
-        shown = self.path_shown
-        path = shown[1] if shown is not None and plan is not None and shown[0] is plan else None
+        path = None if plan is None else plan.tool_path_world_m
         return PlanView(
             plan is not None,
             None if plan is None else self.open_robot.plan_t_s,
@@ -495,13 +489,6 @@ class Replanner:
         if self.open_robot.adopt(outcome.plan):
             self.stats.adopted += 1
             self.stats.last_reason = outcome.plan.reason
-            plan = outcome.plan
-            self.path_shown = (
-                plan,
-                plan_math.tool_path_world_m(
-                    self.open_robot.robot, self.data, plan, self.open_robot.plan_t_s, plan.duration_s, PATH_POINTS
-                ),
-            )
             self.request_quiet_until_ns = now_ns + int(self.request_after_s * NS_PER_S)
         else:
             self.stats.rejected += 1

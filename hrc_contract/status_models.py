@@ -156,7 +156,8 @@ class PlanStatus(_Strict):
         None,
         max_length=PLAN_PATH_POINTS_MAX,
         description="The plan followed, as the tool's positions (the end of the last link capsule, world frame) "
-        "evenly spaced in plan time from where the robot took the plan up to its end; null on the program [m].",
+        "evenly spaced in plan time from the plan's start (where the robot was when it was asked for) to its end; "
+        "null on the program [m].",
     )
     planner_running: bool = Field(
         True, description="The planner can plan (false: its process died and waits for its restart)."

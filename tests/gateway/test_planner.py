@@ -19,10 +19,9 @@ from gateway.core import RobotDecision, SafetyCore
 from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
-from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
+from gateway.planner import TOOL_PATH_POINTS, JointPlanner, PlanOutcome, PlanRequest
 from gateway.planner_worker import (
     DIED,
-    PATH_POINTS,
     ProcessPlanner,
     Replanner,
     SimulatedPlanner,
@@ -380,10 +379,10 @@ def test_the_status_shows_the_plan_the_robot_follows(
     assert (shown.adopted, shown.rejected, shown.failures) == (1, 0, {"no_path": 1})
     assert shown.planning_last_s == 0.3
     assert shown.planning_total_s == pytest.approx(0.342)
-    # the plan as the tool's path: bounded, from where the robot took it up to the plan's end, by forward kinematics
+    # the plan as the tool's path: bounded, from the plan's start to its end, by forward kinematics (the planner's)
     path = shown.path_tool_m
     assert path is not None
-    assert len(path) == PATH_POINTS
+    assert len(path) == TOOL_PATH_POINTS
     plan = robot.plan
     assert plan is not None
     data = panda.model.createData()
@@ -393,7 +392,7 @@ def test_the_status_shows_the_plan_the_robot_follows(
     np.testing.assert_allclose(path[-1], end, atol=1e-4)
     assert max(math.dist(a, b) for a, b in itertools.pairwise(path)) < 0.5  # a line, not scattered points
     assert (shown.planner_running, shown.planner_deaths, shown.planner_restarts) == (True, 0, 0)
-    # the same plan view is shown at every decision without computing it again; gone once the plan is done
+    # the planner made it with the plan: every decision shows the same array, none computes it; gone with the plan
     assert replanner.view().path_tool_world_m is replanner.view().path_tool_world_m
     robot.plan = None
     assert robot_status(decision._replace(plan=replanner.view()), 1).plan.path_tool_m is None  # type: ignore[union-attr]

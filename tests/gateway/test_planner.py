@@ -22,6 +22,7 @@ from gateway.plan import Plan, TimedPath
 from gateway.planner import TOOL_PATH_POINTS, JointPlanner, PlanOutcome, PlanRequest
 from gateway.planner_worker import (
     DIED,
+    PlannerHealth,
     ProcessPlanner,
     Replanner,
     SimulatedPlanner,
@@ -294,6 +295,9 @@ class Recorder:
 
     def poll(self) -> list[PlanOutcome]:
         return []
+
+    def health(self) -> PlannerHealth:
+        return PlannerHealth()
 
     def close(self) -> None:
         pass

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -53,24 +54,24 @@ def _planner_pid(gateway_pid: int) -> int:
     return planners[0]
 
 
-def _running(cell: Cell) -> None:
-    cell.wait_until(
-        lambda s: s["controller_mode"] == "running" and not s["faults"] and s["plan"] is not None,
-        READY_S,
-        "a running open robot with its planner layer",
-        ROBOT,
-    )
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Cell]:
+    """One cell for the module's tests (a start-up is most of an end-to-end test's time on a loaded machine)."""
+    with running_cell(tmp_path_factory.mktemp("planner"), config=CONFIG, scenario="standing_inside") as cell:
+        cell.wait_until(
+            lambda s: s["controller_mode"] == "running" and not s["faults"] and s["plan"] is not None,
+            READY_S,
+            "a running open robot with its planner layer",
+            ROBOT,
+        )
+        yield cell
 
 
-def test_plans_around_a_person_standing_in_the_path_are_adopted_and_delta_stays_within_its_bound(
-    tmp_path: Path,
-) -> None:
-    with running_cell(tmp_path, config=CONFIG, scenario="standing_inside") as cell:
-        _running(cell)
-        trace = record(cell, PLAN_S * load_scale(), ROBOT, until=_adopted)
-        for name in ("gateway", "controller", "tracker"):
-            assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
-        events = EventsResponse.model_validate_json(cell.get("/api/v1/events").content).events
+def test_plans_around_a_person_standing_in_the_path_are_adopted_and_delta_stays_within_its_bound(cell: Cell) -> None:
+    trace = record(cell, PLAN_S * load_scale(), ROBOT, until=_adopted)
+    for name in ("gateway", "controller", "tracker"):
+        assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
+    events = EventsResponse.model_validate_json(cell.get("/api/v1/events").content).events
     assert _adopted(trace), f"no plan adopted in {trace[-1]['t_s']:.1f} s: {trace[-1]['plan']}\n{cell.tail()}"
     first = next(s for s in trace if s["plan"]["adopted"] > 0)
     assert first["min_distance_m"] is not None, "the person stands in the cell while the robot replans"
@@ -90,33 +91,30 @@ def test_plans_around_a_person_standing_in_the_path_are_adopted_and_delta_stays_
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
 
 
-def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bound_every_command(
-    tmp_path: Path,
-) -> None:
-    with running_cell(tmp_path, config=CONFIG, scenario="standing_inside") as cell:
-        _running(cell)
-        first = _planner_pid(cell.gateway.pid)
-        killed: list[tuple[int, float]] = []  # (statuses before the kill, when)
+def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bound_every_command(cell: Cell) -> None:
+    first = _planner_pid(cell.gateway.pid)
+    killed: list[tuple[int, float]] = []  # (statuses before the kill, when)
 
-        def kill_then_restarted(trace: list[dict[str, Any]]) -> bool:
-            if not trace:
-                return False
-            if not killed:  # killed once the statuses are recorded: the recording sees the planner down
-                os.kill(first, signal.SIGKILL)
-                killed.append((len(trace), time.monotonic()))
-                return False
-            return bool(trace[-1]["plan"]["planner_restarts"] >= 1)
+    def kill_then_restarted(trace: list[dict[str, Any]]) -> bool:
+        if not trace:
+            return False
+        if not killed:  # killed once the statuses are recorded: the recording sees the planner down
+            os.kill(first, signal.SIGKILL)
+            killed.append((len(trace), time.monotonic()))
+            return False
+        return bool(trace[-1]["plan"]["planner_restarts"] >= 1)
 
-        trace = record(cell, 10.0 * load_scale(), ROBOT, until=kill_then_restarted)
-        assert killed, "no status recorded"
-        restart_s = time.monotonic() - killed[0][1]
-        assert cell.gateway.poll() is None, f"the gateway died with its planner\n{cell.tail()}"
-        assert kill_then_restarted(trace), f"no restart in {restart_s:.1f} s: {trace[-1]['plan']}\n{cell.tail()}"
-        again = _planner_pid(cell.gateway.pid)
+    trace = record(cell, 10.0 * load_scale(), ROBOT, until=kill_then_restarted)
+    assert killed, "no status recorded"
+    restart_s = time.monotonic() - killed[0][1]
+    assert cell.gateway.poll() is None, f"the gateway died with its planner\n{cell.tail()}"
+    assert kill_then_restarted(trace), f"no restart in {restart_s:.1f} s: {trace[-1]['plan']}\n{cell.tail()}"
+    again = _planner_pid(cell.gateway.pid)
     before, after = trace[: killed[0][0]], trace[killed[0][0] :]
     assert all(s["plan"]["planner_running"] and s["plan"]["planner_deaths"] == 0 for s in before)
     plan = trace[-1]["plan"]
     assert (plan["planner_deaths"], plan["planner_restarts"], plan["planner_last_exit"]) == (1, 1, "signal SIGKILL")
+    assert after[0]["plan"]["adopted"] <= plan["adopted"]  # its counts survive the restart
     assert plan["planner_running"]
     assert again != first
     down = [s for s in after if not s["plan"]["planner_running"]]

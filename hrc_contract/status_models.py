@@ -424,6 +424,8 @@ EventKind = Literal[
     "loop_stall",
     "plan_adopted",
     "plan_rejected",
+    "planner_died",
+    "planner_restarted",
 ]
 """What an :class:`Event` records (contract, "Events")."""
 
@@ -446,7 +448,7 @@ class Event(_Strict):
         default=None,
         description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom); "
         "``loop_stall``: the stall's cause (``loop.stalls``); ``plan_adopted``: why the plan was asked for "
-        "(``horizon``, ``request``).",
+        "(``horizon``, ``request``); ``planner_died``: how its process ended (``signal SIGKILL``, ``exit code 1``).",
     )
 
 

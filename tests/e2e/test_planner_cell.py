@@ -4,8 +4,8 @@ standing in the swing (scenario ``standing_inside``).
 
 - Plans around the person are asked for, adopted and shown: the status (``robots.panda.plan``: following, the
   tool's path), the events (``plan_adopted``); δ never above the LPs' bound, faults only late data (failed closed).
-- The planner's process killed: the gateway counts the death, starts it again and shows both in the status; the
-  robot goes on under the LPs meanwhile (δ within its bound).
+- The planner's process killed: the gateway counts the death, starts it again and shows both in the status and the
+  events; the robot goes on under the LPs meanwhile (δ within its bound).
 """
 
 from __future__ import annotations
@@ -110,6 +110,9 @@ def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bou
     assert cell.gateway.poll() is None, f"the gateway died with its planner\n{cell.tail()}"
     assert kill_then_restarted(trace), f"no restart in {restart_s:.1f} s: {trace[-1]['plan']}\n{cell.tail()}"
     again = _planner_pid(cell.gateway.pid)
+    events = EventsResponse.model_validate_json(cell.get("/api/v1/events").content).events
+    logged = [(e.kind, e.cause) for e in events if e.kind.startswith("planner_")]
+    assert logged == [("planner_died", "signal SIGKILL"), ("planner_restarted", None)], logged
     before, after = trace[: killed[0][0]], trace[killed[0][0] :]
     assert all(s["plan"]["planner_running"] and s["plan"]["planner_deaths"] == 0 for s in before)
     plan = trace[-1]["plan"]

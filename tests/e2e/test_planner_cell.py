@@ -35,7 +35,9 @@ seconds; docs/planner.md: 13 adopted in 65 s) [s]."""
 
 
 def _adopted(trace: list[dict[str, Any]]) -> bool:
-    return any(s["plan"] is not None and s["plan"]["adopted"] > 0 for s in trace)
+    """A plan adopted, and the robot seen following one (the first may be done before the recording starts)."""
+    plans = [s["plan"] for s in trace if s["plan"] is not None]
+    return any(p["adopted"] > 0 for p in plans) and any(p["following"] for p in plans)
 
 
 def _within_bound(trace: list[dict[str, Any]]) -> list[float]:

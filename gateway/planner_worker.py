@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import math
 import multiprocessing
+import multiprocessing.connection
 import multiprocessing.context
 import multiprocessing.process
 import multiprocessing.queues
@@ -169,8 +170,8 @@ class ProcessPlanner:
     A child that dies (killed, out of memory, a crash in a library) is found by :meth:`poll` (every loop): counted,
     its requests in flight answered as failed (:data:`DIED`), and a new child started after a backoff
     (:data:`RESTART_BACKOFF_S`) on a thread of its own (spawning and pickling the planners does not hold up the
-    loop), with new queues (the dead child may have held a queue's lock). Until then :meth:`submit` refuses: the
-    robot follows what it follows, the LPs bound every command as always.
+    loop), with a new queue and pipe (the dead child may have held the queue's lock). Until then :meth:`submit`
+    refuses: the robot follows what it follows, the LPs bound every command as always.
     """
 
     def __init__(self, planners: dict[str, JointPlanner], clock: Callable[[], float] = time.monotonic) -> None:
@@ -214,10 +215,10 @@ class ProcessPlanner:
             return done
         while True:
             try:
-                outcome = child.answers.get_nowait()
-            except queue.Empty:
-                break
-            except Exception:  # a half-written answer of a child killed while it wrote: the child is dead
+                if not child.answers.poll():
+                    break
+                outcome = child.answers.recv()
+            except (EOFError, OSError):  # the child is gone (its end of the pipe closed), maybe in mid-answer
                 break
             done.append(outcome)
             key = (outcome.robot, outcome.start_key)
@@ -292,7 +293,9 @@ class _Child:
 
     process: multiprocessing.process.BaseProcess
     requests: multiprocessing.queues.Queue[PlanRequest | None]
-    answers: multiprocessing.queues.Queue[PlanOutcome]
+    answers: multiprocessing.connection.Connection
+    """The answers' pipe, read end. Not a queue: its write end lives only in the child, so a child that dies in the
+    middle of an answer gives an end of file here, never a read that waits for the rest for ever."""
     started_s: float
 
     @classmethod
@@ -300,9 +303,12 @@ class _Child:
         cls, context: multiprocessing.context.SpawnContext, planners: dict[str, JointPlanner], now_s: float
     ) -> _Child:
         requests: multiprocessing.queues.Queue[PlanRequest | None] = context.Queue()
-        answers: multiprocessing.queues.Queue[PlanOutcome] = context.Queue()
-        process = context.Process(target=_serve, args=(planners, requests, answers), name="hrc-planner", daemon=True)
-        process.start()
+        answers, child_end = context.Pipe(duplex=False)
+        process = context.Process(target=_serve, args=(planners, requests, child_end), name="hrc-planner", daemon=True)
+        try:
+            process.start()
+        finally:
+            child_end.close()  # the child has its own copy
         return cls(process, requests, answers, now_s)
 
     def stop(self) -> None:
@@ -314,9 +320,9 @@ class _Child:
         if self.process.is_alive():
             self.process.terminate()
             self.process.join(timeout=1.0)
-        for q in (self.requests, self.answers):
-            q.cancel_join_thread()
-            q.close()
+        self.requests.cancel_join_thread()
+        self.requests.close()
+        self.answers.close()
 
 
 def _exit_text(code: int | None) -> str:
@@ -334,7 +340,7 @@ def _exit_text(code: int | None) -> str:
 def _serve(
     planners: dict[str, JointPlanner],
     requests: multiprocessing.queues.Queue[PlanRequest | None],
-    answers: multiprocessing.queues.Queue[PlanOutcome],
+    answers: multiprocessing.connection.Connection,
 ) -> None:
     """The planner process: import the libraries, then plan each request until ``None``."""
     warm_up()
@@ -346,7 +352,7 @@ def _serve(
             outcome = planners[request.robot].solve(request)
         except Exception as exc:  # a planner crash is a failed plan
             outcome = PlanOutcome(request.robot, None, f"error:{type(exc).__name__}", 0.0, request.start_key)
-        answers.put(outcome)
+        answers.send(outcome)
 
 
 def goal_candidates(

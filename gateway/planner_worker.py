@@ -250,8 +250,7 @@ class ProcessPlanner:
         self._last_exit = _exit_text(code)
         self._deaths += 1
         self._deaths_in_a_row = 1 if now_s - child.started_s >= RESTART_STEADY_S else self._deaths_in_a_row + 1
-        step = min(self._deaths_in_a_row, len(RESTART_BACKOFF_S)) - 1
-        self._restart_at_s = now_s + RESTART_BACKOFF_S[step]
+        self._restart_at_s = now_s + restart_backoff_s(self._deaths_in_a_row)
         with self._lock:
             self._child = None
         child.stop()
@@ -274,8 +273,7 @@ class ProcessPlanner:
             child = _Child.start(self._context, self._planners, self._clock())
         except Exception:  # a start that fails is tried again after the next backoff step
             self._deaths_in_a_row += 1
-            step = min(self._deaths_in_a_row, len(RESTART_BACKOFF_S)) - 1
-            self._restart_at_s = self._clock() + RESTART_BACKOFF_S[step]
+            self._restart_at_s = self._clock() + restart_backoff_s(self._deaths_in_a_row)
             self._starting = None
             return
         with self._lock:
@@ -323,6 +321,12 @@ class _Child:
         self.requests.cancel_join_thread()
         self.requests.close()
         self.answers.close()
+
+
+def restart_backoff_s(in_a_row: int) -> float:
+    """The wait before starting a planner process again after ``in_a_row`` (≥ 1) deaths or failed starts in a row:
+    :data:`RESTART_BACKOFF_S`, its last step repeated [s]."""
+    return RESTART_BACKOFF_S[min(max(in_a_row, 1), len(RESTART_BACKOFF_S)) - 1]
 
 
 def _exit_text(code: int | None) -> str:

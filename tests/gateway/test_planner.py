@@ -28,6 +28,7 @@ from gateway.planner_worker import (
     SimulatedPlanner,
     ThreadedPlanner,
     goal_candidates,
+    restart_backoff_s,
 )
 from gateway.status import robot_status
 from gateway.zones import ZoneThresholds
@@ -524,3 +525,8 @@ def test_a_dead_planner_process_is_counted_its_request_failed_and_it_is_started_
     finally:
         backend.close()
     assert not backend.submit(request(program, person(1.0, 0.0), 5))
+
+
+def test_the_restart_backoff_doubles_up_to_eight_seconds() -> None:
+    assert [restart_backoff_s(n) for n in range(1, 8)] == [0.5, 1.0, 2.0, 4.0, 8.0, 8.0, 8.0]
+    assert restart_backoff_s(0) == 0.5

@@ -25,7 +25,7 @@ from gateway.link_ends import LinkEnds
 from gateway.methods import ContactAware, MethodInput, OverrideMethod, ReplanMonitor, build_method
 from gateway.open_robot import OpenCommand, OpenRobot, nearest_people
 from gateway.planner import JointPlanner
-from gateway.planner_worker import PlannerBackend, PlanView, ProcessPlanner, Replanner
+from gateway.planner_worker import PlannerBackend, PlannerHealth, PlanView, ProcessPlanner, Replanner
 from gateway.separation import decision_clearance_m, override_from_rows
 from gateway.tracks import MAX_LIVE_TRACKS, TrackEvent, TrackRecord, TrackSet
 from gateway.zones import ZoneThresholds, commanded_override, next_zone, zone_thresholds
@@ -236,6 +236,7 @@ class SafetyCore:
             for name, robot in robots.items()
         }
         self.planner: PlannerBackend | None = self._planner_layer(planner_backend)
+        self._planner_health: PlannerHealth | None = None
         self._delay_aware = not safety.unsafe_ignore_delay_for_tests
         self._method: OverrideMethod = build_method(
             safety, robots, {name: config.robots[name].program for name in robots if name in config.robots}
@@ -271,6 +272,7 @@ class SafetyCore:
                 replanner = self.states[outcome.robot].replanner
                 if replanner is not None:
                     replanner.take(outcome, now.mono_ns)
+            self._planner_health = self.planner.health()
         return {
             name: self._decide(state, inputs, now, humans, _until_next_decision_s(gateway_period_s, state.watchdog_s))
             for name, state in self.states.items()
@@ -525,7 +527,7 @@ class SafetyCore:
             links,
             None if command is None else (command.solution.bounded_by or command.solution.how),
             command,
-            None if state.replanner is None else state.replanner.view(),
+            None if state.replanner is None else state.replanner.view(self._planner_health),
         )
 
     def _bound(

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gateway.core import Fault, RobotDecision
-from gateway.planner_worker import PlanView
+from gateway.planner_worker import PlannerHealth, PlanView
 from gateway.tracks import TrackEvent
 from hrc_contract.status_models import Event, EventKind
 from hrc_contract.vocabulary import Zone
@@ -58,6 +58,8 @@ class EventLog:
         self.hold_ns = round(hold_s * NS_PER_S)
         self.seq = 0
         self._robots: dict[str, _RobotLog] = {}
+        self._planner = PlannerHealth()
+        """The planner's process as last logged (one planner for every open robot: logged once, for the gateway)."""
 
     def _event(self, stamp_ns: int, kind: EventKind, message: str, **fields: str | None) -> Event:
         self.seq += 1
@@ -114,6 +116,28 @@ class EventLog:
                 robot.candidate = None
             if decision.plan is not None:
                 events += self._plan_events(name, robot, decision.plan, stamp_ns)
+                events += self._planner_events(decision.plan.backend, stamp_ns)
+        return events
+
+    def _planner_events(self, health: PlannerHealth, stamp_ns: int) -> list[Event]:
+        """The planner's process died, or was started again (its counts grew)."""
+        events = []
+        if health.deaths > self._planner.deaths:
+            events.append(
+                self._event(
+                    stamp_ns,
+                    "planner_died",
+                    f"the planner's process died ({health.last_exit}; {health.deaths} so far): restarted after a "
+                    "backoff; safety does not depend on it",
+                    cause=health.last_exit or None,
+                )
+            )
+        if health.restarts > self._planner.restarts:
+            events.append(
+                self._event(stamp_ns, "planner_restarted", f"the planner's process started again ({health.restarts})")
+            )
+        if health.deaths >= self._planner.deaths and health.restarts >= self._planner.restarts:
+            self._planner = health
         return events
 
     def _plan_events(self, robot: str, log: _RobotLog, plan: PlanView, stamp_ns: int) -> list[Event]:

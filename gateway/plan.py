@@ -91,6 +91,8 @@ class Plan:
         planning_s: the planner's time for it (wall clock, for the status; 0 when unknown) [s].
         clearance_m: how far the new path was planned from the people (their capsules grown by it) [m]: the horizon
             check holds the plan to no more (a plan that had to start near someone is not replanned for it at once).
+        tool_path_world_m: the tool's positions along the whole plan, evenly spaced in plan time, world frame, shape
+            (N, 3) (:func:`tool_path_world_m`, by the planner), for the status and the recording; None if not made [m].
     """
 
     pieces: tuple[Piece, ...]
@@ -99,6 +101,7 @@ class Plan:
     reason: str = ""
     planning_s: float = 0.0
     clearance_m: float = math.inf
+    tool_path_world_m: FloatArray | None = None
 
     @property
     def duration_s(self) -> float:
@@ -176,6 +179,24 @@ def configuration_valid(
     if not bool(np.all(q_rad >= lower) and np.all(q_rad <= upper)):
         return False
     return bool(clearance_to_people_m(robot, data, q_rad, humans, grow_m) > 0.0)
+
+
+def tool_path_world_m(
+    robot: RobotModel, data: pin.Data, path: Sampler, t0_s: float, t1_s: float, points: int
+) -> FloatArray:
+    """The tool's positions (the end of the robot's last link capsule) in the world frame at ``points`` (≥ 2) times
+    evenly spaced from ``t0_s`` to ``t1_s`` on ``path`` (Pinocchio's forward kinematics), shape (points, 3) [m].
+
+    What the operator page and the recording draw of a plan. ~4 ms for 32 points of a TOPP-RA plan (sampling the
+    spline dominates): done by the planner, beside the loop, never per status."""
+    tool = robot.frame_b_ids[-1]
+    out = np.empty((max(points, 2), 3))
+    for k, t_s in enumerate(np.linspace(t0_s, t1_s, len(out))):
+        q, _ = path.sample(float(t_s))
+        pin.forwardKinematics(robot.model, data, q)
+        pin.updateFramePlacement(robot.model, data, tool)
+        out[k] = robot.R_world_base @ data.oMf[tool].translation + robot.p_world_base
+    return out
 
 
 # -- the horizon check (Alg. 1) -------------------------------------------------------------------------

@@ -14,6 +14,7 @@ a loaded machine).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -43,6 +44,11 @@ them is faster as well as feasible (eq. (15) slows any approach within a band be
 INFLATION_STEPS = (0.5, 0.0)
 """When the start is inside the grown people (a person close by: the request (16)), the clearance is then tried at
 these fractions of itself: a plan that starts there must first be allowed to leave."""
+
+
+TOOL_PATH_POINTS = 32
+"""The tool's positions along a plan made for the status and the recording (evenly spaced in plan time): a line
+through them, and a status of bounded size whatever the plan."""
 
 
 class PlanRequest(NamedTuple):
@@ -183,8 +189,9 @@ class JointPlanner:
         outcome = self._solve(request)
         elapsed = time.perf_counter() - started
         plan = outcome[0]
-        if plan is not None:
-            plan = Plan(plan.pieces, plan.goal_tau_s, plan.start_key, plan.reason, elapsed, plan.clearance_m)
+        if plan is not None:  # the path shown (status, recording): here, not in the loop (~4 ms)
+            path_m = plan_math.tool_path_world_m(self.robot, self.data, plan, 0.0, plan.duration_s, TOOL_PATH_POINTS)
+            plan = dataclasses.replace(plan, planning_s=elapsed, tool_path_world_m=path_m)
         return PlanOutcome(request.robot, plan, outcome[1], elapsed, request.start_key)
 
     def _solve(self, request: PlanRequest) -> tuple[Plan | None, str]:

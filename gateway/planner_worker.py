@@ -17,12 +17,19 @@ A planner that is late, fails, never answers or returns a path through a person 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import multiprocessing
+import multiprocessing.connection
+import multiprocessing.context
+import multiprocessing.process
 import multiprocessing.queues
 import queue
+import signal
 import threading
+import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol
 
@@ -39,9 +46,33 @@ from hrc_devices.robots.program import Trajectory
 NS_PER_S = 1_000_000_000
 PENDING_TIMEOUT_FACTOR = 10.0
 """A request unanswered after this many planner time limits counts as lost (``timeout``)."""
+RESTART_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
+"""A dead planner process is started again after these waits, one more step per death in a row (the last one
+repeats) [s]."""
+RESTART_STEADY_S = 30.0
+"""A planner process that has run this long since its start counts as healthy again: the next death waits the first
+step of :data:`RESTART_BACKOFF_S` [s]."""
+DIED = "planner_died"
+"""The failure of a request that was in flight when the planner process died."""
 GOALS_PER_REQUEST = 1
 """Program waypoints offered as goals: the next one beyond the obstruction only (a later one would skip a station of
 the task, a pick or a place, and count as production that was not done)."""
+
+
+class PlannerHealth(NamedTuple):
+    """A backend's own state, for the status.
+
+    Attributes:
+        running: it can plan now (false: a dead process waiting for its restart).
+        deaths: times its process was found dead since the start.
+        restarts: times its process was started again.
+        last_exit: how the last dead process ended (``exit code 1``, ``signal SIGKILL``; empty before any death).
+    """
+
+    running: bool = True
+    deaths: int = 0
+    restarts: int = 0
+    last_exit: str = ""
 
 
 class PlannerBackend(Protocol):
@@ -50,6 +81,8 @@ class PlannerBackend(Protocol):
     def submit(self, request: PlanRequest) -> bool: ...
 
     def poll(self) -> list[PlanOutcome]: ...
+
+    def health(self) -> PlannerHealth: ...
 
     def close(self) -> None: ...
 
@@ -70,6 +103,9 @@ class SimulatedPlanner:
     def poll(self) -> list[PlanOutcome]:
         done, self._done = self._done, []
         return done
+
+    def health(self) -> PlannerHealth:
+        return PlannerHealth()
 
     def close(self) -> None:
         self._done = []
@@ -100,6 +136,9 @@ class ThreadedPlanner:
             done, self._done = self._done, []
         return done
 
+    def health(self) -> PlannerHealth:
+        return PlannerHealth(running=self._thread.is_alive())
+
     def close(self) -> None:
         if self._closed:
             return
@@ -126,54 +165,186 @@ class ProcessPlanner:
     time in order of arrival. The gateway's default: a planner thread would share Python's interpreter lock with the
     250 Hz loop (measured: 30–50 ms late ticks while it plans), a process does not. Requests and plans cross as
     pickles (a few ms, on the queue's feeder thread and in :meth:`poll`). A request the child cannot plan comes back
-    as a failed plan (``error:<exception>``); a dead child answers nothing (the replanner gives up on it, ``timeout``).
+    as a failed plan (``error:<exception>``).
+
+    A child that dies (killed, out of memory, a crash in a library) is found by :meth:`poll` (every loop): counted,
+    its requests in flight answered as failed (:data:`DIED`), and a new child started after a backoff
+    (:data:`RESTART_BACKOFF_S`) on a thread of its own (spawning and pickling the planners does not hold up the
+    loop), with a new queue and pipe (the dead child may have held the queue's lock). Until then :meth:`submit`
+    refuses: the robot follows what it follows, the LPs bound every command as always.
     """
 
-    def __init__(self, planners: dict[str, JointPlanner]) -> None:
+    def __init__(self, planners: dict[str, JointPlanner], clock: Callable[[], float] = time.monotonic) -> None:
         # the plans come back holding TOPP-RA's trajectories: unpickling the first one would import toppra in the
         # loop's thread (~0.5 s late, measured end to end); import it here, at start-up
         warm_up()
-        context = multiprocessing.get_context("spawn")
-        self._requests: multiprocessing.queues.Queue[PlanRequest | None] = context.Queue()
-        self._answers: multiprocessing.queues.Queue[PlanOutcome] = context.Queue()
+        self._planners = planners
+        self._clock = clock
+        self._context = multiprocessing.get_context("spawn")
         self._closed = False
-        self._process = context.Process(
-            target=_serve, args=(planners, self._requests, self._answers), name="hrc-planner", daemon=True
-        )
-        self._process.start()
+        self._lock = threading.Lock()
+        self._child: _Child | None = _Child.start(self._context, planners, clock())
+        self._in_flight: list[tuple[str, tuple[object, ...]]] = []
+        """(robot, start key) of the requests sent to the current child and not yet answered, in order."""
+        self._deaths = 0
+        self._restarts = 0
+        self._deaths_in_a_row = 0
+        self._last_exit = ""
+        self._restart_at_s: float | None = None
+        self._starting: threading.Thread | None = None
+
+    @property
+    def pid(self) -> int | None:
+        """The planner process's id (None while it is being restarted)."""
+        child = self._child
+        return None if child is None else child.process.pid
 
     def submit(self, request: PlanRequest) -> bool:
-        if self._closed or not self._process.is_alive():
+        child = self._child
+        if self._closed or child is None or not child.process.is_alive():
             return False
-        self._requests.put(request)
+        child.requests.put(request)
+        self._in_flight.append((request.robot, request.start_key))
         return True
 
     def poll(self) -> list[PlanOutcome]:
         done: list[PlanOutcome] = []
+        child = self._child
+        if child is None:
+            self._restart_when_due()
+            return done
         while True:
             try:
-                done.append(self._answers.get_nowait())
-            except queue.Empty:
-                return done
+                if not child.answers.poll():
+                    break
+                outcome = child.answers.recv()
+            except (EOFError, OSError):  # the child is gone (its end of the pipe closed), maybe in mid-answer
+                break
+            done.append(outcome)
+            key = (outcome.robot, outcome.start_key)
+            if key in self._in_flight:
+                self._in_flight.remove(key)
+        if not self._closed and not child.process.is_alive():
+            done += self._buried(child)
+        return done
+
+    def health(self) -> PlannerHealth:
+        return PlannerHealth(self._child is not None, self._deaths, self._restarts, self._last_exit)
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        self._requests.put(None)
-        self._process.join(timeout=5.0)
-        if self._process.is_alive():
-            self._process.terminate()
-            self._process.join(timeout=1.0)
-        for q in (self._requests, self._answers):
-            q.cancel_join_thread()
-            q.close()
+        starting = self._starting
+        if starting is not None:
+            starting.join(timeout=10.0)
+        with self._lock:
+            child, self._child = self._child, None
+        if child is not None:
+            child.stop()
+
+    def _buried(self, child: _Child) -> list[PlanOutcome]:
+        """A dead child: counted, its requests in flight answered as failed, its restart scheduled."""
+        now_s = self._clock()
+        code = child.process.exitcode
+        self._last_exit = _exit_text(code)
+        self._deaths += 1
+        self._deaths_in_a_row = 1 if now_s - child.started_s >= RESTART_STEADY_S else self._deaths_in_a_row + 1
+        self._restart_at_s = now_s + restart_backoff_s(self._deaths_in_a_row)
+        with self._lock:
+            self._child = None
+        child.stop()
+        lost = [PlanOutcome(robot, None, DIED, 0.0, key) for robot, key in self._in_flight]
+        self._in_flight = []
+        return lost
+
+    def _restart_when_due(self) -> None:
+        """Start a new child on a thread once the backoff has passed (one start at a time)."""
+        if self._closed or self._starting is not None or self._restart_at_s is None:
+            return
+        if self._clock() < self._restart_at_s:
+            return
+        self._restart_at_s = None
+        self._starting = threading.Thread(target=self._start_child, name="hrc-planner-restart", daemon=True)
+        self._starting.start()
+
+    def _start_child(self) -> None:
+        try:
+            child = _Child.start(self._context, self._planners, self._clock())
+        except Exception:  # a start that fails is tried again after the next backoff step
+            self._deaths_in_a_row += 1
+            self._restart_at_s = self._clock() + restart_backoff_s(self._deaths_in_a_row)
+            self._starting = None
+            return
+        with self._lock:
+            if self._closed:
+                child.stop()
+            else:
+                self._child = child
+                self._restarts += 1
+        self._starting = None
+
+
+@dataclass
+class _Child:
+    """One planner process and its two queues."""
+
+    process: multiprocessing.process.BaseProcess
+    requests: multiprocessing.queues.Queue[PlanRequest | None]
+    answers: multiprocessing.connection.Connection
+    """The answers' pipe, read end. Not a queue: its write end lives only in the child, so a child that dies in the
+    middle of an answer gives an end of file here, never a read that waits for the rest for ever."""
+    started_s: float
+
+    @classmethod
+    def start(
+        cls, context: multiprocessing.context.SpawnContext, planners: dict[str, JointPlanner], now_s: float
+    ) -> _Child:
+        requests: multiprocessing.queues.Queue[PlanRequest | None] = context.Queue()
+        answers, child_end = context.Pipe(duplex=False)
+        process = context.Process(target=_serve, args=(planners, requests, child_end), name="hrc-planner", daemon=True)
+        try:
+            process.start()
+        finally:
+            child_end.close()  # the child has its own copy
+        return cls(process, requests, answers, now_s)
+
+    def stop(self) -> None:
+        """Ask it to end, then terminate it; close the queues without waiting for their feeders."""
+        if self.process.is_alive():
+            with contextlib.suppress(Exception):  # a broken queue: terminated below
+                self.requests.put(None)
+            self.process.join(timeout=5.0)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=1.0)
+        self.requests.cancel_join_thread()
+        self.requests.close()
+        self.answers.close()
+
+
+def restart_backoff_s(in_a_row: int) -> float:
+    """The wait before starting a planner process again after ``in_a_row`` (≥ 1) deaths or failed starts in a row:
+    :data:`RESTART_BACKOFF_S`, its last step repeated [s]."""
+    return RESTART_BACKOFF_S[min(max(in_a_row, 1), len(RESTART_BACKOFF_S)) - 1]
+
+
+def _exit_text(code: int | None) -> str:
+    """How a process ended, for people: ``exit code 1``, ``signal SIGKILL``."""
+    if code is None:
+        return "unknown"
+    if code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"exit code {code}"
 
 
 def _serve(
     planners: dict[str, JointPlanner],
     requests: multiprocessing.queues.Queue[PlanRequest | None],
-    answers: multiprocessing.queues.Queue[PlanOutcome],
+    answers: multiprocessing.connection.Connection,
 ) -> None:
     """The planner process: import the libraries, then plan each request until ``None``."""
     warm_up()
@@ -185,7 +356,7 @@ def _serve(
             outcome = planners[request.robot].solve(request)
         except Exception as exc:  # a planner crash is a failed plan
             outcome = PlanOutcome(request.robot, None, f"error:{type(exc).__name__}", 0.0, request.start_key)
-        answers.put(outcome)
+        answers.send(outcome)
 
 
 def goal_candidates(
@@ -216,6 +387,11 @@ class PlanView(NamedTuple):
         requests, failures: per reason, since the start.
         adopted, rejected: plans adopted, and returned too late or for another trajectory.
         planning_last_s: the planner's time for the latest answer (wall clock; None before any) [s].
+        planning_total_s: the planner's time for all answers since the start (wall clock) [s].
+        path_tool_world_m: the tool's positions along the plan followed (its
+            :attr:`gateway.plan.Plan.tool_path_world_m`: made by the planner, not per status), world frame, shape
+            (N, 3) (None on the program) [m].
+        backend: the planner's own state (its process: running, deaths, restarts).
     """
 
     following: bool
@@ -228,6 +404,9 @@ class PlanView(NamedTuple):
     rejected: int
     failures: dict[str, int]
     planning_last_s: float | None
+    planning_total_s: float = 0.0
+    path_tool_world_m: np.ndarray | None = None
+    backend: PlannerHealth = PlannerHealth()
 
 
 @dataclass
@@ -241,6 +420,7 @@ class ReplannerStats:
     """Plans returned too late (the robot had passed the join) or for another trajectory."""
     failures: Counter[str] = field(default_factory=Counter)
     planning_s: list[float] = field(default_factory=list)
+    planning_total_s: float = 0.0
     last_reason: str = ""
 
     def to_dict(self) -> dict[str, object]:
@@ -284,11 +464,12 @@ class Replanner:
     def __post_init__(self) -> None:
         self.data = self.open_robot.robot.model.createData()
 
-    def view(self) -> PlanView:
-        """What the status shows of this robot's planner layer now."""
+    def view(self, backend: PlannerHealth | None = None) -> PlanView:
+        """What the status shows of this robot's planner layer now (``backend``: the planner's own state)."""
         plan = self.open_robot.plan
         new = None if plan is None else plan.new_path
         stats = self.stats
+        path = None if plan is None else plan.tool_path_world_m
         return PlanView(
             plan is not None,
             None if plan is None else self.open_robot.plan_t_s,
@@ -300,6 +481,9 @@ class Replanner:
             stats.rejected,
             dict(stats.failures),
             stats.planning_s[-1] if stats.planning_s else None,
+            stats.planning_total_s,
+            path,
+            PlannerHealth() if backend is None else backend,
         )
 
     def take(self, outcome: PlanOutcome, now_ns: int) -> None:
@@ -307,6 +491,7 @@ class Replanner:
         if self.pending is not None and outcome.start_key == self.pending:
             self.pending = None
         self.stats.planning_s.append(outcome.planning_s)
+        self.stats.planning_total_s += outcome.planning_s
         if outcome.plan is None:
             self.stats.failures[outcome.failure] += 1
             self.quiet_until_ns = now_ns + int(self.config.retry_after_s * NS_PER_S)

@@ -14,7 +14,8 @@ Per robot ``<robot>``, under the configured namespace (``[ros2]`` of the cell fi
 and for the cell ``diagnostics`` (``diagnostic_msgs/DiagnosticArray``: one status per robot, level OK / WARN
 (reduced speed) / ERROR (safety exception or a fault), with zone, δ and every fault's code and reason as values)
 and ``hrc_markers`` (``visualization_msgs/MarkerArray``: each robot link and human capsule as a CYLINDER with a
-SPHERE at each end, coloured by zone, after a DELETEALL so that people who left vanish in RViz).
+SPHERE at each end, coloured by zone, an open robot's plan around people as a LINE_STRIP, after a DELETEALL so that
+people who left, and plans that ended, vanish in RViz).
 
 The face never runs on the safety loop's thread, and builds no status document of its own: the status thread
 (:class:`gateway.main.StatusThread`) hands it each one it built, with its job; :meth:`Ros2Face.offer` costs that
@@ -91,8 +92,11 @@ HUMAN_RGBA = (0.3, 0.5, 0.9, 0.6)
 ZONE_SEVERITY = ("autonomous", "guarded_distance", "reduced_speed", "safety_exception")
 LEVEL_OK, LEVEL_WARN, LEVEL_ERROR = 0, 1, 2
 
-CYLINDER, SPHERE = 3, 2
+CYLINDER, SPHERE, LINE_STRIP = 3, 2, 4
 ADD, DELETEALL = 0, 3
+PLAN_RGBA = (0.31, 0.89, 0.84, 0.9)
+"""An open robot's plan around people (the operator page's colour for it)."""
+PLAN_LINE_WIDTH_M = 0.015
 
 
 class JointView(NamedTuple):
@@ -235,15 +239,35 @@ def human_zones(doc: GatewayStatus) -> dict[str, str]:
     return zones
 
 
+def plan_marker(distro: Distro, ns: str, path_m: Sequence[Sequence[float]], header: Any) -> Any:
+    """An open robot's plan around people: a LINE_STRIP through the tool's positions along it (world frame) [m]."""
+    points = [new_message(distro, "geometry_msgs/msg/Point", x=p[0], y=p[1], z=p[2]) for p in path_m]
+    pose = new_message(
+        distro,
+        "geometry_msgs/msg/Pose",
+        position=new_message(distro, "geometry_msgs/msg/Point", x=0.0, y=0.0, z=0.0),
+        orientation=new_message(distro, "geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0),
+    )
+    r, g, b, a = PLAN_RGBA
+    return new_message(
+        distro, "visualization_msgs/msg/Marker", header=header, ns=ns, id=0, type=LINE_STRIP, action=ADD, pose=pose,
+        scale=new_message(distro, "geometry_msgs/msg/Vector3", x=PLAN_LINE_WIDTH_M, y=0.0, z=0.0),
+        color=new_message(distro, "std_msgs/msg/ColorRGBA", r=r, g=g, b=b, a=a), points=points,
+    )  # fmt: skip
+
+
 def markers_message(distro: Distro, doc: GatewayStatus, frame_id: str) -> Any:
-    """``visualization_msgs/MarkerArray``: DELETEALL, then every robot link (``robot/<name>``, its zone's colour)
-    and every human capsule (``human``, the zone of the robots it holds; blue if none). Ids step by 3 per capsule."""
+    """``visualization_msgs/MarkerArray``: DELETEALL, then every robot link (``robot/<name>``, its zone's colour),
+    an open robot's plan around people as a LINE_STRIP through the tool's path (``plan/<name>``), and every human
+    capsule (``human``, the zone of the robots it holds; blue if none). Ids step by 3 per capsule."""
     header = _header(distro, doc.stamp_ns, frame_id)
     markers = [new_message(distro, "visualization_msgs/msg/Marker", header=header, action=DELETEALL)]
     for robot, status in sorted(doc.robots.items()):
         rgba = ZONE_RGBA[status.zone]
         for i, link in enumerate(status.links):
             markers += capsule_markers(distro, link, f"robot/{robot}", 3 * i, rgba, header)
+        if status.plan is not None and status.plan.path_tool_m:
+            markers.append(plan_marker(distro, f"plan/{robot}", status.plan.path_tool_m, header))
     zones = human_zones(doc)
     for i, capsule in enumerate(doc.human_capsules):
         zone = zones.get(capsule.human)

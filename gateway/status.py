@@ -257,6 +257,14 @@ def _plan(view: PlanView) -> dict[str, object]:
         "rejected": view.rejected,
         "failures": view.failures,
         "planning_last_s": time_s(view.planning_last_s),
+        "planning_total_s": time_s(view.planning_total_s),
+        "path_tool_m": None
+        if view.path_tool_world_m is None or not bool(np.all(np.isfinite(view.path_tool_world_m)))
+        else [[_rounded(v) for v in p] for p in view.path_tool_world_m.tolist()],
+        "planner_running": view.backend.running,
+        "planner_deaths": view.backend.deaths,
+        "planner_restarts": view.backend.restarts,
+        "planner_last_exit": view.backend.last_exit,
     }
 
 

@@ -127,6 +127,10 @@ class OpenCommandStatus(_Strict):
     qd_radps: list[Finite] = Field(description="The reference velocity sent [rad/s].")
 
 
+PLAN_PATH_POINTS_MAX = 64
+"""At most this many points of a plan's tool path in the status (the gateway sends 32)."""
+
+
 class PlanStatus(_Strict):
     """An open robot's planner layer (``[planner] enabled``; docs/planner.md): display only, no decision uses it."""
 
@@ -145,6 +149,26 @@ class PlanStatus(_Strict):
         "``start_invalid``, ``no_join``, ``timeout``, ``error:<exception>``)."
     )
     planning_last_s: NonNegative | None = Field(description="The planner's time for its latest answer [s].")
+    planning_total_s: NonNegative = Field(
+        0.0, description="The planner's time for all its answers since the start (wall clock) [s]."
+    )
+    path_tool_m: list[Point] | None = Field(
+        None,
+        max_length=PLAN_PATH_POINTS_MAX,
+        description="The plan followed, as the tool's positions (the end of the last link capsule, world frame) "
+        "evenly spaced in plan time from the plan's start (where the robot was when it was asked for) to its end; "
+        "null on the program [m].",
+    )
+    planner_running: bool = Field(
+        True, description="The planner can plan (false: its process died and waits for its restart)."
+    )
+    planner_deaths: Count = Field(0, description="Times the planner's process was found dead since the start.")
+    planner_restarts: Count = Field(0, description="Times the planner's process was started again.")
+    planner_last_exit: str = Field(
+        "",
+        max_length=64,
+        description="How the last dead planner process ended (``exit code 1``, ``signal SIGKILL``); empty before any.",
+    )
 
 
 class BridgeStatus(_Strict):
@@ -400,6 +424,8 @@ EventKind = Literal[
     "loop_stall",
     "plan_adopted",
     "plan_rejected",
+    "planner_died",
+    "planner_restarted",
 ]
 """What an :class:`Event` records (contract, "Events")."""
 
@@ -422,7 +448,7 @@ class Event(_Strict):
         default=None,
         description="``track_released``: ``redetected``, ``left`` or ``reset`` (the message says by whom); "
         "``loop_stall``: the stall's cause (``loop.stalls``); ``plan_adopted``: why the plan was asked for "
-        "(``horizon``, ``request``).",
+        "(``horizon``, ``request``); ``planner_died``: how its process ended (``signal SIGKILL``, ``exit code 1``).",
     )
 
 

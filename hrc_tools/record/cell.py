@@ -18,7 +18,8 @@ unchanged, ``log_time`` = its arrival on this host's wall clock), on a channel n
   answered, like every other message's arrival (the first poll brings the events since the gateway started,
   which can be long before the recorder); when each was logged is its ``stamp_ns``;
 - ``foxglove.SceneUpdate`` on ``/scene/humans/<tracker>`` (each frame's people) and ``/scene/robots`` (the
-  links of each status, coloured by zone), with Foxglove's own schema (:func:`hrc_tools.record.scene.foxglove_schema`);
+  links of each status, coloured by zone; an open robot's plan around people as a line, ``plan/<robot>``), with
+  Foxglove's own schema (:func:`hrc_tools.record.scene.foxglove_schema`);
 - payloads that are not a valid message of their key on ``/hrc/<cell>/rejected`` (``hrc.rejected``), so a
   hostile input is kept as evidence without breaking a reader that trusts the schemas.
 

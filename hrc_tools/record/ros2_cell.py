@@ -71,7 +71,7 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 STRING = "std_msgs/msg/String"
 LOG_INFO, LOG_WARN = 20, 30
 """``rcl_interfaces/msg/Log`` levels."""
-WARN_EVENTS = frozenset({"fault_raised", "loop_stall", "track_lost"})
+WARN_EVENTS = frozenset({"fault_raised", "loop_stall", "track_lost", "planner_died"})
 """Event kinds logged at WARN on ``/rosout``; the others at INFO."""
 ROSOUT = Ros2Topic("/rosout", LOG, qos(depth=1000))
 TF_STATIC = Ros2Topic("/tf_static", TF_MESSAGE, qos(depth=1, transient_local=True))

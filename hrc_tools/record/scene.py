@@ -3,7 +3,9 @@
 A capsule (segment ``a``–``b`` swept by a sphere of ``radius``) is drawn as a ``CylinderPrimitive`` between its
 ends and a ``SpherePrimitive`` at each end; a point capsule (``a == b``) is one sphere. People come from the
 trackers' frames (one entity per person, per tracker), robots from the gateway's status (one entity per robot,
-its links coloured by zone). Entities carry a short lifetime so that whoever leaves the cell vanishes.
+its links coloured by zone; an open robot's plan around people as a ``LinePrimitive`` through the tool's positions
+along it, ``robots.<name>.plan.path_tool_m``). Entities carry a short lifetime so that whoever leaves the cell, or a
+plan that ends, vanishes.
 
 The channel's schema is Foxglove's own (:func:`foxglove_schema`, vendored from ``@foxglove/schemas``), so
 whatever passes it, Foxglove reads; the 3D panel recognises the channel by the schema name
@@ -107,6 +109,25 @@ class CylinderPrimitive(_Fox):
     color: Color
 
 
+class Point3(_Fox):
+    x: float
+    y: float
+    z: float
+
+
+class LinePrimitive(_Fox):
+    """Points joined by lines; ``type`` 0 is ``LINE_STRIP`` (0-1, 1-2, …)."""
+
+    type: int = Field(0, ge=0, le=2, description="0: LINE_STRIP, 1: LINE_LOOP, 2: LINE_LIST.")
+    pose: Pose = Field(description="The points' frame relative to the entity's frame.")
+    thickness: float = Field(ge=0.0, description="[m], or [px] with ``scale_invariant``.")
+    scale_invariant: bool = False
+    points: list[Point3]
+    color: Color
+    colors: list[Color] = Field(default_factory=list)
+    indices: list[int] = Field(default_factory=list)
+
+
 class KeyValuePair(_Fox):
     key: str
     value: str
@@ -123,7 +144,7 @@ class SceneEntity(_Fox):
     cubes: list[dict[str, Any]] = Field(default_factory=list)
     spheres: list[SpherePrimitive] = Field(default_factory=list)
     cylinders: list[CylinderPrimitive] = Field(default_factory=list)
-    lines: list[dict[str, Any]] = Field(default_factory=list)
+    lines: list[LinePrimitive] = Field(default_factory=list)
     triangles: list[dict[str, Any]] = Field(default_factory=list)
     texts: list[dict[str, Any]] = Field(default_factory=list)
     models: list[dict[str, Any]] = Field(default_factory=list)
@@ -143,6 +164,9 @@ class SceneUpdate(_Fox):
 
 
 HUMAN_COLOR = Color(r=0.2, g=0.45, b=1.0, a=0.6)
+PLAN_COLOR = Color(r=0.31, g=0.89, b=0.84, a=0.9)
+"""A plan's path (the operator page's colour for it)."""
+PLAN_THICKNESS_M = 0.015
 ZONE_COLORS: dict[ZoneName, Color] = {
     "autonomous": Color(r=0.2, g=0.75, b=0.3, a=0.8),
     "guarded_distance": Color(r=0.95, g=0.85, b=0.2, a=0.8),
@@ -252,10 +276,37 @@ def _link_capsules(links: Iterable[CapsuleStatus]) -> Iterable[tuple[Sequence[fl
     return ((link.a_m, link.b_m, link.radius_m) for link in links)
 
 
+def plan_entity(name: str, path_m: Sequence[Sequence[float]], reason: str, t_ns: int) -> SceneEntity:
+    """The plan robot ``name`` follows as a line through the tool's positions along it, id ``plan/<name>`` [m]."""
+    return SceneEntity(
+        timestamp=stamp(t_ns),
+        frame_id=WORLD_FRAME,
+        id=f"plan/{name}",
+        lifetime=duration(ROBOT_LIFETIME_S),
+        metadata=[KeyValuePair(key="reason", value=reason), KeyValuePair(key="points", value=str(len(path_m)))],
+        lines=[
+            LinePrimitive(
+                pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=Quaternion()),
+                thickness=PLAN_THICKNESS_M,
+                points=[Point3(x=p[0], y=p[1], z=p[2]) for p in path_m],
+                color=PLAN_COLOR,
+            )
+        ],
+    )
+
+
 def robots_scene(status: GatewayStatus, t_ns: int) -> SceneUpdate:
-    """One entity per robot of a status document, id ``robot/<name>``, its links coloured by its zone."""
+    """One entity per robot of a status document, id ``robot/<name>``, its links coloured by its zone; and for an
+    open robot following a plan around people, the plan's tool path as a line, id ``plan/<name>`` (it vanishes
+    with the plan: no status carries it again, its lifetime ends)."""
+    plans = [
+        plan_entity(name, robot.plan.path_tool_m, robot.plan.reason, t_ns)
+        for name, robot in status.robots.items()
+        if robot.plan is not None and robot.plan.path_tool_m
+    ]
     return SceneUpdate(
-        entities=[
+        entities=plans
+        + [
             _entity(
                 f"robot/{name}",
                 t_ns,

@@ -9,7 +9,7 @@ from pathlib import Path
 from gateway.core import ClosestPair, Fault, RobotDecision
 from gateway.delay import DelayBudget
 from gateway.events import EventFile, EventLog, EventRing
-from gateway.planner_worker import PlanView
+from gateway.planner_worker import PlannerHealth, PlanView
 from gateway.zones import ZoneThresholds
 from hrc_contract.status_models import Event
 from hrc_contract.vocabulary import Zone
@@ -135,3 +135,22 @@ def test_a_plan_taken_up_or_returned_too_late_is_logged_once() -> None:
     both = cycle(16, _plan(2, 1, "request"))
     assert [(e.kind, e.cause) for e in both] == [("plan_adopted", "request"), ("plan_rejected", None)]
     assert "request (16)" in both[0].message
+
+
+def test_the_planner_s_death_and_restart_are_logged_once_for_the_gateway() -> None:
+    log = EventLog()
+    stamp = 1_790_000_000_000_000_000
+
+    def cycle(t_ms: int, health: PlannerHealth) -> list[Event]:
+        d = decision(Zone.REDUCED_SPEED)._replace(plan=_plan(0, 0)._replace(backend=health))
+        decisions = {"ur5": d, "ur5b": d}  # two open robots, one planner
+        return [e for e in log.observe(t_ms * MS, stamp + t_ms * MS, decisions) if e.kind.startswith("planner_")]
+
+    assert cycle(0, PlannerHealth()) == []
+    died = cycle(4, PlannerHealth(False, 1, 0, "signal SIGKILL"))
+    assert [(e.kind, e.robot, e.cause) for e in died] == [("planner_died", None, "signal SIGKILL")]
+    assert "signal SIGKILL" in died[0].message
+    assert cycle(8, PlannerHealth(False, 1, 0, "signal SIGKILL")) == []
+    restarted = cycle(12, PlannerHealth(True, 1, 1, "signal SIGKILL"))
+    assert [(e.kind, e.robot) for e in restarted] == [("planner_restarted", None)]
+    assert cycle(16, PlannerHealth(True, 1, 1, "signal SIGKILL")) == []

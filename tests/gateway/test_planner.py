@@ -5,7 +5,10 @@ the open robot, and when the replanner asks."""
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
+import signal
 import time
 
 import numpy as np
@@ -16,8 +19,17 @@ from gateway.core import RobotDecision, SafetyCore
 from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
-from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import ProcessPlanner, Replanner, SimulatedPlanner, ThreadedPlanner, goal_candidates
+from gateway.planner import TOOL_PATH_POINTS, JointPlanner, PlanOutcome, PlanRequest
+from gateway.planner_worker import (
+    DIED,
+    PlannerHealth,
+    ProcessPlanner,
+    Replanner,
+    SimulatedPlanner,
+    ThreadedPlanner,
+    goal_candidates,
+    restart_backoff_s,
+)
 from gateway.status import robot_status
 from gateway.zones import ZoneThresholds
 from hrc_contract.config import CellConfig, PlannerConfig
@@ -26,6 +38,7 @@ from hrc_contract.vocabulary import Zone
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_runtime.config import load_cell_config
+from hrc_tools.cell.procs import load_scale
 
 CONFIG = "configs/cell_open_panda_planner.toml"
 PICK = np.array([1.2, 0.2, 0.0, -2.0, 0.0, 2.2, 0.785, 0.03, 0.03])
@@ -284,6 +297,9 @@ class Recorder:
     def poll(self) -> list[PlanOutcome]:
         return []
 
+    def health(self) -> PlannerHealth:
+        return PlannerHealth()
+
     def close(self) -> None:
         pass
 
@@ -367,6 +383,24 @@ def test_the_status_shows_the_plan_the_robot_follows(
     assert shown.path_waypoints >= 2
     assert (shown.adopted, shown.rejected, shown.failures) == (1, 0, {"no_path": 1})
     assert shown.planning_last_s == 0.3
+    assert shown.planning_total_s == pytest.approx(0.342)
+    # the plan as the tool's path: bounded, from the plan's start to its end, by forward kinematics (the planner's)
+    path = shown.path_tool_m
+    assert path is not None
+    assert len(path) == TOOL_PATH_POINTS
+    plan = robot.plan
+    assert plan is not None
+    data = panda.model.createData()
+    start = plan_math.link_ends_world(panda, data, plan.sample(0.0)[0])[1][-1]
+    end = plan_math.link_ends_world(panda, data, plan.sample(plan.duration_s)[0])[1][-1]
+    np.testing.assert_allclose(path[0], start, atol=1e-4)
+    np.testing.assert_allclose(path[-1], end, atol=1e-4)
+    assert max(math.dist(a, b) for a, b in itertools.pairwise(path)) < 0.5  # a line, not scattered points
+    assert (shown.planner_running, shown.planner_deaths, shown.planner_restarts) == (True, 0, 0)
+    # the planner made it with the plan: every decision shows the same array, none computes it; gone with the plan
+    assert replanner.view().path_tool_world_m is replanner.view().path_tool_world_m
+    robot.plan = None
+    assert robot_status(decision._replace(plan=replanner.view()), 1).plan.path_tool_m is None  # type: ignore[union-attr]
     assert robot_status(decision._replace(plan=None), 1).plan is None
 
 
@@ -459,3 +493,40 @@ def test_the_process_planner_answers_from_its_own_process(planner: JointPlanner,
     finally:
         backend.close()
     assert not backend.submit(request(program, person(1.0, 0.0), 5))
+
+
+def test_a_dead_planner_process_is_counted_its_request_failed_and_it_is_started_again(
+    planner: JointPlanner, program: Trajectory
+) -> None:
+    backend = ProcessPlanner({"panda": planner})
+    try:
+        first = backend.pid
+        assert first is not None
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        os.kill(first, signal.SIGKILL)  # while it imports the libraries or plans: the request is in flight
+        deadline = time.monotonic() + 10.0 * load_scale()
+        answers: list[PlanOutcome] = []
+        while backend.health().deaths == 0 and time.monotonic() < deadline:
+            answers += backend.poll()
+            time.sleep(0.01)
+        health = backend.health()
+        assert (health.running, health.deaths, health.restarts) == (False, 1, 0)
+        assert health.last_exit == "signal SIGKILL"
+        assert [a.failure for a in answers if a.plan is None] == [DIED]  # not left waiting for the time-out
+        assert not backend.submit(request(program, person(1.0, 0.0), 5))  # refused until it runs again
+        while backend.health().restarts == 0 and time.monotonic() < deadline:  # after the first backoff step
+            backend.poll()
+            time.sleep(0.01)
+        assert backend.health() == (True, 1, 1, "signal SIGKILL")
+        assert backend.pid not in (None, first)
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        outcome = wait_for(backend)[0]
+        assert outcome.plan is not None, outcome.failure
+    finally:
+        backend.close()
+    assert not backend.submit(request(program, person(1.0, 0.0), 5))
+
+
+def test_the_restart_backoff_doubles_up_to_eight_seconds() -> None:
+    assert [restart_backoff_s(n) for n in range(1, 8)] == [0.5, 1.0, 2.0, 4.0, 8.0, 8.0, 8.0]
+    assert restart_backoff_s(0) == 0.5

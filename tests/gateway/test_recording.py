@@ -32,7 +32,7 @@ from gateway.recording import GatewayRecorder, read_gateway_recording
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import Humans, JointState, to_payload
-from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus
+from hrc_contract.status_models import CapsuleStatus, Event, GatewayStatus, PlanStatus
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.mcap_sink import SUMMARY_METADATA, McapSink, RecordingError, identity, model_channel
 from hrc_tools.record import scene
@@ -146,6 +146,43 @@ def test_every_scene_message_is_valid_against_foxglove_s_schema() -> None:
         ]
         status = ex.gateway_status(ur5=ex.robot_status(zone=zone, links=links, min_distance_m=1.5))
         FOXGLOVE.validate(json.loads(scene.robots_scene(status, T0_WALL_NS).model_dump_json()))
+    for points in (2, 32, 64):  # an open robot following a plan: its path as a line
+        path = rng.uniform(-2.0, 2.0, (points, 3)).tolist()
+        status = ex.gateway_status(panda=ex.robot_status(plan=plan_status(path)))
+        FOXGLOVE.validate(json.loads(scene.robots_scene(status, T0_WALL_NS).model_dump_json()))
+
+
+def plan_status(path_m: list[list[float]] | None) -> PlanStatus:
+    """An open robot's planner layer following a plan whose tool path is ``path_m`` (None: on its program)."""
+    return PlanStatus(
+        following=path_m is not None,
+        plan_time_s=None if path_m is None else 0.2,
+        plan_duration_s=None if path_m is None else 1.5,
+        path_waypoints=None if path_m is None else 4,
+        reason="horizon",
+        requests={"horizon": 1},
+        adopted=1,
+        rejected=0,
+        failures={},
+        planning_last_s=0.1,
+        path_tool_m=path_m,
+    )
+
+
+def test_a_plan_is_a_line_through_the_tool_s_path_and_nothing_on_the_program() -> None:
+    path = [[0.5, 0.0, 1.2], [0.4, 0.3, 1.3], [0.0, 0.5, 1.3]]
+    status = ex.gateway_status(panda=ex.robot_status(plan=plan_status(path)))
+    update = scene.robots_scene(status, T0_WALL_NS)
+    [plan] = [e for e in update.entities if e.id == "plan/panda"]
+    [line] = plan.lines
+    assert line.type == 0  # LINE_STRIP: 0-1, 1-2
+    assert [[p.x, p.y, p.z] for p in line.points] == path
+    assert plan.frame_id == scene.WORLD_FRAME
+    assert {kv.key: kv.value for kv in plan.metadata} == {"reason": "horizon", "points": "3"}
+    assert plan.lifetime == scene.duration(scene.ROBOT_LIFETIME_S)  # gone with the plan
+    assert {e.id for e in update.entities} == {"plan/panda", "robot/panda"}
+    on_program = ex.gateway_status(panda=ex.robot_status(plan=plan_status(None)))
+    assert [e.id for e in scene.robots_scene(on_program, T0_WALL_NS).entities] == ["robot/panda"]
 
 
 # -- the MCAP sink ---------------------------------------------------------------------------------------
@@ -425,8 +462,12 @@ def test_cell_recorder_keeps_valid_messages_verbatim_and_hostile_ones_apart(tmp_
 def test_recorded_scene_messages_are_valid_against_foxglove_s_schema_in_the_file(tmp_path: Path) -> None:
     path = tmp_path / "cell.mcap"
     status = ex.gateway_status(
-        ur5=ex.robot_status(links=[CapsuleStatus(name="tool", a_m=(0.0, 0.0, 0.8), b_m=(0.4, 0.1, 1.2), radius_m=0.05)])
+        ur5=ex.robot_status(
+            links=[CapsuleStatus(name="tool", a_m=(0.0, 0.0, 0.8), b_m=(0.4, 0.1, 1.2), radius_m=0.05)],
+            plan=plan_status([[0.4, 0.1, 1.2], [0.3, 0.4, 1.25], [0.0, 0.5, 1.2]]),  # a plan: a line
+        )
     )
+    lines = 0
     with McapSink(path) as sink:
         recorder = CellRecorder(sink, "demo")
         for i in range(5):
@@ -444,7 +485,9 @@ def test_recorded_scene_messages_are_valid_against_foxglove_s_schema_in_the_file
             assert json.loads(schema.data) == scene.foxglove_schema()
             Draft202012Validator(json.loads(schema.data)).validate(json.loads(message.data))
             scene_messages += 1
+            lines += sum(len(e["lines"]) for e in json.loads(message.data)["entities"])
     assert scene_messages == 10
+    assert lines == 5  # the plan's line in each status's scene
 
 
 def test_the_event_log_is_recorded_at_its_arrival_not_before_the_first_message(tmp_path: Path) -> None:

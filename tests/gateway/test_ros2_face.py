@@ -9,7 +9,7 @@ import pytest
 from support.status_examples import STALE_TRACKER, gateway_status, near_robot_status, robot_status
 
 from gateway import ros2_face as face
-from hrc_contract.status_models import CapsuleStatus, GatewayStatus, HumanCapsuleStatus
+from hrc_contract.status_models import CapsuleStatus, GatewayStatus, HumanCapsuleStatus, PlanStatus
 from hrc_devices.ros2.rmw_zenoh import Distro, deserialize, serialize
 
 LINK = CapsuleStatus(name="tool", a_m=[0.0, 0.0, 1.0], b_m=[0.0, 0.3, 1.0], radius_m=0.07)
@@ -75,3 +75,22 @@ def test_cylinder_axis_points_along_the_capsule(u: tuple[float, float, float]) -
 
 def test_ros_tokens_of_cell_names() -> None:
     assert [face.ros_token(n) for n in ("ur5", "arm-left", "5axis")] == ["ur5", "arm_left", "r_5axis"]
+
+
+def test_an_open_robot_s_plan_is_a_line_strip_through_the_tool_s_path() -> None:
+    path = [[0.5, 0.0, 1.2], [0.4, 0.3, 1.3], [0.0, 0.5, 1.3]]
+    plan = PlanStatus(
+        following=True, plan_time_s=0.2, plan_duration_s=1.5, path_waypoints=4, reason="horizon",
+        requests={"horizon": 1}, adopted=1, rejected=0, failures={}, planning_last_s=0.1, path_tool_m=path,
+    )  # fmt: skip
+    doc = gateway_status(panda=robot_status(plan=plan, links=[LINK]))
+    array = deserialize("jazzy", serialize("jazzy", face.markers_message("jazzy", doc, "cell")), face.MARKER_ARRAY)
+    [line] = [m for m in array.markers if m.ns == "plan/panda"]
+    assert line.type == face.LINE_STRIP
+    assert [[p.x, p.y, p.z] for p in line.points] == path
+    assert line.scale.x == pytest.approx(face.PLAN_LINE_WIDTH_M)
+    on_program = gateway_status(panda=robot_status(links=[LINK]))
+    array = deserialize(
+        "jazzy", serialize("jazzy", face.markers_message("jazzy", on_program, "cell")), face.MARKER_ARRAY
+    )
+    assert not [m for m in array.markers if m.ns.startswith("plan/")]  # the DELETEALL removes an ended plan

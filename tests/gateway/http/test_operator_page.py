@@ -1,11 +1,13 @@
 """The operator page as a browser renders it, served by the real app from a board fed in this process (no cell):
 the labels' text as rendered (δ stays δ), the plot's axes, the drawing's scale with a person near and far, what the
 first paint says before any status, and a lost person holding the robot: drawn as a growing outline, listed with
-what to do and the command that resets them, named in the robot's panel and in the events.
+what to do and the command that resets them, named in the robot's panel and in the events; an open robot's plan
+drawn as the tool's path, with its replans, the time spent planning and the planner's restarts.
 
 Uses Debian's chromium through selenium (``tests/headless_browser.py``); without them these tests skip and say
 why. Screenshots of the page with a person near the robot and with a lost person holding it are written to
-``/tmp/hrc-operator-page-test.png`` and ``/tmp/hrc-operator-page-lost-test.png``.
+``/tmp/hrc-operator-page-test.png`` and ``/tmp/hrc-operator-page-lost-test.png``; the page with a plan drawn to
+``/tmp/hrc-operator-page-plan-test.png``.
 """
 
 from __future__ import annotations
@@ -25,11 +27,20 @@ from support.headless_browser import chromium
 from gateway.http.api import StatusBoard, create_app
 from gateway.status import effective_config
 from hrc_contract.config import CellConfig
-from hrc_contract.status_models import CapsuleStatus, ClosestPair, Event, GatewayStatus, HumanCapsuleStatus, TrackStatus
+from hrc_contract.status_models import (
+    CapsuleStatus,
+    ClosestPair,
+    Event,
+    GatewayStatus,
+    HumanCapsuleStatus,
+    PlanStatus,
+    TrackStatus,
+)
 from hrc_tools.cell.procs import free_port, wait_for
 
 SCREENSHOT = Path("/tmp/hrc-operator-page-test.png")
 LOST_SCREENSHOT = Path("/tmp/hrc-operator-page-lost-test.png")
+PLAN_SCREENSHOT = Path("/tmp/hrc-operator-page-plan-test.png")
 PUBLISH_EVERY_S = 0.04
 """The feeder publishes the current document at the gateway's status rate (25 Hz)."""
 WAIT_S = 15.0
@@ -384,3 +395,82 @@ def test_the_panels_say_who_is_lost_what_holds_the_robot_and_how_to_reset(server
     assert "person front/h1 lost" in oldest, oldest
     wait_for(lambda: browser.execute_script(CONN_JS)[0] == "LIVE", WAIT_S, "the page says LIVE")
     LOST_SCREENSHOT.write_bytes(browser.get_screenshot_as_png())
+
+
+PLAN_PATH_M = [[0.55 - 0.03 * k, 0.6 * (k / 31) ** 2, 0.9 + 0.01 * k] for k in range(32)]
+"""A plan's tool path as the gateway sends it (32 points, world frame) [m]: from the tool (0.55, 0, 0.9) back over
+the robot and to the side."""
+
+
+def plan_document(stamp_ns: int, deaths: int) -> GatewayStatus:
+    """The arm following a plan around a person (asked for by the horizon check), its planner process died
+    ``deaths`` times (restarted as often), with an event saying it adopted the plan."""
+    plan = PlanStatus(
+        following=True,
+        plan_time_s=0.4,
+        plan_duration_s=2.1,
+        path_waypoints=5,
+        reason="horizon",
+        requests={"horizon": 3, "request": 1},
+        adopted=2,
+        rejected=1,
+        failures={"no_path": 1},
+        planning_last_s=0.123,
+        planning_total_s=0.5,
+        path_tool_m=PLAN_PATH_M,
+        planner_running=True,
+        planner_deaths=deaths,
+        planner_restarts=deaths,
+        planner_last_exit="signal SIGKILL" if deaths else "",
+    )
+    robot = ex.robot_status(delta=0.7, zone="guarded_distance", links=list(ARM_LINKS), plan=plan)
+    return ex.gateway_status(stamp_ns, ur5=robot).model_copy(update={"human_capsules": person_at(1.6)})
+
+
+PLAN_JS = """
+const view = id => [...document.querySelectorAll(`#${id} polyline.plan-path`)].map(
+  l => l.getAttribute('points').trim().split(/\\s+/).map(p => p.split(',').map(Number)));
+const card = document.querySelector('.robot[data-robot="ur5"]');
+return {top: view('top'), side: view('side'), goals: document.querySelectorAll('#top circle.plan-goal').length,
+        rows: card ? [...card.querySelectorAll('tr.plan')].map(r => r.innerText) : [],
+        events: [...document.querySelectorAll('#events .event')].map(e => e.innerText)};
+"""
+
+
+def test_the_plan_is_drawn_as_the_tool_s_path_with_its_replans_time_planning_and_the_planner_s_restarts(
+    server: Server, browser: Any
+) -> None:
+    server.board.events.add(
+        Event(seq=1, stamp_ns=ex.STAMP_NS, kind="plan_adopted", robot="ur5", cause="horizon",
+              message="plan adopted: a person ahead on the path, 2.1 s long, planned in 123 ms")
+    )  # fmt: skip
+    browser.get(server.url + "/")
+    server.play(lambda n: plan_document(ex.STAMP_NS + n * 40_000_000, deaths=0))
+    wait_for(lambda: browser.execute_script(PLAN_JS)["top"], WAIT_S, "the plan's path is drawn")
+    wait_for(lambda: browser.execute_script(PLAN_JS)["events"], WAIT_S, "the events are listed")
+    shown = browser.execute_script(PLAN_JS)
+    [top], [side] = shown["top"], shown["side"]
+    assert len(top) == len(side) == len(PLAN_PATH_M)
+    assert inside_view(top)
+    assert inside_view(side)
+    # drawn where the tool goes: x falls along the path (right to left in both views), z rises (up in the side view)
+    assert top[0][0] > top[-1][0]
+    assert side[0][0] > side[-1][0]
+    assert side[0][1] > side[-1][1]
+    assert shown["goals"] == 1
+    rows = "\n".join(shown["rows"])
+    assert "a plan around people (a person ahead on the path), 0.4 of 2.1 s" in rows, rows
+    assert "horizon 3, request 1; adopted 2, too late 1, failed: no_path 1" in rows, rows
+    assert "last 123 ms, total 0.5 s" in rows, rows
+    assert "running" in rows
+    assert "died" not in rows
+    PLAN_SCREENSHOT.write_bytes(browser.get_screenshot_as_png())
+    [event] = shown["events"]
+    assert "replanned (horizon)" in event, event
+    assert "planned in 123 ms" in event, event
+    server.play(lambda n: plan_document(ex.STAMP_NS + n * 40_000_000, deaths=1))
+    wait_for(lambda: "died 1×" in "".join(browser.execute_script(PLAN_JS)["rows"]), WAIT_S, "the restart is shown")
+    assert "restarted 1× (last: signal SIGKILL)" in "".join(browser.execute_script(PLAN_JS)["rows"])
+    server.show(1.6)  # back on the program: no plan, nothing drawn
+    wait_for(lambda: not browser.execute_script(PLAN_JS)["top"], WAIT_S, "the path is gone with the plan")
+    assert browser.execute_script(PLAN_JS)["rows"] == []

@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 
 from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import PlannerBackend, SimulatedPlanner
+from gateway.planner_worker import PlannerBackend, PlannerHealth, SimulatedPlanner
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import NO_HUMANS
 from hrc_devices.robots.model import RobotModel, load_robot_model
@@ -124,6 +124,9 @@ class NeverAnswers:
 
     def poll(self) -> list[PlanOutcome]:
         return []
+
+    def health(self) -> PlannerHealth:
+        return PlannerHealth()  # it says it runs: the replanner finds out by the time-out
 
     def close(self) -> None:
         pass

@@ -46,6 +46,10 @@ from hrc_devices.robots.program import Trajectory
 NS_PER_S = 1_000_000_000
 PENDING_TIMEOUT_FACTOR = 10.0
 """A request unanswered after this many planner time limits counts as lost (``timeout``)."""
+HANG_AFTER_S = 20.0
+"""A planner process that has not answered its oldest request for this long is hung (a library stuck in a loop, a
+deadlock): it is killed and started again like a dead one [s]. Far above any plan (0.1–0.4 s) and the process's
+start (its imports: seconds on a busy machine)."""
 RESTART_BACKOFF_S = (0.5, 1.0, 2.0, 4.0, 8.0)
 """A dead planner process is started again after these waits, one more step per death in a row (the last one
 repeats) [s]."""
@@ -171,10 +175,17 @@ class ProcessPlanner:
     its requests in flight answered as failed (:data:`DIED`), and a new child started after a backoff
     (:data:`RESTART_BACKOFF_S`) on a thread of its own (spawning and pickling the planners does not hold up the
     loop), with a new queue and pipe (the dead child may have held the queue's lock). Until then :meth:`submit`
-    refuses: the robot follows what it follows, the LPs bound every command as always.
+    refuses: the robot follows what it follows, the LPs bound every command as always. A child alive but silent on
+    its oldest request for ``hang_after_s`` is hung: :meth:`poll` kills it, and it is buried and restarted as a dead
+    one (``last_exit`` says ``hung``).
     """
 
-    def __init__(self, planners: dict[str, JointPlanner], clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self,
+        planners: dict[str, JointPlanner],
+        clock: Callable[[], float] = time.monotonic,
+        hang_after_s: float = HANG_AFTER_S,
+    ) -> None:
         # the plans come back holding TOPP-RA's trajectories: unpickling the first one would import toppra in the
         # loop's thread (~0.5 s late, measured end to end); import it here, at start-up
         warm_up()
@@ -192,6 +203,10 @@ class ProcessPlanner:
         self._last_exit = ""
         self._restart_at_s: float | None = None
         self._starting: threading.Thread | None = None
+        self._hang_after_s = hang_after_s
+        self._head_since_s: float | None = None
+        """Since when the oldest request in flight has waited for its answer (the child plans in order) [s]."""
+        self._killed_hung = False
 
     @property
     def pid(self) -> int | None:
@@ -204,6 +219,8 @@ class ProcessPlanner:
         if self._closed or child is None or not child.process.is_alive():
             return False
         child.requests.put(request)
+        if not self._in_flight:
+            self._head_since_s = self._clock()
         self._in_flight.append((request.robot, request.start_key))
         return True
 
@@ -224,9 +241,18 @@ class ProcessPlanner:
             key = (outcome.robot, outcome.start_key)
             if key in self._in_flight:
                 self._in_flight.remove(key)
+                self._head_since_s = self._clock() if self._in_flight else None
         if not self._closed and not child.process.is_alive():
             done += self._buried(child)
+        elif self._hung():
+            child.process.kill()  # a signal, not a wait: buried by a later poll once it is gone
+            self._killed_hung = True
         return done
+
+    def _hung(self) -> bool:
+        """The oldest request in flight has waited longer than ``hang_after_s`` (not asked again once killed)."""
+        since = self._head_since_s
+        return not self._killed_hung and since is not None and self._clock() - since > self._hang_after_s
 
     def health(self) -> PlannerHealth:
         return PlannerHealth(self._child is not None, self._deaths, self._restarts, self._last_exit)
@@ -248,6 +274,10 @@ class ProcessPlanner:
         now_s = self._clock()
         code = child.process.exitcode
         self._last_exit = _exit_text(code)
+        if self._killed_hung:
+            self._last_exit = f"hung (no answer in {self._hang_after_s:g} s), {self._last_exit}"
+            self._killed_hung = False
+        self._head_since_s = None
         self._deaths += 1
         self._deaths_in_a_row = 1 if now_s - child.started_s >= RESTART_STEADY_S else self._deaths_in_a_row + 1
         self._restart_at_s = now_s + restart_backoff_s(self._deaths_in_a_row)

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pytest
+from support.hanging_planner import HangingPlanner
 
 from gateway import plan as plan_math
 from gateway.core import RobotDecision, SafetyCore
@@ -525,6 +526,40 @@ def test_a_dead_planner_process_is_counted_its_request_failed_and_it_is_started_
     finally:
         backend.close()
     assert not backend.submit(request(program, person(1.0, 0.0), 5))
+
+
+def test_a_hung_planner_process_is_killed_counted_and_started_again(program: Trajectory) -> None:
+    """A child alive but silent on its request for ``hang_after_s``: killed, counted as a death that says ``hung``, its
+    request answered as failed, and a new child started."""
+    backend = ProcessPlanner({"panda": HangingPlanner()}, hang_after_s=1.0)  # type: ignore[dict-item]
+    try:
+        first = backend.pid
+        assert backend.submit(request(program, person(1.0, 0.0), 5))
+        deadline = time.monotonic() + 20.0 * load_scale()
+        answers: list[PlanOutcome] = []
+        while backend.health().restarts == 0 and time.monotonic() < deadline:
+            answers += backend.poll()
+            time.sleep(0.01)
+        health = backend.health()
+        assert (health.running, health.deaths, health.restarts) == (True, 1, 1), health
+        assert health.last_exit == "hung (no answer in 1 s), signal SIGKILL"
+        assert [a.failure for a in answers] == [DIED]
+        assert backend.pid not in (None, first)
+    finally:
+        backend.close()
+
+
+def test_a_planner_process_answering_in_time_is_never_taken_for_hung(
+    planner: JointPlanner, program: Trajectory
+) -> None:
+    backend = ProcessPlanner({"panda": planner}, hang_after_s=15.0 * load_scale())
+    try:
+        for _ in range(2):
+            assert backend.submit(request(program, person(1.0, 0.0), 5))
+            assert wait_for(backend)[0].plan is not None
+        assert backend.health().deaths == 0
+    finally:
+        backend.close()
 
 
 def test_the_restart_backoff_doubles_up_to_eight_seconds() -> None:

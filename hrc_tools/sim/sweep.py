@@ -601,7 +601,8 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="the cases that broke the release rule before persons (issue 32), drawn per case "
         "(hrc_tools.sim.scenarios.with_hostile_tracking): a companion behind the first person, two trackers, one "
-        "stamping late, renewed ids, a tracker joining late, now and then merged people or parts named by kind",
+        "stamping late, renewed ids, a tracker joining late, now and then merged people or parts named by kind; "
+        "someone hidden at the robot, a bystander beyond them, and in some cases only those two",
     )
     parser.add_argument(
         "--unsafe-release-by-id",
@@ -683,7 +684,10 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
     if args.unsafe_release_by_id:
         print("UNSAFE: gateway ran with unsafe_release_by_id_for_tests = true (lost people released by others)")
     if args.hostile_tracking:
-        print("hostile tracking: companions, two trackers (one late), renewed ids, late joiners (drawn per case)")
+        print(
+            "hostile tracking: companions, two trackers (one late), renewed ids, late joiners, people hidden at the "
+            "robot with bystanders (drawn per case)"
+        )
     if args.occlusion:
         print("occlusion: the trackers saw with line of sight, missed people and swapped ids (drawn per case)")
     if args.tight_braking:

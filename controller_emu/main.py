@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -48,16 +47,14 @@ from hrc_contract.messages import to_payload
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_devices.robots.time_scaling import ControllerState, check_braking_time
-from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments, run_program
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import configure_heap
 from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import freeze_startup_heap
 from hrc_runtime.sd_notify import LoopNotifier
-from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 PROG = "hrc-controller-emu"
@@ -556,32 +553,21 @@ def cli(argv: list[str] | None = None) -> None:
         parser.add_argument(face.option, default=None, metavar=face.metavar, help=face.help)
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
-    configure_logging(args.log_level)
-    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
-    with stop_on_signals() as stop:
-        try:
-            config = load_cell_config(args.config)
-            # the command line is checked before anything is created (a first run makes the cell's CA)
-            faces = {
-                kind: face.address(text)
-                for kind, face in FACES.items()
-                if (text := getattr(args, face.option.lstrip("-").replace("-", "_"))) is not None
-            }
-            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
-            code = main(
-                config,
-                args.robot,
-                args.zenoh_listen,
-                args.zenoh_connect,
-                stop,
-                zenoh_options=zenoh_options,
-                faces=faces,
-            )
-        except ConfigError as exc:
-            reason = " ".join(str(exc).split())
-            sys.stderr.write(f"{PROG}: invalid configuration: {reason}\n")
-            sys.exit(2)
-    sys.exit(code)
+
+    def body(stop: StopEvent) -> int:
+        config = load_cell_config(args.config)
+        # the command line is checked before anything is created (a first run makes the cell's CA)
+        faces = {
+            kind: face.address(text)
+            for kind, face in FACES.items()
+            if (text := getattr(args, face.option.lstrip("-").replace("-", "_"))) is not None
+        }
+        zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
+        return main(
+            config, args.robot, args.zenoh_listen, args.zenoh_connect, stop, zenoh_options=zenoh_options, faces=faces
+        )
+
+    run_program(PROG, args.log_level, body, log=log)
 
 
 if __name__ == "__main__":

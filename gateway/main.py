@@ -43,20 +43,19 @@ from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
 from gateway.stalls import STALL_SUMMARY_EVERY_S, Phase, StallMonitor, StallSummary
 from gateway.status import StatusJob, cycle_status, effective_config, loop_status
 from hrc_contract import keys
-from hrc_contract.config import CellConfig, ConfigError
+from hrc_contract.config import CellConfig
 from hrc_contract.messages import JointCommand, Override, to_payload
 from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus
 from hrc_devices.robots.model import RobotModel, load_robot_model
-from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments, run_program
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.logs import configure_logging, logging_through_a_queue
+from hrc_runtime.logs import logging_through_a_queue
 from hrc_runtime.mcap_sink import RecordingError
-from hrc_runtime.memory import configure_heap
 from hrc_runtime.rate_loop import RateLoop
 from hrc_runtime.realtime import collections_paused, freeze_startup_heap, use_realtime_scheduling
 from hrc_runtime.sd_notify import LoopNotifier
-from hrc_runtime.signals import StopEvent, stop_on_signals
+from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import (
     DEFAULT_ENDPOINT,
     SessionOptions,
@@ -659,27 +658,23 @@ def cli(argv: list[str] | None = None) -> None:
     )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
-    configure_logging(args.log_level)
-    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
-    with stop_on_signals() as stop:
+
+    def body(stop: StopEvent) -> int:
+        config = load_cell_config(args.config)
+        zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
+        ros2_options = ros2_session_options(args, config) if config.ros2.enabled else None
+        check_ros2_inputs(config, ros2_options, plain_tcp_allowed(args))
+        wake = stop.wake_event() if config.gateway.event_driven else None
         try:
-            config = load_cell_config(args.config)
-            zenoh_options = options_from_args(args, "gateway", config)  # mutual TLS + access control by default
-            ros2_options = ros2_session_options(args, config) if config.ros2.enabled else None
-            check_ros2_inputs(config, ros2_options, plain_tcp_allowed(args))
-            wake = stop.wake_event() if config.gateway.event_driven else None
             recorder = (
                 None
                 if args.record is None
                 else GatewayRecorder(args.record, config, realtime_priority=config.gateway.io_realtime_priority)
             )
-            node = build_node(config, wake, recorder)
         except RecordingError as exc:
             print(f"hrc-gateway: {exc}", file=sys.stderr)
-            sys.exit(2)
-        except ConfigError as exc:
-            print(f"hrc-gateway: invalid configuration: {exc}", file=sys.stderr)
-            sys.exit(2)
+            return 2
+        node = build_node(config, wake, recorder)
         listen = args.zenoh_listen or ([] if args.zenoh_connect else [DEFAULT_ENDPOINT])
         http_host = args.http_host or config.gateway.http_host
         http_port = args.http_port if args.http_port is not None else config.gateway.http_port
@@ -699,7 +694,9 @@ def cli(argv: list[str] | None = None) -> None:
             )
         if recorder is not None:
             _close_recording(recorder)
-    sys.exit(code)
+        return code
+
+    run_program("hrc-gateway", args.log_level, body, log=log)
 
 
 if __name__ == "__main__":

@@ -1,8 +1,18 @@
-"""Command-line arguments every program shares: Zenoh endpoints, security (PKI, plain TCP), the cell file."""
+"""Command-line arguments every program shares (Zenoh endpoints, security (PKI, plain TCP), the cell file) and the
+one body of the long-running programs' command lines (:func:`run_program`)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import sys
+from collections.abc import Callable
+from typing import NoReturn
+
+from hrc_contract.config import ConfigError
+from hrc_runtime.logs import configure_logging
+from hrc_runtime.memory import configure_heap
+from hrc_runtime.signals import StopEvent, stop_on_signals
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,3 +71,19 @@ def add_config_argument(parser: argparse.ArgumentParser) -> None:
         help="cell configuration (TOML); default: configs/cell.toml of this project",
     )
     parser.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+
+
+def run_program(prog: str, log_level: str, body: Callable[[StopEvent], int], *, log: logging.Logger) -> NoReturn:
+    """The body every long-running program's command line shares: logging at ``log_level``, the C heap's arenas and
+    report (:func:`hrc_runtime.memory.configure_heap`, before the program's threads), SIGINT/SIGTERM to a stop
+    event, then ``body(stop)``; its return value is the exit code. An invalid configuration (:class:`ConfigError`
+    from the body, before or while it runs) is one line ``PROG: invalid configuration: reason`` and exit code 2."""
+    configure_logging(log_level)
+    configure_heap(log)
+    with stop_on_signals() as stop:
+        try:
+            code = body(stop)
+        except ConfigError as exc:
+            sys.stderr.write(f"{prog}: invalid configuration: {' '.join(str(exc).split())}\n")
+            code = 2
+    sys.exit(code)

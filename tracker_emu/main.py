@@ -28,13 +28,11 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError, TrackerConfig
 from hrc_contract.messages import to_payload
 from hrc_devices.robots.model import load_robot_model
-from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments, run_program
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import configure_heap
 from hrc_runtime.realtime import freeze_startup_heap
 from hrc_runtime.sd_notify import LoopNotifier
-from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from tracker_emu.emulator import TrackerEmulator, TruthSampler
 from tracker_emu.robot_links import RobotPoses
@@ -324,9 +322,9 @@ def cli(argv: list[str] | None = None) -> None:
             file=sys.stderr,
         )
         sys.exit(2)
-    configure_logging(args.log_level)
-    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
-    try:
+    connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
+
+    def body(stop: StopEvent) -> int:
         config = load_cell_config(args.config)
         scenario_name, scenario = select_scenario(config, args.scenario)
         trackers = select_trackers(config, args.tracker)
@@ -338,12 +336,7 @@ def cli(argv: list[str] | None = None) -> None:
             if args.zed_body_fitting is not None:
                 trackers = with_body_fitting(trackers, args.zed_body_fitting == "on")
             ros2_options = ros2_session_options(args, ros2_endpoints(config))
-    except ConfigError as exc:
-        print(f"{PROG}: invalid configuration: {exc}", file=sys.stderr)
-        sys.exit(2)
-    connect = args.zenoh_connect or ([] if args.zenoh_listen else [DEFAULT_ENDPOINT])
-    with stop_on_signals() as stop:
-        code = main(
+        return main(
             config,
             scenario_name,
             scenario,
@@ -357,7 +350,8 @@ def cli(argv: list[str] | None = None) -> None:
             robots=robots,
             ros2_options=ros2_options,
         )
-    sys.exit(code)
+
+    run_program(PROG, args.log_level, body, log=log)
 
 
 if __name__ == "__main__":

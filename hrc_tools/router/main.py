@@ -15,18 +15,15 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import threading
 
 import zenoh
 
 from hrc_contract.config import ConfigError
 from hrc_runtime.access_control import CellPolicy
-from hrc_runtime.cli import add_config_argument, add_security_arguments
+from hrc_runtime.cli import add_config_argument, add_security_arguments, run_program
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.logs import configure_logging
-from hrc_runtime.memory import configure_heap
-from hrc_runtime.signals import stop_on_signals
+from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 
 PROG = "hrc-router"
@@ -75,18 +72,15 @@ def cli(argv: list[str] | None = None) -> None:
     add_security_arguments(parser)
     parser.set_defaults(zenoh_mode="router")
     args = parser.parse_args(argv)
-    configure_logging(args.log_level)
-    configure_heap(log)  # before the program's threads start: arenas, heap report on SIGUSR1 (hrc_runtime/memory.py)
     listen = args.listen or ([] if args.connect else [DEFAULT_ENDPOINT])
-    with stop_on_signals() as stop:
-        try:
-            config = load_cell_config(args.config)
-            options = options_from_args(args, COMMON_NAME, config, [*listen, *args.connect], listen)
-            run_router(listen, args.connect, options, stop)
-        except ConfigError as exc:
-            sys.stderr.write(f"{PROG}: invalid configuration: {' '.join(str(exc).split())}\n")
-            sys.exit(2)
-    sys.exit(0)
+
+    def body(stop: StopEvent) -> int:
+        config = load_cell_config(args.config)
+        options = options_from_args(args, COMMON_NAME, config, [*listen, *args.connect], listen)
+        run_router(listen, args.connect, options, stop)
+        return 0
+
+    run_program(PROG, args.log_level, body, log=log)
 
 
 if __name__ == "__main__":

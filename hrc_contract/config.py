@@ -554,7 +554,8 @@ class AbbEgmInterfaceConfig(_Frozen):
         "UCDevice's remote address; 0.0.0.0: every address).",
     )
     port: Annotated[int, Field(ge=1, le=65535)] = Field(
-        6510, description="The UDP port the controller sends to (the UCDevice's remote port; 6510 is abb-robot-client's)."
+        6510,
+        description="The UDP port the controller sends to (the UCDevice's remote port; 6510 is abb-robot-client's).",
     )
     watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
         0.1,
@@ -595,7 +596,7 @@ controller's speed input), ``abb_egm`` (a bridge to an open controller's joint r
 def interface_kinds(control: Literal["closed", "open"]) -> tuple[str, ...]:
     """The bridged interface kinds that serve a controller of ``control`` (each class's ``CONTROL``), sorted."""
     classes: tuple[type[Any], ...] = (UrRtdeInterfaceConfig, AbbRwsInterfaceConfig, AbbEgmInterfaceConfig)
-    return tuple(sorted(c.model_fields["kind"].annotation.__args__[0] for c in classes if c.CONTROL == control))
+    return tuple(sorted(c.model_fields["kind"].annotation.__args__[0] for c in classes if control == c.CONTROL))
 
 
 class RobotConfig(_Frozen):

@@ -86,6 +86,9 @@ ECHO_TOLERANCE_RAD = 1e-7
 SENT_KEPT = 64
 """References kept for the echo (0.26 s at 250 Hz: longer than any watchdog lets a command live unanswered)."""
 
+WINDOW_SLACK_S = 1e-6
+"""A sample this much short of the window still spans it [s] (EGM's stamps are whole microseconds; rounding)."""
+
 RECEIVE_TIME_WINDOW_CYCLES = 4
 """Without the controller's stamps, q is differenced over at least this many controller cycles of receive time."""
 
@@ -341,12 +344,14 @@ class OpenBridge:
             q = np.asarray(feedback.q_rad, dtype=float)
             if self._history and t_s - self._history[-1].t_s > s.max_diff_gap_s:
                 self._history.clear()  # a gap: the controller may have moved any way meanwhile
-            window_s = s.velocity_window_s if own_clock else RECEIVE_TIME_WINDOW_CYCLES * s.cycle_s
+            window_s = (s.velocity_window_s if own_clock else RECEIVE_TIME_WINDOW_CYCLES * s.cycle_s) - WINDOW_SLACK_S
             base = next((sample for sample in reversed(self._history) if t_s - sample.t_s >= window_s), None)
             self._history.append(_Sample(t_s, q))
             while len(self._history) > 1 and t_s - self._history[1].t_s >= window_s:
                 self._history.popleft()  # keep the newest sample at least a window old, and the ones after it
             self._confirm(feedback)
+            # every valid feedback teaches the stamp clock its offset, published or not
+            stamp_ns = self._stamp_clock.stamp_ns(feedback.received_wall_ns, feedback.controller_time_s)
             if base is None:
                 return None  # nothing to difference over yet: no joint state rather than a guessed velocity
             qd = (q - base.q_rad) / (t_s - base.t_s)
@@ -354,7 +359,6 @@ class OpenBridge:
             command = self._command
             fresh = command is not None and feedback.received_mono_ns <= command.expires_mono_ns
             mode: ControllerMode = "running" if feedback.following and feedback.running and fresh else "protective_stop"
-            stamp_ns = self._stamp_clock.stamp_ns(feedback.received_wall_ns, feedback.controller_time_s)
             state = JointState(
                 robot=s.robot,
                 seq=self._seq,

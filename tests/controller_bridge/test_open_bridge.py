@@ -231,7 +231,7 @@ def test_settings_refuse_what_cannot_work() -> None:
 
 def test_the_open_vendor_is_registered_apart_from_the_closed_ones() -> None:
     assert open_kinds() == ("abb_egm",)
-    assert OPEN_VENDORS["abb_egm"].config.model_fields["kind"].annotation.__args__ == ("abb_egm",)  # type: ignore[attr-defined]
+    assert OPEN_VENDORS["abb_egm"].config.model_fields["kind"].annotation.__args__ == ("abb_egm",)
     assert "abb_egm" not in VENDORS
     assert "abb_egm" not in bridged_kinds()
     assert "abb_egm" not in INTERFACES  # hrc-sweep --interface: a closed cell's choices

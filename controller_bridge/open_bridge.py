@@ -50,9 +50,14 @@ controller time does not advance is refused (``time_backwards``); after a gap lo
 history starts again (nothing is published until the window is spanned: no guessed velocity).
 
 **The echo.** ``override_seq`` is the seq of the newest command whose reference the controller reports back (EGM
-``planned`` equal, within :data:`ECHO_TOLERANCE_RAD`, to a reference sent for it): the gateway's measured command
-path then includes the EGM link both ways. A controller that reports no reference confirms the seq of the reference
-sent before the previous feedback (one exchange: not a proof, counted in ``echo_unproven``).
+``planned`` equal, within :data:`ECHO_TOLERANCE_RAD`, to a reference sent for it) among those sent before the
+feedback's stamp: the gateway's measured command path then includes the EGM link both ways. References repeat (a
+standing robot is sent the same q every cycle), so a reference shown back can only confirm one sent before the
+controller's cycle that shows it: never a later one (the gateway would see an echo stamped before its command was
+sent, ``echo_before_send``, seen in the end-to-end test before this rule). Of equal references sent before that
+cycle the newest is taken, which may still have been in flight (loopback: microseconds): the same reference, so
+the same motion, but a command path up to one exchange short. A controller that reports no reference confirms the
+seq of the reference sent before the previous feedback (one exchange: not a proof, counted in ``echo_unproven``).
 """
 
 from __future__ import annotations
@@ -227,7 +232,8 @@ class OpenBridge:
         self._last_sent: Reference | None = None
         self._last_sent_for: int | None = None
         """The seq of the command last sent as ``follow`` (each command is followed once, then extrapolated)."""
-        self._sent: deque[tuple[int, FloatArray]] = deque(maxlen=SENT_KEPT)
+        self._sent: deque[tuple[int, FloatArray, int]] = deque(maxlen=SENT_KEPT)
+        """(seq, q_ref, sent wall clock [ns]) of the references sent, oldest first."""
         self._previous_sent_seq = -1
         self._echo_seq = -1
         self._echo_unproven = 0
@@ -322,7 +328,7 @@ class OpenBridge:
                 age_s = (now.mono_ns - command.received_mono_ns) / NS_PER_S
                 self._age_max_s = age_s if self._age_max_s is None else max(self._age_max_s, age_s)
             if not self._sent or self._sent[-1][0] != reference.seq or reference.how != "hold":
-                self._sent.append((reference.seq, np.asarray(reference.q_rad, dtype=float)))
+                self._sent.append((reference.seq, np.asarray(reference.q_rad, dtype=float), now.wall_ns))
 
     # -- feedback -------------------------------------------------------------------------------------------------
 
@@ -349,9 +355,9 @@ class OpenBridge:
             self._history.append(_Sample(t_s, q))
             while len(self._history) > 1 and t_s - self._history[1].t_s >= window_s:
                 self._history.popleft()  # keep the newest sample at least a window old, and the ones after it
-            self._confirm(feedback)
             # every valid feedback teaches the stamp clock its offset, published or not
             stamp_ns = self._stamp_clock.stamp_ns(feedback.received_wall_ns, feedback.controller_time_s)
+            self._confirm(feedback, stamp_ns)
             if base is None:
                 return None  # nothing to difference over yet: no joint state rather than a guessed velocity
             qd = (q - base.q_rad) / (t_s - base.t_s)
@@ -374,8 +380,9 @@ class OpenBridge:
             self._mode = mode
             return state
 
-    def _confirm(self, feedback: JointFeedback) -> None:
-        """(lock held) Advance the echo: the newest sent reference the controller shows back (module docstring)."""
+    def _confirm(self, feedback: JointFeedback, stamp_ns: int) -> None:
+        """(lock held) Advance the echo: the newest reference sent before the feedback's stamp that the controller
+        shows back (module docstring)."""
         if feedback.reference_rad is None:
             if self._previous_sent_seq >= 0 and self._previous_sent_seq != self._echo_seq:
                 self._echo_seq = self._previous_sent_seq
@@ -383,8 +390,8 @@ class OpenBridge:
             return
         shown = np.asarray(feedback.reference_rad, dtype=float)
         for i in range(len(self._sent) - 1, -1, -1):
-            seq, q_sent = self._sent[i]
-            if np.all(np.abs(q_sent - shown) <= ECHO_TOLERANCE_RAD):
+            seq, q_sent, sent_wall_ns = self._sent[i]
+            if sent_wall_ns < stamp_ns and np.all(np.abs(q_sent - shown) <= ECHO_TOLERANCE_RAD):
                 self._echo_seq = seq
                 for _ in range(i):
                     self._sent.popleft()  # sent before the one shown: the controller has moved past them

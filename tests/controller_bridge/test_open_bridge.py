@@ -210,6 +210,23 @@ def test_the_echo_is_the_newest_reference_the_controller_shows_and_mode_follows_
     assert state.mode == "protective_stop"
 
 
+def test_a_repeated_reference_never_confirms_a_command_sent_after_the_feedbacks_stamp() -> None:
+    """A standing robot is sent the same q every cycle: the controller showing q confirms the newest command sent
+    before its cycle, never one sent after it (the gateway's ``echo_before_send``)."""
+    bridge = OpenBridge(_settings())
+    q = [0.3] * N
+    for k in range(3):  # the history: feedbacks at controller times 1.000, 1.004, 1.008, arriving 0.1 ms later
+        bridge.on_feedback(_feedback(0.0001 + 0.004 * k, q, 1.0 + 0.004 * k, reference=[0.0] * N))
+    for seq, t_s in ((20, 0.0085), (21, 0.0115), (22, 0.0125)):  # 21 before the cycle at 0.012, 22 after it
+        assert bridge.on_command(_command(seq, t_s - 0.0005, q, [0.0] * N), _at(t_s)) is None
+        reference = bridge.reference(_at(t_s))
+        assert reference is not None
+        bridge.on_sent(reference, _at(t_s))
+    state = bridge.on_feedback(_feedback(0.0121, q, 1.012, reference=q))  # taken at 0.012, received after 22 left
+    assert state is not None
+    assert state.override_seq == 21
+
+
 def test_a_controller_that_does_not_follow_is_reported_in_a_protective_stop() -> None:
     bridge = OpenBridge(_settings())
     assert bridge.on_command(_command(1, 0.0, [0.0] * N, [0.0] * N), _at(0.0)) is None

@@ -71,11 +71,6 @@ def stats_doc(robot: str, kind: str, stats: OpenBridgeStats, readings_per_s: flo
     return json.dumps(doc).encode()
 
 
-def bridge_stats_key(cell: str, robot: str) -> str:
-    """Where the bridge puts its statistics (beside the emulator's ``emu_stats``)."""
-    return keys.robot_emu_stats(cell, robot).rsplit("/", 1)[0] + "/bridge_stats"
-
-
 class OpenReader:
     """The reader thread: open (with backoff), read, answer, compose, publish; open again when the link fails."""
 
@@ -232,7 +227,7 @@ def run_open_bridge(
             priority=zenoh.Priority.REAL_TIME,
             congestion_control=zenoh.CongestionControl.DROP,
         )
-        stats_pub = session.declare_publisher(bridge_stats_key(cell, robot))
+        stats_pub = session.declare_publisher(keys.robot_bridge_stats(cell, robot))
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:

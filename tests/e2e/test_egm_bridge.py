@@ -7,6 +7,8 @@ processes as ``hrc-cell`` runs ``configs/cell_open_panda_egm.toml`` (on a UDP po
 - A silent gateway: the bridge holds the last reference without feed-forward and the robot stands within the
   extrapolation and its stop; the bridge reports ``protective_stop``.
 - A silent controller: the gateway sees the joint state stale and stops; it recovers when the controller answers.
+- A dead bridge: the controller hears no reference (EGM's own silence: the emulator converges on the last reference
+  and stops after its watchdog), the gateway sees the joint state stale; a new bridge brings the cell back.
 """
 
 from __future__ import annotations
@@ -216,4 +218,34 @@ def test_a_silent_controller_stops_the_robot(egm_cell: Path, tmp_path: Path) -> 
         finally:
             cell.controller.send_signal(signal.SIGCONT)
         cell.wait_until(_healthy, RECOVER_S * load_scale(), "recovery after the controller answered again", ROBOT)
+        _assert_alive(cell)
+
+
+def test_a_dead_bridge_leaves_the_robot_to_the_controller_and_the_gateway_stops_it(
+    egm_cell: Path, tmp_path: Path
+) -> None:
+    truth = _Stream(JointState)
+    with running_cell(tmp_path, config=egm_cell, scenario="standing_inside") as cell:
+        cell.wait_until(_healthy, READY_S * load_scale(), "a running robot", ROBOT)
+        with zenoh.open(session_config(connect=[cell.controller_endpoint])) as session:
+            session.declare_subscriber(keys.truth_robot_state(cell.name, ROBOT), truth.on_sample)
+            _wait_moving(truth)
+            cell.bridge.kill()
+            cell.bridge.wait()
+            killed_s = time.monotonic()
+            cell.wait_until(
+                lambda s: "joint_state_stale" in {f["code"] for f in s["faults"]} and s["delta"] == 0.0,
+                DETECT_S * load_scale(),
+                "joint_state_stale with δ = 0",
+                ROBOT,
+            )
+            time.sleep(1.0)
+            after = [(t, s) for t, s in truth.all() if t >= killed_s]
+        stopped = [t for t, s in after if s.mode == "protective_stop"]
+        assert stopped, f"the controller never stopped on its own: modes {collapse([s.mode for _, s in after])}"
+        # EGM's position mode converges on the last reference; its watchdog (0.1 s here) then stops it
+        assert stopped[0] - killed_s < 0.1 + 0.3 * load_scale(), stopped[0] - killed_s
+        assert max(map(abs, after[-1][1].qd)) < STAND_RADPS
+        cell.start("bridge")
+        cell.wait_until(_healthy, RECOVER_S * load_scale(), "recovery with a new bridge", ROBOT)
         _assert_alive(cell)

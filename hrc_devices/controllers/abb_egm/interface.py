@@ -88,5 +88,3 @@ class EgmInterface:
     def close(self) -> None:
         """Close the socket (idempotent)."""
         self._pc.close()
-
-

@@ -19,7 +19,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import zenoh
 
@@ -46,9 +46,12 @@ RECONNECT_ON = frozenset({"connect", "closed"})
 """VendorError reasons after which the socket is closed and opened again (a timeout: the next read may do)."""
 
 
-def stats_doc(robot: str, kind: str, stats: OpenBridgeStats, readings_per_s: float) -> bytes:
+def stats_doc(
+    robot: str, kind: str, stats: OpenBridgeStats, readings_per_s: float, refused: Mapping[str, int]
+) -> bytes:
     """The bridge's statistics payload (``hrc/<cell>/robot/<robot>/bridge_stats``; the gateway shows ``interface``,
-    ``mode``, ``readings_per_s`` and the count of ``rejected``; an open controller has no speed read-back)."""
+    ``mode``, ``readings_per_s`` and the count of ``rejected``, which includes the interface's skipped datagrams
+    as ``datagram_<reason>``; an open controller has no speed read-back)."""
     doc = {
         "robot": robot,
         "interface": kind,
@@ -65,7 +68,7 @@ def stats_doc(robot: str, kind: str, stats: OpenBridgeStats, readings_per_s: flo
         "command_age_max_s": stats.command_age_max_s,
         "qd_sources": dict(stats.qd_sources),
         "watchdog_expired": stats.watchdog_expired,
-        "rejected": dict(stats.rejected),
+        "rejected": {**stats.rejected, **{f"datagram_{reason}": n for reason, n in refused.items()}},
         "commands_rejected": dict(stats.commands_rejected),
     }
     return json.dumps(doc).encode()
@@ -150,10 +153,14 @@ class OpenReader:
 
 
 def _report_until_stopped(
-    bridge: OpenBridge, kind: str, stats_pub: zenoh.Publisher, service: LoopNotifier, stop: StopEvent
+    bridge: OpenBridge,
+    interface: OpenVendorInterface,
+    stats_pub: zenoh.Publisher,
+    service: LoopNotifier,
+    stop: StopEvent,
 ) -> None:
     """The main thread until ``stop``: the service manager's watchdog, the statistics and the progress line."""
-    robot = bridge.settings.robot
+    robot, kind = bridge.settings.robot, interface.kind
     last = (0, time.monotonic())
     next_stats_s = time.monotonic() + STATS_EVERY_S
     next_progress_s = time.monotonic() + PROGRESS_EVERY_S
@@ -169,7 +176,7 @@ def _report_until_stopped(
         next_stats_s = now_s + STATS_EVERY_S
         rate = (stats.feedbacks - last[0]) / max(now_s - last[1], 1e-9)
         last = (stats.feedbacks, now_s)
-        stats_pub.put(stats_doc(robot, kind, stats, rate))
+        stats_pub.put(stats_doc(robot, kind, stats, rate, interface.refused))
         if stats.watchdog_expired != expired:
             expired = stats.watchdog_expired
             if expired:
@@ -180,7 +187,7 @@ def _report_until_stopped(
             next_progress_s = now_s + PROGRESS_EVERY_S
             log.info(
                 "%s via %s: %s command_seq=%d echo_seq=%d feedbacks=%d (%.0f/s) published=%d references=%s "
-                "command_age_max_s=%s rejected=%s commands_rejected=%s",
+                "command_age_max_s=%s rejected=%s datagrams_refused=%s commands_rejected=%s",
                 robot,
                 kind,
                 stats.mode,
@@ -192,6 +199,7 @@ def _report_until_stopped(
                 dict(stats.references),
                 None if stats.command_age_max_s is None else round(stats.command_age_max_s, 4),
                 dict(stats.rejected),
+                dict(interface.refused),
                 dict(stats.commands_rejected),
             )
 
@@ -254,7 +262,7 @@ def run_open_bridge(
         )
         reader.thread.start()
         try:
-            _report_until_stopped(bridge, kind, stats_pub, service, stop)
+            _report_until_stopped(bridge, interface, stats_pub, service, stop)
         finally:
             service.stopping()
             stop.set()

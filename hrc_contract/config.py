@@ -557,6 +557,12 @@ class AbbEgmInterfaceConfig(_Frozen):
         6510,
         description="The UDP port the controller sends to (the UCDevice's remote port; 6510 is abb-robot-client's).",
     )
+    controller_host: Annotated[str, Field(pattern=r"^[0-9]{1,3}(\.[0-9]{1,3}){3}$")] | None = Field(
+        None,
+        description="The controller's IPv4 address: EgmRobot datagrams from any other host are refused and counted "
+        "(foreign_sender), so nobody else's datagram becomes the robot's joint state or gets its references. None: "
+        "any sender (then only the dedicated link keeps others out).",
+    )
     watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
         0.1,
         description="A joint command older than this (its stamp, then the bridge's monotonic clock) is not followed: "

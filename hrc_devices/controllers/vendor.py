@@ -19,6 +19,7 @@ for a malformed, non-finite or out-of-range answer instead of returning it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -132,6 +133,11 @@ class OpenVendorInterface(Protocol):
 
     kind: str
     """``abb_egm``: the name the cell file and the status use."""
+
+    @property
+    def refused(self) -> Mapping[str, int]:
+        """Datagrams or messages the interface skipped before decoding a feedback, by reason."""
+        ...
 
     def connect(self) -> None: ...
 

@@ -276,6 +276,10 @@ def test_the_cell_file_refuses_an_open_interface_for_a_closed_robot_and_the_reve
         CellConfig.model_validate(
             _with_interface(open_cell, ROBOT, {"kind": "abb_egm", "extrapolate_s": 0.05, "watchdog_s": 0.05})
         )
+    with pytest.raises(ValueError, match="controller_host"):
+        CellConfig.model_validate(
+            _with_interface(open_cell, ROBOT, {"kind": "abb_egm", "controller_host": "robot.lan"})
+        )
     with pytest.raises(ValueError, match=r"longer than controller\.watchdog_s"):
         CellConfig.model_validate(_with_interface(open_cell, ROBOT, {"kind": "abb_egm", "watchdog_s": 0.5}))
 

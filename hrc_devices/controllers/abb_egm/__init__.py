@@ -23,7 +23,7 @@ LOOPBACK_WHEN_ANY = "127.0.0.1"
 
 
 def _interface(config: AbbEgmInterfaceConfig, n_joints: int) -> OpenVendorInterface:
-    return EgmInterface(config.host, config.port, n_joints)
+    return EgmInterface(config.host, config.port, n_joints, config.controller_host)
 
 
 def _emulator_args(config: AbbEgmInterfaceConfig) -> list[str]:

@@ -28,12 +28,13 @@ class EgmInterface:
         host: the address to listen on.
         port: the UDP port the controller sends to (0: ephemeral, :attr:`port` after :meth:`connect`).
         n_joints: the robot model's joint count.
+        controller_host: the controller's IPv4 address (datagrams from others are skipped and counted); None: any.
     """
 
     kind = "abb_egm"
 
-    def __init__(self, host: str, port: int, n_joints: int) -> None:
-        self._pc = EgmPc(host, port, n_joints)
+    def __init__(self, host: str, port: int, n_joints: int, controller_host: str | None = None) -> None:
+        self._pc = EgmPc(host, port, n_joints, controller_host)
 
     @property
     def port(self) -> int:
@@ -42,7 +43,7 @@ class EgmInterface:
 
     @property
     def refused(self) -> Mapping[str, int]:
-        """Datagrams skipped (undecodable, wrong joint count), by reason."""
+        """Datagrams skipped (undecodable, wrong joint count, a foreign sender), by reason."""
         return self._pc.refused
 
     def connect(self) -> None:

@@ -5,12 +5,13 @@ references it answers with (follow, extrapolate, hold), the joint state it compo
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
 from support.paths import DEFAULT_CELL_PATH
 
-from controller_bridge.main import open_bridge_settings, select_robot
+from controller_bridge.main import main, open_bridge_settings, select_robot
 from controller_bridge.open_bridge import OpenBridge, OpenBridgeSettings
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import JointCommand, to_payload
@@ -19,6 +20,8 @@ from hrc_devices.controllers.vendor import JointFeedback
 from hrc_devices.robots.model import load_robot_model
 from hrc_runtime.clocks import Clocks
 from hrc_runtime.config import load_cell_config
+from hrc_runtime.signals import StopEvent
+from hrc_runtime.zenoh_session import SessionOptions
 from hrc_tools.cell.launcher import bridged_robots, program_commands
 from hrc_tools.sim.bridged import INTERFACES
 
@@ -296,3 +299,9 @@ def test_the_shipped_egm_cell_runs_the_emulators_egm_face_and_the_bridge() -> No
     closed = load_cell_config()
     with pytest.raises(ConfigError, match="not an open one"):
         open_bridge_settings(closed, "ur5", load_robot_model("ur5", closed.robots["ur5"]))
+
+
+def test_the_bridge_refuses_a_program_model_for_an_open_robot(tmp_path: Path) -> None:
+    config = load_cell_config(EGM_CELL)
+    with pytest.raises(ConfigError, match="the gateway runs its program, so --program-model has nothing to locate"):
+        main(config, ROBOT, [], [], StopEvent(), zenoh_options=SessionOptions(), program_model=tmp_path / "m.json")

@@ -3,7 +3,9 @@
 A closed controller offers an outside PC one speed input and a read-back; it reports no override echo and no
 programmed velocity. The bridge writes the gateway's δ to the controller, confirms an override only when the
 controller's read-back shows it, derives the programmed velocity honestly, and publishes the robot's joint state
-on the cell's key (docs/contract.md).
+on the cell's key (docs/contract.md). An open controller (ABB EGM) takes joint references instead: the bridge
+answers its feedback with the gateway's joint commands and publishes the joint state it reads
+(:mod:`.open_bridge`, :mod:`.open_shell`).
 """
 
-__all__ = ["bridge", "main", "program_model"]
+__all__ = ["bridge", "main", "open_bridge", "open_shell", "program_model"]

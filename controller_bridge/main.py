@@ -10,9 +10,11 @@ the previous write has been read back (on the next wake: an override, at the gat
 a write awaits its read-back, the heartbeat repeats the last written value.
 
 The vendor interface is the cell file's ``interface`` of ``--robot NAME`` (``ur_rtde`` or ``abb_rws``; a robot whose
-interface is ``zenoh`` needs no bridge). The reader connects, and reconnects with a doubling backoff
-(:data:`BACKOFF_MIN_S` … :data:`BACKOFF_MAX_S`) when the connection fails or no valid reading came for
-``read_timeout_s``; meanwhile nothing is published, and the gateway's staleness check stops the robot.
+interface is ``zenoh`` needs no bridge). An open controller's interface (``abb_egm``: joint references in, joint
+feedback out) is run by :mod:`controller_bridge.open_shell` around :class:`controller_bridge.open_bridge.OpenBridge`
+instead: the gateway's joint commands in, the controller's joint state out. The reader connects, and reconnects
+with a doubling backoff (:data:`BACKOFF_MIN_S` … :data:`BACKOFF_MAX_S`) when the connection fails or no valid reading
+came for ``read_timeout_s``; meanwhile nothing is published, and the gateway's staleness check stops the robot.
 
 Overrides arrive through a ring of the newest 16 (:mod:`hrc_runtime.newest_wins`): after a freeze the bridge hands on
 the newest, not 256 queued ones, and its memory stays bounded.
@@ -35,12 +37,14 @@ import numpy as np
 import zenoh
 
 from controller_bridge.bridge import Bridge, BridgeSettings, BridgeStats, FloatArray, Locate
+from controller_bridge.open_bridge import OpenBridge, OpenBridgeSettings
+from controller_bridge.open_shell import run_open_bridge
 from controller_bridge.program_model import load_model
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import JointState, to_payload
-from hrc_devices.controllers.descriptor import BridgedConfig, Vendor
-from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.descriptor import BridgedConfig, OpenBridgedConfig, OpenVendor, Vendor
+from hrc_devices.controllers.registry import OPEN_VENDORS, VENDORS
 from hrc_devices.controllers.vendor import VendorError, VendorInterface
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
@@ -62,18 +66,26 @@ PROGRESS_EVERY_S = 5.0
 BACKOFF_MIN_S = 0.1
 BACKOFF_MAX_S = 2.0
 """Reconnection attempts start this far apart and double up to BACKOFF_MAX_S [s]."""
+VELOCITY_WINDOW_CYCLES = 2
+"""An open controller's q is differenced over at least this many of its cycles of its own time
+(:mod:`controller_bridge.open_bridge`, "Velocities")."""
 RECONNECT_ON = frozenset({"connect", "closed", "auth", "refused"})
 """VendorError reasons after which the connection is closed and opened again (others: the next read may do)."""
 
 
+def _bridged(kind: str) -> bool:
+    return kind in VENDORS or kind in OPEN_VENDORS
+
+
 def select_robot(config: CellConfig, robot: str | None) -> str:
-    """The robot to bridge: the given name, or the cell's only robot whose interface is a bridge.
+    """The robot to bridge: the given name, or the cell's only robot whose interface is a bridge (a closed
+    controller's speed input or an open controller's joint references).
 
     Raises:
         ConfigError: unknown name; no name and not exactly one bridged robot; a robot on the ``zenoh`` interface.
     """
-    bridged = sorted(name for name, r in config.robots.items() if r.interface.kind in VENDORS)
-    kinds = " or ".join(sorted(VENDORS))
+    bridged = sorted(name for name, r in config.robots.items() if _bridged(r.interface.kind))
+    kinds = " or ".join(sorted([*VENDORS, *OPEN_VENDORS]))
     if robot is None:
         if len(bridged) == 1:
             return bridged[0]
@@ -83,13 +95,44 @@ def select_robot(config: CellConfig, robot: str | None) -> str:
         )
     if robot not in config.robots:
         raise ConfigError(f"unknown robot {robot!r}; allowed: {', '.join(sorted(config.robots))}")
-    if config.robots[robot].interface.kind not in VENDORS:
+    if not _bridged(config.robots[robot].interface.kind):
         raise ConfigError(
             f"robot {robot!r} has interface kind {config.robots[robot].interface.kind!r} (its controller speaks the "
             f"cell's contract itself: no bridge); allowed: a robot with kind {kinds}: "
             f"{', '.join(bridged) or 'none in this cell'}"
         )
     return robot
+
+
+def open_vendor_of(name: str, interface: object) -> tuple[OpenVendor[Any], OpenBridgedConfig] | None:
+    """The registered open vendor of robot ``name``'s interface and the interface, or None for any other kind."""
+    kind = getattr(interface, "kind", None)
+    vendor = OPEN_VENDORS.get(kind) if isinstance(kind, str) else None
+    if vendor is None or not isinstance(interface, vendor.config) or not isinstance(interface, OpenBridgedConfig):
+        return None
+    return vendor, interface
+
+
+def open_bridge_settings(config: CellConfig, name: str, model: RobotModel) -> OpenBridgeSettings:
+    """The open core's settings for robot ``name`` of the cell.
+
+    Raises:
+        ConfigError: the robot's interface is not an open controller's.
+    """
+    found = open_vendor_of(name, config.robots[name].interface)
+    if found is None:
+        raise ConfigError(f"robot {name!r}: interface {config.robots[name].interface.kind!r} is not an open one")
+    _, interface = found
+    cycle_s = config.robots[name].controller.cycle_s
+    return OpenBridgeSettings(
+        robot=name,
+        n_joints=model.n_joints,
+        watchdog_s=interface.watchdog_s,
+        extrapolate_s=interface.extrapolate_s,
+        cycle_s=cycle_s,
+        velocity_window_s=VELOCITY_WINDOW_CYCLES * cycle_s,
+        max_diff_gap_s=interface.read_timeout_s,
+    )
 
 
 def braking_time_of(model: RobotModel) -> float:
@@ -444,13 +487,32 @@ def main(
     name = select_robot(config, robot)
     robot_config = config.robots[name]
     model = load_robot_model(name, robot_config)
+    if not listen and not connect:
+        connect = [DEFAULT_ENDPOINT]
+    found_open = open_vendor_of(name, robot_config.interface)
+    if found_open is not None:
+        if program_model is not None:
+            raise ConfigError(
+                f"robot {name!r} has an open controller ({robot_config.interface.kind}): the gateway runs its program, "
+                "so --program-model has nothing to locate; allowed: without it"
+            )
+        open_vendor, open_interface = found_open
+        run_open_bridge(
+            config.cell,
+            OpenBridge(open_bridge_settings(config, name, model)),
+            open_vendor.interface(open_interface, model.n_joints),
+            listen,
+            connect,
+            stop,
+            zenoh_options=zenoh_options,
+            read_timeout_s=open_interface.read_timeout_s,
+        )
+        return 0
     settings = bridge_settings(config, name, model)
     locate = None if program_model is None else model_locator(program_model, name, model.joint_names)
     interface_config = robot_config.interface
     vendor, _ = vendor_of(name, interface_config)
     interface = make_interface(interface_config, model.n_joints)
-    if not listen and not connect:
-        connect = [DEFAULT_ENDPOINT]
     poll_s = vendor.poll_interval_s(interface_config)
     run_bridge(
         config.cell,
@@ -467,7 +529,9 @@ def main(
 
 def cli(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog=PROG, description="Controller bridge: the cell's Zenoh contract to a real controller (UR RTDE, ABB RWS)"
+        prog=PROG,
+        description="Controller bridge: the cell's Zenoh contract to a real controller (UR RTDE, ABB RWS; ABB EGM for "
+        "an open one)",
     )
     add_config_argument(parser)
     parser.add_argument(

@@ -59,7 +59,7 @@ from hrc_contract.config import ConfigError
 from hrc_contract.messages import JointCommand, JointState
 from hrc_contract.vocabulary import ControllerMode
 from hrc_devices.robots.model import RobotModel
-from hrc_devices.robots.time_scaling import stamp_rejection
+from hrc_devices.robots.time_scaling import JointCommandRejection, joint_command_rejection
 from hrc_runtime.clocks import Clocks
 
 FloatArray = npt.NDArray[np.float64]
@@ -69,7 +69,7 @@ SilenceBehaviour = Literal["keep_speed", "hold_reference"]
 last q̇_ref (EGM's velocity mode); ``hold_reference`` holds the last q_ref without feed-forward (EGM's position
 mode)."""
 
-CommandRejection = Literal["wrong_robot", "wrong_joint_count", "old_or_repeated", "stale", "stamp_in_future"]
+CommandRejection = JointCommandRejection
 """Why a schema-valid joint command was not accepted (:func:`check_command`)."""
 
 POSITION_GAIN_PER_S = 20.0
@@ -212,30 +212,9 @@ def initial_state(q_rad: npt.ArrayLike) -> FollowerState:
 def check_command(
     msg: JointCommand, robot_name: str, n_joints: int, newest_stamp_ns: int, now_wall_ns: int, watchdog_s: float
 ) -> CommandRejection | None:
-    """Why a joint command cannot be accepted on arrival, or None if it can.
-
-    Order is decided by ``stamp_ns``, not by ``seq``: a restarted gateway, whose ``seq`` starts again at 0, is
-    accepted as soon as its stamps are newer. Finiteness is the message's own (``parse_message`` refuses NaN and
-    infinities as ``non_finite``).
-
-    Args:
-        msg: a parsed, schema-valid command.
-        robot_name: the robot this controller drives.
-        n_joints: the robot model's joint count.
-        newest_stamp_ns: ``stamp_ns`` of the newest command accepted so far; -1 before any [ns].
-        now_wall_ns: the controller's wall clock at arrival (the clock of ``stamp_ns``) [ns].
-        watchdog_s: a command stamped longer ago than this is stale [s].
-
-    Returns:
-        None, or ``wrong_robot``; ``wrong_joint_count`` (not the model's); ``old_or_repeated`` (stamp not newer
-        than ``newest_stamp_ns``); ``stale`` (stamped more than ``watchdog_s`` ago); ``stamp_in_future`` (stamped
-        more than :data:`~hrc_devices.robots.time_scaling.MAX_FUTURE_STAMP_S` ahead, as an override).
-    """
-    if msg.robot != robot_name:
-        return "wrong_robot"
-    if len(msg.q) != n_joints:
-        return "wrong_joint_count"
-    return stamp_rejection(msg.stamp_ns, newest_stamp_ns, now_wall_ns, watchdog_s)
+    """Why a joint command cannot be accepted on arrival, or None if it can: the rules every open controller applies
+    (:func:`hrc_devices.robots.time_scaling.joint_command_rejection`, shared with the EGM bridge)."""
+    return joint_command_rejection(msg, robot_name, n_joints, newest_stamp_ns, now_wall_ns, watchdog_s)
 
 
 def apply_command(state: FollowerState, msg: JointCommand, received: Clocks, limits: FollowerLimits) -> FollowerState:

@@ -11,7 +11,7 @@ import hashlib
 import json
 import os
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, ClassVar, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -465,7 +465,10 @@ class ZenohInterfaceConfig(_Frozen):
 
 
 class _BridgeInterfaceConfig(_Frozen):
-    """What every controller bridge (``controller_bridge``) needs besides its vendor's address."""
+    """What every closed controller's bridge (``controller_bridge``) needs besides its vendor's address."""
+
+    CONTROL: ClassVar[Literal["closed", "open"]] = "closed"
+    """The controller this interface serves: a closed one's speed input."""
 
     watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
         0.1,
@@ -536,10 +539,70 @@ class AbbRwsInterfaceConfig(_BridgeInterfaceConfig):
         return data
 
 
+class AbbEgmInterfaceConfig(_Frozen):
+    """ABB Externally Guided Motion, joint mode (an *open* controller, ``control = "open"``): the bridge is EGM's PC,
+    a UDP server the controller sends ``EgmRobot`` to every cycle; it answers with the gateway's joint references
+    (``controller_bridge/open_bridge.py``)."""
+
+    CONTROL: ClassVar[Literal["closed", "open"]] = "open"
+    """The controller this interface serves: an open one's joint references."""
+
+    kind: Literal["abb_egm"]
+    host: Annotated[str, Field(min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:_-]+$")] = Field(
+        "0.0.0.0",
+        description="The address the bridge (EGM's PC) listens on for the controller's EgmRobot datagrams (the "
+        "UCDevice's remote address; 0.0.0.0: every address).",
+    )
+    port: Annotated[int, Field(ge=1, le=65535)] = Field(
+        6510,
+        description="The UDP port the controller sends to (the UCDevice's remote port; 6510 is abb-robot-client's).",
+    )
+    controller_host: Annotated[str, Field(pattern=r"^[0-9]{1,3}(\.[0-9]{1,3}){3}$")] | None = Field(
+        None,
+        description="The controller's IPv4 address: EgmRobot datagrams from any other host are refused and counted "
+        "(foreign_sender), so nobody else's datagram becomes the robot's joint state or gets its references. None: "
+        "any sender (then only the dedicated link keeps others out).",
+    )
+    watchdog_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="A joint command older than this (its stamp, then the bridge's monotonic clock) is not followed: "
+        "the bridge holds the last position reference without feed-forward [s]. At most the robot's "
+        "controller.watchdog_s (checked) and 1 s.",
+    )
+    extrapolate_s: Annotated[float, Field(ge=0.0, le=0.05, allow_inf_nan=False)] = Field(
+        0.012,
+        description="Between joint commands, the last reference is moved on at its velocity for at most this long "
+        "after the command's arrival (the gateway's and the controller's 4 ms cycles drift against each other); "
+        "beyond it the reference is held without feed-forward [s]. At most 0.05 s and the watchdog.",
+    )
+    read_timeout_s: Annotated[float, Field(gt=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.1,
+        description="No valid EgmRobot for this long → nothing is published (the gateway's staleness check stops the "
+        "robot) and the socket is opened again [s]. At most 1 s.",
+    )
+
+    @model_validator(mode="after")
+    def _extrapolation_within_the_watchdog(self) -> AbbEgmInterfaceConfig:
+        if self.extrapolate_s >= self.watchdog_s:
+            raise ValueError(
+                f"extrapolate_s = {self.extrapolate_s} s is not shorter than watchdog_s = {self.watchdog_s} s; "
+                "allowed: < watchdog_s"
+            )
+        return self
+
+
 ControllerInterfaceConfig = Annotated[
-    ZenohInterfaceConfig | UrRtdeInterfaceConfig | AbbRwsInterfaceConfig, Field(discriminator="kind")
+    ZenohInterfaceConfig | UrRtdeInterfaceConfig | AbbRwsInterfaceConfig | AbbEgmInterfaceConfig,
+    Field(discriminator="kind"),
 ]
-"""How the cell reaches a robot's controller: ``zenoh`` (default), ``ur_rtde`` or ``abb_rws`` (a bridge)."""
+"""How the cell reaches a robot's controller: ``zenoh`` (default), ``ur_rtde`` or ``abb_rws`` (a bridge to a closed
+controller's speed input), ``abb_egm`` (a bridge to an open controller's joint references)."""
+
+
+def interface_kinds(control: Literal["closed", "open"]) -> tuple[str, ...]:
+    """The bridged interface kinds that serve a controller of ``control`` (each class's ``CONTROL``), sorted."""
+    classes: tuple[type[Any], ...] = (UrRtdeInterfaceConfig, AbbRwsInterfaceConfig, AbbEgmInterfaceConfig)
+    return tuple(sorted(c.model_fields["kind"].annotation.__args__[0] for c in classes if control == c.CONTROL))
 
 
 class RobotConfig(_Frozen):
@@ -550,9 +613,25 @@ class RobotConfig(_Frozen):
     interface: ControllerInterfaceConfig = ZenohInterfaceConfig()
 
     @model_validator(mode="after")
+    def _interface_fits_the_controller(self) -> RobotConfig:
+        needs = getattr(type(self.interface), "CONTROL", None)
+        control = self.controller.control
+        if needs is None or control == needs:
+            return self
+        what = "joint references" if needs == "open" else "a speed input"
+        raise ValueError(
+            f"interface kind {self.interface.kind!r} is {'an' if needs == 'open' else 'a'} {needs} controller's "
+            f"({what}), but controller.control = {control!r}; allowed with control = {control!r}: zenoh, "
+            f"{', '.join(interface_kinds(control))}"
+        )
+
+    @model_validator(mode="after")
     def _bridge_watchdog_within_the_controllers(self) -> RobotConfig:
         interface = self.interface
-        if isinstance(interface, _BridgeInterfaceConfig) and interface.watchdog_s > self.controller.watchdog_s:
+        if (
+            isinstance(interface, _BridgeInterfaceConfig | AbbEgmInterfaceConfig)
+            and interface.watchdog_s > self.controller.watchdog_s
+        ):
             raise ValueError(
                 f"interface.watchdog_s = {interface.watchdog_s} s is longer than controller.watchdog_s = "
                 f"{self.controller.watchdog_s} s; allowed: <= it"

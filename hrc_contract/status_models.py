@@ -172,11 +172,13 @@ class PlanStatus(_Strict):
 
 
 class BridgeStatus(_Strict):
-    """The controller bridge of a robot whose ``interface`` is ``ur_rtde`` or ``abb_rws``, from the statistics it
-    puts on ``hrc/<cell>/robot/<robot>/bridge_stats`` every second. For display only: no decision uses it (the
-    gateway measures the override path itself, ``delay_budget_s.override_path_s``)."""
+    """The controller bridge of a robot whose ``interface`` is ``ur_rtde``, ``abb_rws`` or ``abb_egm``, from the
+    statistics it puts on ``hrc/<cell>/robot/<robot>/bridge_stats`` every second. For display only: no decision uses
+    it (the gateway measures the override path itself, ``delay_budget_s.override_path_s``)."""
 
-    interface: Literal["ur_rtde", "abb_rws"] = Field(description="The vendor interface (the cell file's ``kind``).")
+    interface: Literal["ur_rtde", "abb_rws", "abb_egm"] = Field(
+        description="The vendor interface (the cell file's ``kind``; ``abb_egm``: an open controller, no read-back)."
+    )
     stats_age_s: NonNegative | None = Field(
         description="Age of the bridge's newest statistics; null before any (no bridge heard from) [s]."
     )
@@ -191,7 +193,9 @@ class BridgeStatus(_Strict):
     readback_latency_max_s: NonNegative | None = Field(
         description="The largest such latency in the bridge's last statistics period (1 s) [s]."
     )
-    readings_per_s: NonNegative | None = Field(description="Valid read-backs per second [1/s].")
+    readings_per_s: NonNegative | None = Field(
+        description="Valid read-backs per second (``abb_egm``: the controller's EgmRobot feedbacks) [1/s]."
+    )
     rejected: Count = Field(description="Refused read-backs and interface errors since the bridge started.")
 
 
@@ -243,8 +247,8 @@ class RobotStatus(_Strict):
     )
     bridge: BridgeStatus | None = Field(
         None,
-        description="The controller bridge (interface ``ur_rtde`` or ``abb_rws``); null for a controller that "
-        "speaks the cell's Zenoh contract itself (interface ``zenoh``).",
+        description="The controller bridge (interface ``ur_rtde``, ``abb_rws`` or ``abb_egm``); null for a controller "
+        "that speaks the cell's Zenoh contract itself (interface ``zenoh``).",
     )
     open_command: OpenCommandStatus | None = Field(
         None,

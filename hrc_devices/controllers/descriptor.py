@@ -1,5 +1,7 @@
 """What the programs know of a vendor: its speed input, what its interface config gives the bridge, and the
-:class:`Vendor` descriptor (one per vendor folder, registered in :data:`hrc_devices.controllers.registry.VENDORS`).
+:class:`Vendor` descriptor of a closed controller's vendor (registered in
+:data:`hrc_devices.controllers.registry.VENDORS`) or the :class:`OpenVendor` descriptor of an open controller's
+(registered in :data:`hrc_devices.controllers.registry.OPEN_VENDORS`); one per vendor folder.
 """
 
 from __future__ import annotations
@@ -8,9 +10,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Generic, Protocol, TypeVar, runtime_checkable
 
-from hrc_devices.controllers.vendor import VendorInterface
+from hrc_devices.controllers.vendor import OpenVendorInterface, VendorInterface
 
-__all__ = ["BridgedConfig", "SpeedInput", "Vendor"]
+__all__ = ["BridgedConfig", "OpenBridgedConfig", "OpenVendor", "SpeedInput", "Vendor"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +47,20 @@ class BridgedConfig(Protocol):
     def write_rate_hz(self) -> float: ...
     @property
     def rise_time_s(self) -> float: ...
+
+
+@runtime_checkable
+class OpenBridgedConfig(Protocol):
+    """What an open controller's interface config (``hrc_contract.config``) gives the bridge besides its address."""
+
+    @property
+    def kind(self) -> str: ...
+    @property
+    def watchdog_s(self) -> float: ...
+    @property
+    def read_timeout_s(self) -> float: ...
+    @property
+    def extrapolate_s(self) -> float: ...
 
 
 ConfigT = TypeVar("ConfigT")
@@ -88,3 +104,26 @@ class Vendor(Generic[ConfigT]):
     environment: Callable[[ConfigT, dict[str, str]], None] = field(default=_no_environment)
     sample_jitter_s: Callable[[ConfigT], float] = field(default=_zero)
     poll_interval_s: Callable[[ConfigT], float] = field(default=_zero)
+
+
+@dataclass(frozen=True)
+class OpenVendor(Generic[ConfigT]):
+    """Everything the programs know of one *open* controller's vendor (joint references in, joint feedback out):
+    one per vendor folder (``abb_egm/``), registered by kind in
+    :data:`hrc_devices.controllers.registry.OPEN_VENDORS`, never among the closed vendors (a closed cell is not
+    offered it).
+
+    Attributes:
+        kind: the cell file's ``[robots.<name>.interface] kind`` (the config class's ``kind`` literal).
+        config: the contract's interface config class (``hrc_contract.config``) of this kind.
+        interface: ``(config, n_joints)`` → the vendor interface, not yet connected.
+        emulator_args: ``config`` → the controller emulator's options that serve this vendor's face (``hrc-cell``).
+        velocity_source: how the bridge gets joint velocities, for the documentation and the status (EGM: q
+            differenced over the controller's own stamps).
+    """
+
+    kind: str
+    config: type[ConfigT]
+    interface: Callable[[ConfigT, int], OpenVendorInterface]
+    emulator_args: Callable[[ConfigT], list[str]]
+    velocity_source: str

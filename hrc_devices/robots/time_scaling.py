@@ -31,7 +31,7 @@ from typing import Literal
 import numpy as np
 
 from hrc_contract.config import ConfigError, ControllerConfig
-from hrc_contract.messages import JointState, Override
+from hrc_contract.messages import JointCommand, JointState, Override
 from hrc_contract.vocabulary import ControllerMode
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import Trajectory
@@ -120,6 +120,40 @@ def stamp_rejection(stamp_ns: int, newest_stamp_ns: int, now_wall_ns: int, watch
     if -age_s > MAX_FUTURE_STAMP_S:
         return "stamp_in_future"
     return None
+
+
+JointCommandRejection = Literal["wrong_robot", "wrong_joint_count", "old_or_repeated", "stale", "stamp_in_future"]
+"""Why a schema-valid joint command was not accepted (:func:`joint_command_rejection`)."""
+
+
+def joint_command_rejection(
+    msg: JointCommand, robot_name: str, n_joints: int, newest_stamp_ns: int, now_wall_ns: int, watchdog_s: float
+) -> JointCommandRejection | None:
+    """Why an open controller (the emulator's, or a bridge to a real one) cannot accept a joint command on arrival,
+    or None if it can.
+
+    Order is decided by ``stamp_ns``, not by ``seq``: a restarted gateway, whose ``seq`` starts again at 0, is
+    accepted as soon as its stamps are newer. Finiteness is the message's own (``parse_message`` refuses NaN and
+    infinities as ``non_finite``).
+
+    Args:
+        msg: a parsed, schema-valid command.
+        robot_name: the robot this controller drives.
+        n_joints: the robot model's joint count.
+        newest_stamp_ns: ``stamp_ns`` of the newest command accepted so far; -1 before any [ns].
+        now_wall_ns: the receiver's wall clock at arrival (the clock of ``stamp_ns``) [ns].
+        watchdog_s: a command stamped longer ago than this is stale [s].
+
+    Returns:
+        None, or ``wrong_robot``; ``wrong_joint_count`` (not the model's); ``old_or_repeated`` (stamp not newer
+        than ``newest_stamp_ns``); ``stale`` (stamped more than ``watchdog_s`` ago); ``stamp_in_future`` (stamped
+        more than :data:`MAX_FUTURE_STAMP_S` ahead, as an override).
+    """
+    if msg.robot != robot_name:
+        return "wrong_robot"
+    if len(msg.q) != n_joints or len(msg.qd) != n_joints:
+        return "wrong_joint_count"
+    return stamp_rejection(msg.stamp_ns, newest_stamp_ns, now_wall_ns, watchdog_s)
 
 
 def apply_override(state: ControllerState, msg: Override, accepted_mono_ns: int) -> ControllerState:

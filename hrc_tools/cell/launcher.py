@@ -1,9 +1,9 @@
 """``hrc-cell``: run a whole cell (gateway, one controller emulator per robot, tracker emulator) on this machine.
 
-A robot whose ``interface`` is ``ur_rtde`` or ``abb_rws`` is reached as a real one would be: its emulator serves the
-vendor's face (``--rtde HOST``, ``--rws HOST:PORT``) and ``hrc-controller-bridge --robot R`` (program
-``bridge-<robot>``) runs beside it, with the same certificate (``controller-<robot>``), between that face and the
-cell's Zenoh contract (docs/controllers.md).
+A robot whose ``interface`` is ``ur_rtde`` or ``abb_rws`` (a closed controller) or ``abb_egm`` (an open one) is
+reached as a real one would be: its emulator serves the vendor's face (``--rtde HOST``, ``--rws HOST:PORT``, ``--egm
+HOST:PORT``) and ``hrc-controller-bridge --robot R`` (program ``bridge-<robot>``) runs beside it, with the same
+certificate (``controller-<robot>``), between that face and the cell's Zenoh contract (docs/controllers.md).
 
 Each program is its own process, as in production; they meet over Zenoh on loopback, with mutual TLS and the
 cell's access control: on first start the cell CA and the programs' certificates are created in the state
@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from hrc_contract.config import CellConfig, ConfigError, RobotConfig
-from hrc_devices.controllers.registry import VENDORS
+from hrc_devices.controllers.registry import OPEN_VENDORS, VENDORS
 from hrc_runtime.access_control import CellPolicy
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.pki import CellPki, default_pki_dir
@@ -42,13 +42,16 @@ def vendor_face_args(robot: RobotConfig) -> list[str]:
         ConfigError: the emulator cannot serve the interface as configured (an ``abb_rws`` URL that is not
             ``http://HOST:PORT``: the emulator serves RWS 1.0 only).
     """
-    vendor = VENDORS.get(robot.interface.kind)
+    kind = robot.interface.kind
+    vendor = VENDORS.get(kind) or OPEN_VENDORS.get(kind)
     return [] if vendor is None else vendor.emulator_args(robot.interface)
 
 
 def bridged_robots(config: CellConfig) -> list[str]:
-    """The robots reached through a controller bridge (an interface kind of the vendors' registry), sorted."""
-    return sorted(name for name, robot in config.robots.items() if robot.interface.kind in VENDORS)
+    """The robots reached through a controller bridge (an interface kind of either registry: a closed controller's
+    speed input or an open controller's joint references), sorted."""
+    kinds = {*VENDORS, *OPEN_VENDORS}
+    return sorted(name for name, robot in config.robots.items() if robot.interface.kind in kinds)
 
 
 def bridge_environment(config: CellConfig, environ: dict[str, str] | None = None) -> dict[str, str]:

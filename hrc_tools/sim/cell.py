@@ -45,6 +45,7 @@ from gateway.tracks import TrackEvent
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import to_payload
+from hrc_devices.controllers.descriptor import BridgedConfig
 from hrc_devices.robots.link_motion import link_motion
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import Trajectory, load_trajectory
@@ -268,7 +269,8 @@ def _build_controller(
         accumulator=AuditAccumulator(),
     )
     interface = robot_config.interface
-    if interface.kind != "zenoh" and isinstance(node, ControllerNode):  # the bridges speak to closed controllers
+    # the simulated bridges speak to closed controllers; an open one's (abb_egm) runs as its Zenoh face here
+    if isinstance(interface, BridgedConfig) and isinstance(node, ControllerNode):
         phases = _rng(seed, "bridge-phase", name).integers(0, NS_PER_S, size=2)
         ctrl.bridge = SimBridge(
             interface,

@@ -75,10 +75,14 @@ class EgmPc:
         host: the address to listen on ("" or 0.0.0.0: every one).
         port: the UDP port the controller sends to (0: an ephemeral one, :attr:`port` after :meth:`open`).
         n_joints: the robot model's joint count (a seventh and further ride in ``externalJoints``).
+        controller_host: the controller's IPv4 address: datagrams from any other host are counted
+            (``foreign_sender``) and skipped, so that nobody else's ``EgmRobot`` is taken for the robot's feedback or
+            answered; None: any sender (the last valid one is answered).
     """
 
-    def __init__(self, host: str, port: int, n_joints: int) -> None:
+    def __init__(self, host: str, port: int, n_joints: int, controller_host: str | None = None) -> None:
         self.host, self._port, self.n_joints = host, port, n_joints
+        self.controller_host = controller_host
         self._sock: socket.socket | None = None
         self._robot: tuple[str, int] | None = None
         self._seqno = 0
@@ -131,6 +135,9 @@ class EgmPc:
                 raise VendorError("closed", f"EGM: receive failed: {exc}") from None
             mono_ns = time.monotonic_ns()
             wall_ns = time.time_ns()
+            if self.controller_host is not None and str(sender[0]) != self.controller_host:
+                self._refused["foreign_sender"] += 1
+                continue
             try:
                 feedback = self._feedback(data, wall_ns, mono_ns)
             except EgmError as exc:

@@ -86,3 +86,23 @@ def test_broken_datagrams_are_skipped_and_counted(pc: EgmPc) -> None:
         robot.settimeout(5.0)
         data, _ = robot.recvfrom(2048)
     assert len(data) > 0
+
+
+def test_a_pc_bound_to_its_controller_skips_and_counts_every_other_sender() -> None:
+    joints, _ = joints_deg(np.full(6, 0.25))
+    datagram = encode_robot(EgmRobot(seqno=1, tm_ms=0, feedback_deg=joints))
+    with (
+        EgmPc("0.0.0.0", 0, n_joints=6, controller_host="127.0.0.1") as pc,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as robot,
+    ):
+        stranger.bind(("127.0.0.2", 0))
+        stranger.sendto(datagram, ("127.0.0.1", pc.port))
+        with pytest.raises(VendorError) as info:
+            pc.receive(timeout_s=0.2)  # the stranger's EgmRobot is not the robot's feedback
+        assert info.value.reason == "timeout"
+        assert pc.refused == {"foreign_sender": 1}
+        robot.bind(("127.0.0.1", 0))
+        robot.sendto(datagram, ("127.0.0.1", pc.port))
+        feedback = pc.receive(timeout_s=5.0)
+        np.testing.assert_allclose(feedback.q_rad, np.full(6, 0.25))

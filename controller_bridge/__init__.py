@@ -5,7 +5,7 @@ programmed velocity. The bridge writes the gateway's δ to the controller, confi
 controller's read-back shows it, derives the programmed velocity honestly, and publishes the robot's joint state
 on the cell's key (docs/contract.md). An open controller (ABB EGM) takes joint references instead: the bridge
 answers its feedback with the gateway's joint commands and publishes the joint state it reads
-(:mod:`.open_bridge`, :mod:`.open_shell`).
+(:mod:`.open_bridge`, :mod:`.open_shell`). Both shells open their resources through :mod:`.shell`.
 """
 
-__all__ = ["bridge", "main", "open_bridge", "open_shell", "program_model"]
+__all__ = ["bridge", "main", "open_bridge", "open_shell", "program_model", "shell"]

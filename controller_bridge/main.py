@@ -26,20 +26,29 @@ import argparse
 import json
 import logging
 import os
-import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from controller_bridge.bridge import Bridge, BridgeSettings, BridgeStats, FloatArray, Locate
 from controller_bridge.open_bridge import OpenBridge, OpenBridgeSettings
 from controller_bridge.open_shell import run_open_bridge
 from controller_bridge.program_model import load_model
+from controller_bridge.shell import (
+    BACKOFF_MAX_S,
+    BACKOFF_MIN_S,
+    PROGRESS_EVERY_S,
+    STATS_EVERY_S,
+    BridgeIo,
+    open_bridge_io,
+    open_session,
+    start_reader,
+)
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, ConfigError
 from hrc_contract.messages import JointState, to_payload
@@ -47,25 +56,17 @@ from hrc_devices.controllers.descriptor import BridgedConfig, OpenBridgedConfig,
 from hrc_devices.controllers.registry import OPEN_VENDORS, VENDORS
 from hrc_devices.controllers.vendor import VendorError, VendorInterface
 from hrc_devices.robots.model import RobotModel, load_robot_model
-from hrc_runtime.cli import add_config_argument, add_zenoh_arguments
+from hrc_runtime.cli import add_config_argument, add_zenoh_arguments, run_program
 from hrc_runtime.clocks import read_clocks
 from hrc_runtime.config import load_cell_config
-from hrc_runtime.logs import configure_logging
-from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.rate_loop import RateLoop
-from hrc_runtime.sd_notify import LoopNotifier
-from hrc_runtime.signals import StopEvent, stop_on_signals
-from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
+from hrc_runtime.signals import StopEvent
+from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args
 
 PROG = "hrc-controller-bridge"
 
 log = logging.getLogger(PROG)
 
-STATS_EVERY_S = 1.0
-PROGRESS_EVERY_S = 5.0
-BACKOFF_MIN_S = 0.1
-BACKOFF_MAX_S = 2.0
-"""Reconnection attempts start this far apart and double up to BACKOFF_MAX_S [s]."""
 VELOCITY_WINDOW_CYCLES = 2
 """An open controller's q is differenced over at least this many of its cycles of its own time
 (:mod:`controller_bridge.open_bridge`, "Velocities")."""
@@ -227,11 +228,6 @@ def _stats_doc(robot: str, kind: str, stats: BridgeStats, readings_per_s: float,
     return json.dumps(doc).encode()
 
 
-def bridge_stats_key(cell: str, robot: str) -> str:
-    """Where the bridge puts its statistics (beside the emulator's ``emu_stats``)."""
-    return keys.robot_emu_stats(cell, robot).rsplit("/", 1)[0] + "/bridge_stats"
-
-
 def service_status_line(robot: str, kind: str, stats: BridgeStats) -> str:
     readback = "-" if stats.last_readback is None else f"{stats.last_readback:.2f}"
     return f"{robot} {kind} {stats.mode or 'no reading'} readback={readback} rejected={sum(stats.rejected.values())}"
@@ -368,77 +364,28 @@ def run_bridge(
     zenoh_options: SessionOptions,
     poll_interval_s: float = 0.0,
 ) -> BridgeStats:
-    """Run the bridge until ``stop`` is set. Returns the final statistics.
+    """Run the bridge until ``stop`` is set. Returns the final statistics. A shell: its resources
+    (:mod:`controller_bridge.shell`, closed in reverse order whatever happens) and the write loop.
 
     Raises:
         ConfigError: the Zenoh session cannot be opened with these endpoints.
     """
     robot, kind = bridge.settings.robot, interface.kind
     wake = stop.wake_event()
-    try:
-        session = zenoh.open(session_config(listen, connect, zenoh_options))
-    except zenoh.ZError as exc:
-        reason = str(exc).split(" at /", 1)[0]
-        raise ConfigError(
-            f"cannot open a Zenoh session (listen {list(listen)}, connect {list(connect)}): {reason}"
-        ) from None
-    with session:
-        state_pub = session.declare_publisher(
-            keys.robot_state(cell, robot),
-            express=True,
-            priority=zenoh.Priority.REAL_TIME,
-            congestion_control=zenoh.CongestionControl.DROP,
+    with ExitStack() as resources:
+        session = open_session(resources, listen, connect, zenoh_options)
+        io = open_bridge_io(
+            resources,
+            cell,
+            robot,
+            session,
+            keys.robot_override(cell, robot),
+            lambda payload: bridge.on_override(payload, read_clocks()),
+            bridge.count_override_rejected,
+            inbound_name="overrides",
+            on_accepted=wake.set,
         )
-        stats_pub = session.declare_publisher(bridge_stats_key(cell, robot))
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                reason = bridge.on_override(sample.payload.to_bytes(), read_clocks())
-            except Exception:  # a callback must never die: count it, the watchdog writes 0
-                log.exception("error while handling an override")
-                bridge.count_override_rejected("internal_error")
-                return
-            if reason is None:
-                wake.set()
-            else:
-                log.debug("override rejected: %s", reason)
-
-        # the newest overrides only: a burst after a freeze keeps 16 samples, not 256 (bounded memory)
-        subscriber = declare_newest_wins(session, keys.robot_override(cell, robot), on_sample, name="overrides")
-        token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        reader = _Reader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop, poll_interval_s)
-        service = LoopNotifier.from_environment()
-        timers = {"stats": time.monotonic() + STATS_EVERY_S, "progress": time.monotonic() + PROGRESS_EVERY_S}
-        last_readings = [0, time.monotonic()]
-
-        def on_cycle(now_s: float) -> None:
-            stats = bridge.stats()
-            service.cycle_done(now_s, lambda: service_status_line(robot, kind, stats), ready=stats.published > 0)
-            if now_s >= timers["stats"]:
-                timers["stats"] = now_s + STATS_EVERY_S
-                rate = (stats.readings - last_readings[0]) / max(now_s - last_readings[1], 1e-9)
-                last_readings[:] = [stats.readings, now_s]
-                stats_pub.put(_stats_doc(robot, kind, stats, rate, bridge.take_latency_max()))
-            if now_s >= timers["progress"]:
-                timers["progress"] = now_s + PROGRESS_EVERY_S
-                log.info(
-                    "%s via %s: %s override=%s readback=%s override_seq=%d latency=%s published=%d writes=%d "
-                    "(dithered %d, unprovable %d) rejected=%s overrides_rejected=%s",
-                    robot,
-                    kind,
-                    stats.mode,
-                    stats.last_applied,
-                    stats.last_readback,
-                    stats.override_seq,
-                    stats.readback_latency_s,
-                    stats.published,
-                    stats.writes,
-                    stats.dithered,
-                    stats.unprovable,
-                    dict(stats.rejected),
-                    dict(stats.overrides_rejected),
-                )
-
+        reader = _Reader(bridge, interface, lambda state: io.state_pub.put(to_payload(state)), stop, poll_interval_s)
         log.info(
             "bridge %s of cell %r via %s: overrides from %s, joint states on %s",
             robot,
@@ -447,14 +394,8 @@ def run_bridge(
             keys.robot_override(cell, robot),
             keys.robot_state(cell, robot),
         )
-        reader.thread.start()
-        try:
-            _write_loop(bridge, interface, reader, stop, wake, on_cycle)
-        finally:
-            service.stopping()
-            stop.set()
-            reader.thread.join(timeout=2.0)
-            del token, subscriber
+        start_reader(resources, reader.thread, stop, io.service)
+        _write_loop(bridge, interface, reader, stop, wake, _Reports(bridge, kind, io))
     stats = bridge.stats()
     log.info(
         "bridge %s stopped: %d readings, %d joint states published, %d writes, rejected %s, overrides rejected %s",
@@ -466,6 +407,45 @@ def run_bridge(
         dict(stats.overrides_rejected) or "none",
     )
     return stats
+
+
+class _Reports:
+    """Once per write-loop cycle: the service manager's watchdog; the statistics every :data:`STATS_EVERY_S`, the
+    progress line every :data:`PROGRESS_EVERY_S`."""
+
+    def __init__(self, bridge: Bridge, kind: str, io: BridgeIo) -> None:
+        self.bridge, self.kind, self.io = bridge, kind, io
+        now_s = time.monotonic()
+        self.next_stats_s, self.next_progress_s = now_s + STATS_EVERY_S, now_s + PROGRESS_EVERY_S
+        self.last_readings = (0, now_s)
+
+    def __call__(self, now_s: float) -> None:
+        robot, kind, stats = self.bridge.settings.robot, self.kind, self.bridge.stats()
+        self.io.service.cycle_done(now_s, lambda: service_status_line(robot, kind, stats), ready=stats.published > 0)
+        if now_s >= self.next_stats_s:
+            self.next_stats_s = now_s + STATS_EVERY_S
+            rate = (stats.readings - self.last_readings[0]) / max(now_s - self.last_readings[1], 1e-9)
+            self.last_readings = (stats.readings, now_s)
+            self.io.stats_pub.put(_stats_doc(robot, kind, stats, rate, self.bridge.take_latency_max()))
+        if now_s >= self.next_progress_s:
+            self.next_progress_s = now_s + PROGRESS_EVERY_S
+            log.info(
+                "%s via %s: %s override=%s readback=%s override_seq=%d latency=%s published=%d writes=%d "
+                "(dithered %d, unprovable %d) rejected=%s overrides_rejected=%s",
+                robot,
+                kind,
+                stats.mode,
+                stats.last_applied,
+                stats.last_readback,
+                stats.override_seq,
+                stats.readback_latency_s,
+                stats.published,
+                stats.writes,
+                stats.dithered,
+                stats.unprovable,
+                dict(stats.rejected),
+                dict(stats.overrides_rejected),
+            )
 
 
 def main(
@@ -542,25 +522,21 @@ def cli(argv: list[str] | None = None) -> None:
     )
     add_zenoh_arguments(parser)
     args = parser.parse_args(argv)
-    configure_logging(args.log_level)
-    with stop_on_signals() as stop:
-        try:
-            config = load_cell_config(args.config)
-            zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
-            code = main(
-                config,
-                args.robot,
-                args.zenoh_listen,
-                args.zenoh_connect,
-                stop,
-                zenoh_options=zenoh_options,
-                program_model=args.program_model,
-            )
-        except ConfigError as exc:
-            reason = " ".join(str(exc).split())
-            sys.stderr.write(f"{PROG}: invalid configuration: {reason}\n")
-            sys.exit(2)
-    sys.exit(code)
+
+    def body(stop: StopEvent) -> int:
+        config = load_cell_config(args.config)
+        zenoh_options = options_from_args(args, f"controller-{select_robot(config, args.robot)}", config)
+        return main(
+            config,
+            args.robot,
+            args.zenoh_listen,
+            args.zenoh_connect,
+            stop,
+            zenoh_options=zenoh_options,
+            program_model=args.program_model,
+        )
+
+    run_program(PROG, args.log_level, body, log=log)
 
 
 if __name__ == "__main__":

@@ -9,7 +9,7 @@
 
 The reference is sent before the joint state is composed and published: EGM's controller waits for the answer
 within its cycle. The reader opens the vendor's socket, and opens it again with a doubling backoff
-(:data:`controller_bridge.main.BACKOFF_MIN_S` … ``BACKOFF_MAX_S``) when it fails or no valid feedback came for
+(:data:`controller_bridge.shell.BACKOFF_MIN_S` … ``BACKOFF_MAX_S``) when it fails or no valid feedback came for
 ``read_timeout_s``; meanwhile nothing is published and the gateway's staleness check stops the robot.
 """
 
@@ -20,28 +20,32 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import ExitStack
 
 import zenoh
 
 from controller_bridge.open_bridge import OpenBridge, OpenBridgeStats
+from controller_bridge.shell import (
+    BACKOFF_MAX_S,
+    BACKOFF_MIN_S,
+    PROGRESS_EVERY_S,
+    STATS_EVERY_S,
+    open_bridge_io,
+    open_session,
+    start_reader,
+)
 from hrc_contract import keys
-from hrc_contract.config import ConfigError
 from hrc_contract.messages import JointState, to_payload
 from hrc_devices.controllers.vendor import OpenVendorInterface, VendorError
 from hrc_runtime.clocks import read_clocks
-from hrc_runtime.newest_wins import declare_newest_wins
 from hrc_runtime.sd_notify import LoopNotifier
 from hrc_runtime.signals import StopEvent
-from hrc_runtime.zenoh_session import SessionOptions, session_config
+from hrc_runtime.zenoh_session import SessionOptions
 
 log = logging.getLogger("hrc-controller-bridge")
 
 LOOP_S = 0.1
 """The main thread's loop: the service manager's watchdog and the statistics' schedule [s]."""
-STATS_EVERY_S = 1.0
-PROGRESS_EVERY_S = 5.0
-BACKOFF_MIN_S = 0.1
-BACKOFF_MAX_S = 2.0
 RECONNECT_ON = frozenset({"connect", "closed"})
 """VendorError reasons after which the socket is closed and opened again (a timeout: the next read may do)."""
 
@@ -221,37 +225,20 @@ def run_open_bridge(
         ConfigError: the Zenoh session cannot be opened with these endpoints.
     """
     robot, kind = bridge.settings.robot, interface.kind
-    try:
-        session = zenoh.open(session_config(listen, connect, zenoh_options))
-    except zenoh.ZError as exc:
-        reason = str(exc).split(" at /", 1)[0]
-        raise ConfigError(
-            f"cannot open a Zenoh session (listen {list(listen)}, connect {list(connect)}): {reason}"
-        ) from None
-    with session:
-        state_pub = session.declare_publisher(
-            keys.robot_state(cell, robot),
-            express=True,
-            priority=zenoh.Priority.REAL_TIME,
-            congestion_control=zenoh.CongestionControl.DROP,
+    command_key = keys.robot_joint_command(cell, robot)
+    with ExitStack() as resources:
+        session = open_session(resources, listen, connect, zenoh_options)
+        io = open_bridge_io(
+            resources,
+            cell,
+            robot,
+            session,
+            command_key,
+            lambda payload: bridge.on_command(payload, read_clocks()),
+            bridge.count_command_rejected,  # the bridge holds the last reference
+            inbound_name="joint-commands",
         )
-        stats_pub = session.declare_publisher(keys.robot_bridge_stats(cell, robot))
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                reason = bridge.on_command(sample.payload.to_bytes(), read_clocks())
-            except Exception:  # a callback must never die: count it; the bridge holds the last reference
-                log.exception("error while handling a joint command")
-                bridge.count_command_rejected("internal_error")
-                return
-            if reason is not None:
-                log.debug("joint command rejected: %s", reason)
-
-        command_key = keys.robot_joint_command(cell, robot)
-        subscriber = declare_newest_wins(session, command_key, on_sample, name="joint-commands")
-        token = session.liveliness().declare_token(keys.alive(cell, f"controller-{robot}"))
-        reader = OpenReader(bridge, interface, lambda state: state_pub.put(to_payload(state)), stop, read_timeout_s)
-        service = LoopNotifier.from_environment()
+        reader = OpenReader(bridge, interface, lambda state: io.state_pub.put(to_payload(state)), stop, read_timeout_s)
         log.info(
             "open bridge %s of cell %r via %s: joint commands from %s, joint states on %s",
             robot,
@@ -260,14 +247,8 @@ def run_open_bridge(
             command_key,
             keys.robot_state(cell, robot),
         )
-        reader.thread.start()
-        try:
-            _report_until_stopped(bridge, interface, stats_pub, service, stop)
-        finally:
-            service.stopping()
-            stop.set()
-            reader.thread.join(timeout=2.0)
-            del token, subscriber
+        start_reader(resources, reader.thread, stop, io.service)
+        _report_until_stopped(bridge, interface, io.stats_pub, io.service, stop)
     stats = bridge.stats()
     log.info(
         "open bridge %s stopped: %d feedbacks, %d joint states published, references %s, rejected %s, joint "

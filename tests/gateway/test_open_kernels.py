@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any
 
+import daqp
 import numpy as np
 import pytest
 
@@ -238,3 +239,51 @@ def _was_poisoned(problem: dict[str, Any], what: str) -> bool:
             np.isfinite(problem["limits"].q_max_rad).all() and np.isfinite(problem["limits"].qd_max_radps).all()
         )
     return not np.isfinite(problem[what]).all()
+
+
+def _feasible_problem() -> dict[str, Any]:
+    for seed in range(100):
+        problem = _problem(seed)
+        problem["cap"] = 1.0
+        if _decide(open_control.decide, problem)[0].how == "lp13":
+            return problem
+    raise AssertionError("no feasible problem among the first 100 seeds")
+
+
+@pytest.mark.parametrize(
+    ("lies", "how"),
+    [
+        ((0,), "ramp_stop:lp9_breaks_a_row"),  # LP (9)'s answer breaks a row: never sent
+        ((1,), "lp9"),  # LP (13)'s does: LP (9)'s q̇ stands (δ = δ*)
+        ((), "ramp_stop:lp9_infeasible"),  # the solver fails
+    ],
+)
+def test_a_solver_answer_that_breaks_a_row_or_fails_is_never_sent(
+    monkeypatch: pytest.MonkeyPatch, lies: tuple[int, ...], how: str
+) -> None:
+    """Fail closed as the reference does, with the same fallbacks, when DAQP lies about or fails a solve."""
+    problem = _feasible_problem()
+    answers: dict[str, Solution] = {}
+    for name, decide in (("ours", OpenLp().decide), ("theirs", open_control.decide)):
+        monkeypatch.setattr("daqp.solve", _lying_solve(lies))
+        answers[name] = _decide(decide, problem)[0]
+        monkeypatch.undo()
+    assert answers["ours"].how == how
+    _same(answers["ours"], answers["theirs"], problem)
+
+
+def _lying_solve(lies: tuple[int, ...]) -> Any:
+    """``daqp.solve`` that answers the calls numbered in ``lies`` with an "optimal" q̇ far beyond the rows; with
+    none, every call fails."""
+    real_solve = daqp.solve
+    calls = [0]
+
+    def solve(*args: Any, **kwargs: Any) -> Any:
+        calls[0] += 1
+        if not lies:
+            return np.zeros(args[1].size), 0.0, -1, {}  # DAQP's "infeasible"
+        if calls[0] - 1 in lies:
+            return np.full(args[1].size, 50.0), -1.0, 1, {}
+        return real_solve(*args, **kwargs)
+
+    return solve

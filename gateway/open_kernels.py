@@ -3,19 +3,25 @@ assembled by numba kernels into buffers kept between cycles.
 
 :func:`gateway.open_control.decide` (numpy) is the reference: it builds each LP with ~40 numpy calls (bounds, the
 rows some q̇ in the box could break, ``np.zeros``/``np.concatenate`` of the constraint matrices, finiteness checks,
-each answer checked against every row), and those calls cost 1–3 µs each, several times DAQP's solve (~5 µs at this
-size). Here four compiled calls do the same arithmetic in the same order into preallocated buffers (grown when a cycle
-has more rows than any before), and DAQP is called as the reference calls it (``daqp.solve``, cold start: the same
-problem data in the same order, so the same answer; a warm-started ``daqp.Model`` could pick another vertex of a
-degenerate LP (13) and is not used). The control flow below is the reference's, line by line, with the same
-fail-closed exits: non-finite data or an empty velocity box → LP (9) infeasible → ramp stop; an answer that breaks a
-row → ramp stop. ``tests/gateway/test_open_kernels.py`` checks both against each other on seeded random problems,
-infeasible and non-finite ones included.
+each answer checked against every row), and those calls cost 1–3 µs each, more than DAQP itself on most cycles. Here
+a compiled call per step does the same arithmetic in the same order into preallocated buffers (grown when a cycle
+has more rows than any before), and DAQP is called as the reference calls it.
 
-The one difference to the reference is the summation order of the row products (a loop here, BLAS there): a row
-whose largest left side over the box equals its right-hand side to the last bit may be kept by one and dropped by the
-other (either keeps every solution: such a row cannot bind), and a check at exactly :data:`ROW_TOLERANCE` may round
-the other way.
+``daqp.solve`` is already the cheapest entry that keeps the answer: it wraps the arrays without copying them (C-ordered
+float64 and int32 senses, as the buffers are) and calls DAQP's C solver cold; DAQP's own setup and solve are all but
+~2 µs of it (~10 µs at 240 rows). A reused ``daqp.Model`` does not fit: its ``update`` keeps the dimensions of its
+``setup`` (the rows kept change every cycle) and starts from the previous active set, which may end on another vertex
+of a degenerate LP (13) — another answer.
+
+The control flow of :meth:`OpenLp.decide` is the reference's, line by line, with the same fail-closed exits:
+non-finite data or an empty velocity box → LP (9) infeasible → ramp stop; an answer that breaks a row → ramp stop;
+the cap called once with the same δ*. ``tests/gateway/test_open_kernels.py`` checks both against each other on
+seeded random problems, infeasible and non-finite ones included: the same q̇, δ and objective, bit for bit.
+
+What can differ is the summation order of the row products (a loop here, BLAS there): when several rows are active
+at the optimum their slacks tie to ~1e-16 and ``bounded_by`` may name another of them; a row whose largest left side
+over the box equals its right-hand side to the last bit may be kept by one and dropped by the other (such a row
+cannot bind); a check at exactly :data:`ROW_TOLERANCE` may round the other way.
 """
 
 from __future__ import annotations

@@ -23,6 +23,10 @@ own direction, to standstill within the controller's stop time T_c ≤ every t_b
 
 Every command is checked against the rows before it leaves (:func:`violated_rows`): a solver's answer that breaks a
 row beyond the solver's tolerance is not sent; the ramp stop is. Pure numpy and DAQP; no state, no I/O.
+
+This numpy form is the reference: the gateway's loop runs :meth:`gateway.open_kernels.OpenLp.decide`, the same
+decision compiled into buffers kept between cycles (a third of the time), checked against :func:`decide` in
+``tests/gateway/test_open_kernels.py``.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 The gateway runs an open robot's program itself (paper 1, Sec. III): the task is the tool's pose along the program,
 x(τ) = k(q_p(τ)), x'(τ) = J_tool(q_p(τ)) q̇_p(τ); τ advances by δ each cycle; the reference q_ref integrates the
 commanded q̇. The safety rows are built at the *measured* joints (what the robot is), the task and the joint limits
-at the reference (what it is told). :func:`gateway.open_control.decide` chooses the command.
+at the reference (what it is told). :meth:`gateway.open_kernels.OpenLp.decide` (the compiled
+:func:`gateway.open_control.decide`) chooses the command.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import pinocchio as pin
 from gateway import open_control
 from gateway.kinematics import LinkKinematics
 from gateway.open_control import Limits, SafetyRows, Solution, Task
+from gateway.open_kernels import OpenLp
 from gateway.plan import Plan, Sampler
 from gateway.separation import ConstraintRows
 from hrc_contract.config import ConfigError
@@ -126,6 +128,8 @@ class OpenRobot:
     tool_frame_id: int = field(init=False)
     active: npt.NDArray[np.intp] = field(init=False)
     limits: Limits = field(init=False)
+    lp: OpenLp = field(init=False, repr=False, compare=False)
+    """LP (9) and (13)'s buffers, kept between cycles."""
     tau_s: float = 0.0
     q_ref_rad: FloatArray | None = None
     qd_prev_radps: FloatArray | None = None
@@ -161,6 +165,7 @@ class OpenRobot:
             np.asarray(robot.model.upperPositionLimit, dtype=float)[self.active],
             self.stop_time_s,
         )
+        self.lp = OpenLp()
 
     # -- the path the task follows: the program, or a plan around people --------------------------------
 
@@ -335,7 +340,7 @@ class OpenRobot:
                 )
             posture = POSTURE_GAIN_PER_S * (q_prog - q_ref)[self.active]
             qd_self = open_control.self_motion_reference(task, max(self.delta_prev, 0.0), posture, away)
-            solution = open_control.decide(
+            solution = self.lp.decide(
                 safety,
                 task,
                 qd_prev,

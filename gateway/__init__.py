@@ -19,6 +19,7 @@ __all__ = [
     "methods",
     "node",
     "open_control",
+    "open_kernels",
     "open_robot",
     "plan",
     "planner",

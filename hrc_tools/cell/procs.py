@@ -570,7 +570,8 @@ def record(
 ) -> list[Status]:
     """Every status document the gateway publishes on Zenoh (25 Hz) for ``duration_s``, or until ``until(trace)``.
 
-    Each entry is the robot's status with ``t_s`` (seconds since the start of the recording).
+    Each entry is the robot's status with ``t_s`` (seconds since the start of the recording) and ``document_stamp_ns``
+    (the status document's own stamp: a gap between two entries' stamps is time the trace did not see).
     """
     trace: list[Status] = []
     lock = threading.Lock()
@@ -579,7 +580,8 @@ def record(
     def on_status(sample: zenoh.Sample) -> None:
         doc = GatewayStatus.model_validate_json(sample.payload.to_bytes())  # raises (drops it) if not the contract
         with lock:
-            trace.append({**doc.robots[robot].model_dump(mode="json"), "t_s": time.monotonic() - start})
+            entry = {**doc.robots[robot].model_dump(mode="json"), "t_s": time.monotonic() - start}
+            trace.append({**entry, "document_stamp_ns": doc.stamp_ns})
 
     with zenoh.open(session_config(connect=[cell.gateway_endpoint])) as session:
         session.declare_subscriber(keys.gateway_status(cell.name), on_status)

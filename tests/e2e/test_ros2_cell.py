@@ -5,6 +5,7 @@ the capture (the header stamp) through the conversion."""
 
 from __future__ import annotations
 
+import itertools
 import statistics
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,8 @@ from hrc_tools.cell.procs import collapse, free_endpoint, is_subsequence, record
 pytestmark = pytest.mark.e2e
 
 SCENARIO_S = 31.0  # walk_in_reach_leave: nobody, walk in, reach in, leave, nobody
+STEP_SHORTEST_S = 0.2
+"""The shortest reduced-speed step on the way in seen with body fitting on (0.20-0.36 s) [s]."""
 NATIVE_ZONES = ["autonomous", "guarded_distance", "reduced_speed", "safety_exception", "autonomous"]
 """The default scenario's zones in the capsule cell (configs/cell.toml; tests/e2e/test_cell.py)."""
 UNFITTED_ZONES = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
@@ -46,9 +49,11 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(
     assert is_subsequence(UNFITTED_ZONES, zones), collapse([_zone_and_faults(s) for s in trace])
     if expected == NATIVE_ZONES:
         # The reduced-speed step on the way in (measured 0.20-0.36 s with fitting on) unless a stale frame made
-        # the gateway fail closed during it (a loaded machine's; the CI run of stop 18 saw the step go missing).
+        # the gateway fail closed during it (a loaded machine's; the CI run of stop 18 saw the step go missing), or
+        # the trace did not see that long a stretch of it (the status thread skips documents while the loaded
+        # machine holds it up: a run at load 5 saw the step go missing with no fault in the samples).
         way_in = _way_in(trace)
-        if not [f for s in way_in for f in s["faults"]]:
+        if not [f for s in way_in for f in s["faults"]] and _largest_gap_s(way_in) < STEP_SHORTEST_S:
             assert "reduced_speed" in {s["zone"] for s in way_in}, collapse([_zone_and_faults(s) for s in way_in])
     # Stale frames (tracker_stale: older than max_data_age_s) are a loaded machine's, failing closed; any other
     # tracker fault, or a frame the adapter refused, is the adapter's.
@@ -74,6 +79,12 @@ def _way_in(trace: list[dict[str, Any]]) -> list[dict[str, Any]]:
     start = next(i for i, s in enumerate(trace) if s["zone"] == "guarded_distance")
     end = next(i for i in range(start, len(trace)) if trace[i]["zone"] == "safety_exception")
     return trace[start : end + 1]
+
+
+def _largest_gap_s(way_in: list[dict[str, Any]]) -> float:
+    """The longest time between two consecutive status documents of the stretch, by their own stamps [s]."""
+    stamps = [s["document_stamp_ns"] for s in way_in]
+    return max((b - a for a, b in itertools.pairwise(stamps)), default=0) / 1e9
 
 
 def _zone_and_faults(status: dict[str, Any]) -> str:

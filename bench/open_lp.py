@@ -64,6 +64,28 @@ def _people(rng: np.random.Generator) -> HumanCapsules:
     )
 
 
+def _previous_velocity(
+    safety: open_control.SafetyRows,
+    task: open_control.Task,
+    q: np.ndarray,
+    qd_nominal: np.ndarray,
+    active: np.ndarray,
+    limits: open_control.Limits,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """The velocity of the cycle before, as the loop has it: LP (9)'s answer at this state with only the velocity and
+    position limits as its box (the previous cycle's command satisfied these rows), or, where that has none, a random
+    fraction 0.3–1 of the program's velocity (a robot that must slow faster than it can: the ramp stop's path)."""
+    qd_prev = float(rng.uniform(0.3, 1.0)) * np.asarray(qd_nominal, dtype=float)
+    lower = np.maximum(-limits.qd_max_radps, np.minimum((limits.q_min_rad - q[active]) / 0.004, 0.0))
+    upper = np.minimum(limits.qd_max_radps, np.maximum((limits.q_max_rad - q[active]) / 0.004, 0.0))
+    steady = open_control.solve_lp9(safety, task, lower, upper)
+    if steady is not None:
+        qd_prev = np.zeros_like(qd_prev)
+        qd_prev[active] = steady[0]
+    return qd_prev
+
+
 def _ratios(reference_us: list[float], compiled_us: list[float]) -> dict[str, float]:
     """How many times longer the reference took: the median of the per-sample ratios, and the ratio of each
     percentile."""
@@ -123,7 +145,6 @@ def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
         )
         open_robot = OpenRobot(robot, trajectory, 0.004, config.robots["panda"].controller.braking_time_s)
         open_robot.tau_s, open_robot.q_ref_rad = tau, np.array(q)
-        open_robot.qd_prev_radps = float(rng.uniform(0.3, 1.0)) * np.asarray(qd_nominal)
         open_robot.delta_prev, open_robot.last_mono_ns = 1.0, 0
         open_robot.lp = lp  # one robot's buffers, reused cycle after cycle as in the loop
         # the pieces the LPs take, as the command builds them
@@ -141,6 +162,7 @@ def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
             open_robot.limits.qd_max_radps,
         )
         active = open_robot.active
+        open_robot.qd_prev_radps = _previous_velocity(safety, task, q, qd_nominal, active, open_robot.limits, rng)
         qd_prev = open_robot.qd_prev_radps[active]
         lower, upper = open_control.velocity_bounds(qd_prev, q[active], open_robot.limits, 0.004)
         qd_self = open_control.self_motion_reference(task, 1.0, np.zeros(active.size), np.zeros(active.size))

@@ -497,6 +497,7 @@ class SafetyCore:
                 near_m,
                 cap,
                 override_from_rows(rows) if usable else 0.0,
+                delay.joint_state_age_s + delay.override_path_s + delay.controller_cycle_s + delay.gateway_period_s,
             )
             links = LinkEnds(kernel_links.p_a_world, kernel_links.p_b_world)
         else:

@@ -44,7 +44,11 @@ AWAY_INFLUENCE_M = 2.0
 """People nearer than this to a link (surface distance) push it away; the weight grows linearly to 1 at contact [m]."""
 RESYNC_RAD = 0.05
 """A reference this far from the measured joints (the robot did not follow: a protective stop, a restart) starts
-again from the measured state [rad]."""
+again from the measured state [rad]: far from every reference sent within the measured round trip (a measured state
+shows where the robot was one round trip ago, so on a slow link it trails the newest reference by q̇ × that time)."""
+SENT_KEPT = 256
+"""References kept for that comparison: 1 s of commands at 250 Hz; a round trip longer than what they cover is
+compared with the oldest kept."""
 
 
 class OpenCommand(NamedTuple):
@@ -62,6 +66,8 @@ class OpenCommand(NamedTuple):
     solution: Solution
     rows: int
     rows_dropped: int
+    reference_restarts: int = 0
+    """Times the reference started again from the measured state because the robot did not follow (since start)."""
 
 
 def active_joints(robot: RobotModel, tool_frame_id: int) -> npt.NDArray[np.intp]:
@@ -144,6 +150,13 @@ class OpenRobot:
     """The program time at which the robot left the program for the current plan [s]."""
     plans_adopted: int = 0
     plans_finished: int = 0
+    sent_q_rad: FloatArray = field(init=False, repr=False, compare=False)
+    """The active joints of the last :data:`SENT_KEPT` references sent, a ring [rad]."""
+    sent_mono_ns: npt.NDArray[np.int64] = field(init=False, repr=False, compare=False)
+    """When each was sent [ns, monotonic]; -1: empty."""
+    sent_next: int = 0
+    reference_restarts: int = 0
+    """Times the reference started again from the measured joints after the first (the robot did not follow)."""
 
     def __post_init__(self) -> None:
         robot = self.robot
@@ -166,6 +179,8 @@ class OpenRobot:
             self.stop_time_s,
         )
         self.lp = OpenLp()
+        self.sent_q_rad = np.zeros((SENT_KEPT, self.active.size))
+        self.sent_mono_ns = np.full(SENT_KEPT, -1, dtype=np.int64)
 
     # -- the path the task follows: the program, or a plan around people --------------------------------
 
@@ -271,6 +286,21 @@ class OpenRobot:
 
     # -- the cycle -------------------------------------------------------------------------------------
 
+    def followed(self, q_meas_rad: FloatArray, now_mono_ns: int, round_trip_s: float) -> bool:
+        """True when the measured joints are within :data:`RESYNC_RAD` (every active joint) of the reference as it
+        moves on now or of a reference sent within ``round_trip_s`` before now (the state measured shows where the
+        robot was that long ago); False: the robot did not follow (a protective stop, a restart, another program)."""
+        assert self.q_ref_rad is not None
+        q = q_meas_rad[self.active]
+        if float(np.max(np.abs(self.q_ref_rad[self.active] - q), initial=0.0)) <= RESYNC_RAD:
+            return True
+        window_ns = round(min(max(round_trip_s, 0.0), 10.0) * 1e9)
+        recent = self.sent_mono_ns >= max(now_mono_ns - window_ns, 0)
+        if not recent.any():
+            return False
+        off = np.max(np.abs(self.sent_q_rad[recent] - q), axis=1, initial=0.0)
+        return bool(off.min() <= RESYNC_RAD)
+
     def start_from(self, q_meas_rad: FloatArray, qd_meas_radps: FloatArray) -> None:
         """The reference starts at the measured state (first cycle, or after the robot did not follow)."""
         self.q_ref_rad = np.array(q_meas_rad, dtype=float)
@@ -290,6 +320,7 @@ class OpenRobot:
         link_distance_m: FloatArray | None,
         cap: Callable[[float], float],
         bound_if_infeasible: float = 0.0,
+        round_trip_s: float = 0.0,
     ) -> OpenCommand:
         """This cycle's command.
 
@@ -304,6 +335,9 @@ class OpenRobot:
                 with nobody near) [m].
             cap: the zones and faults: the most δ they allow given the LPs' δ* (:func:`gateway.open_control.decide`).
             bound_if_infeasible: eq. (15)'s bound at the program's velocity, for the zones when LP (9) has none.
+            round_trip_s: from a command sent to the joint state that shows it (the measured override path, the
+                controller's cycle, the joint state's age and the gateway's period) [s]: the reference starts again
+                from the measured state only when that is far from every reference sent within it.
         """
         if self.q_ref_rad is None or self.qd_prev_radps is None or not np.isfinite(self.q_ref_rad).all():
             self.start_from(q_meas_rad, qd_meas_radps)
@@ -314,8 +348,10 @@ class OpenRobot:
         self.last_mono_ns = now_mono_ns
         self._advance(elapsed_s * self.delta_prev)
         self.q_ref_rad = self.q_ref_rad + elapsed_s * self.qd_prev_radps
-        if float(np.max(np.abs(self.q_ref_rad - q_meas_rad)[self.active], initial=0.0)) > RESYNC_RAD:
+        if not self.followed(q_meas_rad, now_mono_ns, round_trip_s):
             self.start_from(q_meas_rad, qd_meas_radps)
+            self.reference_restarts += 1
+            self.sent_mono_ns[:] = -1  # what was sent before the robot stopped following says nothing now
         q_ref = self.q_ref_rad
         qd_prev = self.qd_prev_radps[self.active]
         safety = self._rows(q_meas_rad, links, rows, humans)
@@ -358,9 +394,12 @@ class OpenRobot:
         self.qd_prev_radps = qd
         self.delta_prev = solution.delta
         q_next = q_ref + self.period_s * qd
+        self.sent_q_rad[self.sent_next] = q_next[self.active]
+        self.sent_mono_ns[self.sent_next] = now_mono_ns
+        self.sent_next = (self.sent_next + 1) % SENT_KEPT
         n_rows = 0 if safety is None else int(safety.f_m2.size)
         dropped = 0 if safety is None else safety.dropped
-        return OpenCommand(q_next, qd, solution, n_rows, dropped)
+        return OpenCommand(q_next, qd, solution, n_rows, dropped, self.reference_restarts)
 
     def _rows(
         self, q_meas_rad: FloatArray, links: LinkKinematics, rows: ConstraintRows | None, humans: HumanCapsules

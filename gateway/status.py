@@ -278,6 +278,7 @@ def _open_command(decision: RobotDecision) -> dict[str, object] | None:
         "self_motion_gap_radps": None if gap is None or not math.isfinite(gap) else max(0.0, _rounded(gap)),
         "rows": command.rows,
         "rows_dropped": command.rows_dropped,
+        "reference_restarts": command.reference_restarts,
         "q_rad": [_rounded(v) for v in command.q_rad.tolist()],
         "qd_radps": [_rounded(v) for v in command.qd_radps.tolist()],
     }

@@ -123,6 +123,12 @@ class OpenCommandStatus(_Strict):
     )
     rows: Count = Field(description="Safety rows (9b) in the LP: those some velocity within the limits could break.")
     rows_dropped: Count = Field(description="Rows left out: no velocity within the limits reaches them.")
+    reference_restarts: Count = Field(
+        0,
+        description="Times since the gateway started that the reference started again from the measured joints: "
+        "they were far from every reference sent within the measured round trip (the robot did not follow: a "
+        "protective stop, a restart, another program).",
+    )
     q_rad: list[Finite] = Field(description="The reference position sent for the next cycle [rad].")
     qd_radps: list[Finite] = Field(description="The reference velocity sent [rad/s].")
 

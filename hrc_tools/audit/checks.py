@@ -237,6 +237,30 @@ def audit_cycle(
     )
 
 
+def open_stop_fraction(
+    robot: RobotModel, data: pin.Data, q_rad: FloatArray, qd_radps: FloatArray, moving_eps_mps: float = MOVING_EPS_MPS
+) -> float:
+    """An *open* controller's stop still ahead, as a fraction of its stop time (the ``delta_applied`` of
+    :func:`audit_cycle` for a robot that reports no override): it stops every joint at q̇max_j / T_c, so from q̇ its
+    stop lasts max_j |q̇_j| / q̇max_j of T_c (docs/safety-math.md §13); 0 when every link end moves slower than
+    ``moving_eps_mps`` (the standing robot of check 1: a position loop holding its reference creeps at far less).
+
+    Args:
+        robot: the robot model (the URDF's velocity limits, the open controller's q̇max).
+        data: Pinocchio data of ``robot.model``.
+        q_rad, qd_radps: TRUE joint positions [rad] and velocities [rad/s].
+        moving_eps_mps: speed below which the robot counts as standing still [m/s].
+    """
+    qd = np.asarray(qd_radps, dtype=float)
+    fraction = float(np.max(np.abs(qd) / np.asarray(robot.velocity_limit_radps, dtype=float), initial=0.0))
+    if fraction > 0.0:
+        ends = link_motion(robot, data, np.asarray(q_rad, dtype=float), qd)
+        speed_mps = float(np.sqrt(np.maximum((ends.v_a_world**2).sum(1), (ends.v_b_world**2).sum(1)).max()))
+        if speed_mps <= moving_eps_mps:
+            fraction = 0.0
+    return min(fraction, 1.0)
+
+
 # -- a run's summary ---------------------------------------------------------------------------------
 
 

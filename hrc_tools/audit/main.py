@@ -57,7 +57,7 @@ from hrc_runtime.memory import configure_heap
 from hrc_runtime.signals import stop_on_signals
 from hrc_runtime.zenoh_session import DEFAULT_ENDPOINT, SessionOptions, options_from_args, session_config
 from hrc_tools.audit.bounded import DelayHistogram
-from hrc_tools.audit.checks import AuditAccumulator, AuditSummary, audit_cycle
+from hrc_tools.audit.checks import AuditAccumulator, AuditSummary, audit_cycle, open_stop_fraction
 
 PROG = "hrc-audit"
 log = logging.getLogger(PROG)
@@ -105,6 +105,7 @@ class _RobotRun:
     data: pin.Data
     braking_time_s: float
     cycle_s: float
+    is_open: bool = False  # an open controller: reports no override; its stop is judged by its speed fraction
     accumulator: AuditAccumulator = field(default_factory=AuditAccumulator)
     last_stamp_ns: int | None = None
     last_seq: int | None = None
@@ -150,6 +151,7 @@ class TruthAuditor:
                 data=model.model.createData(),
                 braking_time_s=config.robots[name].controller.braking_time_s,
                 cycle_s=config.robots[name].controller.cycle_s,
+                is_open=config.robots[name].controller.control == "open",
             )
             for name, model in robots.items()
         }
@@ -296,12 +298,14 @@ class TruthAuditor:
             run.longest_truth_gap_s = max(run.longest_truth_gap_s, age_s)
             speed_mps = max(self.human_speed_mps, humans[nearest].speed_mps)  # the next sample is across the gap
         capsules = _grown(humans[nearest].capsules, speed_mps * age_s)
+        q_rad, qd_radps = np.asarray(state.q, dtype=float), np.asarray(state.qd, dtype=float)
+        stop_fraction = open_stop_fraction(run.model, run.data, q_rad, qd_radps) if run.is_open else state.override
         verdict = audit_cycle(
             run.model,
             run.data,
-            np.asarray(state.q, dtype=float),
-            np.asarray(state.qd, dtype=float),
-            state.override,
+            q_rad,
+            qd_radps,
+            stop_fraction,
             run.braking_time_s,
             capsules,
             self.human_speed_mps,
@@ -316,7 +320,7 @@ class TruthAuditor:
             verdict,
             t_s=(state.stamp_ns - self.start_ns) * 1e-9,
             dt_s=dt_s,
-            delta_applied=state.override,
+            delta_applied=stop_fraction,
             zone=zone,
             program_cycles_completed=run.program_cycles,
             capsule_label=label,
@@ -324,14 +328,15 @@ class TruthAuditor:
         if verdict.violation and not run.violation_logged:
             run.violation_logged = True
             log.warning(
-                "robot %s: first violation at t = %.3f s: margin %.3f m, distance %s m, pair %s/%s, δ = %.2f",
+                "robot %s: first violation at t = %.3f s: margin %.3f m, distance %s m, pair %s/%s, stop fraction %.2f "
+                "(δ applied; an open robot: its speed fraction)",
                 state.robot,
                 (state.stamp_ns - self.start_ns) * 1e-9,
                 verdict.margin_m,
                 "-" if verdict.min_distance_m is None else f"{verdict.min_distance_m:.3f}",
                 verdict.worst_link,
                 label,
-                state.override,
+                stop_fraction,
             )
 
     # -- results -------------------------------------------------------------------------------------

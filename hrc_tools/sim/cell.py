@@ -51,7 +51,14 @@ from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.program import Trajectory, load_trajectory
 from hrc_devices.robots.time_scaling import ControllerState, check_braking_time
 from hrc_runtime.clocks import Clocks
-from hrc_tools.audit.checks import MOVING_EPS_MPS, AuditAccumulator, AuditSummary, audit_cycle, merge_summaries
+from hrc_tools.audit.checks import (
+    MOVING_EPS_MPS,
+    AuditAccumulator,
+    AuditSummary,
+    audit_cycle,
+    merge_summaries,
+    open_stop_fraction,
+)
 from hrc_tools.audit.contact import ContactMass, ContactRules, audit_contacts
 from hrc_tools.sim.bridged import SimBridge
 from hrc_tools.sim.links import NS_PER_S, LinkFault, LinkFaults, SimLink
@@ -198,13 +205,11 @@ class _Controller:
         its reference creeps at far less)."""
         if isinstance(self.node, OpenControllerNode):
             state = self.node.state
-            fraction = float(np.max(np.abs(state.qd_radps) / self.node.limits.velocity_limit_radps, initial=0.0))
-            if fraction > 0.0:
-                ends = link_motion(self.robot, self.data, state.q_rad, state.qd_radps)
-                speed_mps = float(np.sqrt(np.maximum((ends.v_a_world**2).sum(1), (ends.v_b_world**2).sum(1)).max()))
-                if speed_mps <= moving_eps_mps:
-                    fraction = 0.0
-            return state.q_rad, state.qd_radps, min(fraction, 1.0)
+            return (
+                state.q_rad,
+                state.qd_radps,
+                open_stop_fraction(self.robot, self.data, state.q_rad, state.qd_radps, moving_eps_mps),
+            )
         q_rad, qd_nominal_radps = self.trajectory.sample(self.state.tau_s)
         delta_applied = self.state.delta_applied
         return q_rad, delta_applied * qd_nominal_radps, delta_applied

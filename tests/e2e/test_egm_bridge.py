@@ -14,7 +14,6 @@ processes as ``hrc-cell`` runs ``configs/cell_open_panda_egm.toml`` (on a UDP po
 from __future__ import annotations
 
 import signal
-import socket
 import threading
 import time
 from pathlib import Path
@@ -23,12 +22,11 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from support.paths import REPO_ROOT
+from support.egm_cell import READY_S, ROBOT, SCENARIO_S, ZONE_SEQUENCE, until_back_to_autonomous
+from support.egm_cell import egm_cell as egm_cell_file
 
 from hrc_contract import keys
-from hrc_contract.config import AbbEgmInterfaceConfig
 from hrc_contract.messages import JointCommand, JointState, parse_message
-from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import (
     Cell,
@@ -38,40 +36,16 @@ from hrc_tools.cell.procs import (
     load_scale,
     record,
     running_cell,
-    write_cell_config,
 )
 
 pytestmark = pytest.mark.e2e
 
-CONFIG = REPO_ROOT / "configs" / "cell_open_panda_egm.toml"
-ROBOT = "panda"
-READY_S = 40.0  # the gateway compiles and checks the Panda's kinematics; a shared machine
-SCENARIO_S = 31.0
-ZONE_SEQUENCE = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
-"""As the Zenoh-driven open Panda's (tests/e2e/test_open_cell.py): LP (13) keeps δ = 1 by self-motion until the
-person reaches the protective distance."""
 DETECT_S = 3.0
 RECOVER_S = 15.0
 FOLLOW_TOLERANCE_RAD = 0.05
 """The robot's true q within this of the gateway's newest command (one command is q_{k+1}: 4 ms of motion at most
 2.6 rad/s is 10 mrad, plus the EGM exchange's cycle and the follower's lag at K = 20 /s) [rad]."""
 STAND_RADPS = 1e-3
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _egm_cell(tmp_path: Path) -> Path:
-    """``configs/cell_open_panda_egm.toml`` with the PC on a UDP port of its own."""
-    config = load_cell_config(CONFIG)
-    robot = config.robots[ROBOT]
-    assert isinstance(robot.interface, AbbEgmInterfaceConfig)
-    interface = robot.interface.model_copy(update={"port": _free_udp_port()})
-    robots = {ROBOT: robot.model_copy(update={"interface": interface})}
-    return write_cell_config(config.model_copy(update={"robots": robots}), tmp_path / "cell.toml")
 
 
 class _Stream:
@@ -105,14 +79,9 @@ def _assert_alive(cell: Cell) -> None:
         assert proc.poll() is None, f"{name} died\n{cell.tail()}"
 
 
-def _until_back_to_autonomous(trace: list[dict[str, Any]]) -> bool:
-    exceptions = [s["t_s"] for s in trace if s["zone"] == "safety_exception" and s["min_distance_m"] is not None]
-    return bool(exceptions) and trace[-1]["zone"] == "autonomous" and trace[-1]["t_s"] - exceptions[-1] > 2.0
-
-
 @pytest.fixture
 def egm_cell(tmp_path: Path) -> Path:
-    return _egm_cell(tmp_path)
+    return egm_cell_file(tmp_path)
 
 
 def test_the_default_scenario_through_egm(egm_cell: Path, tmp_path: Path) -> None:
@@ -127,7 +96,7 @@ def test_the_default_scenario_through_egm(egm_cell: Path, tmp_path: Path) -> Non
         ):
             gateway_session.declare_subscriber(keys.robot_joint_command(cell.name, ROBOT), commands.on_sample)
             controller_session.declare_subscriber(keys.truth_robot_state(cell.name, ROBOT), truth.on_sample)
-            trace = record(cell, SCENARIO_S * load_scale(), ROBOT, until=_until_back_to_autonomous)
+            trace = record(cell, SCENARIO_S * load_scale(), ROBOT, until=until_back_to_autonomous)
         _assert_alive(cell)
     zones = collapse(["autonomous"] + [s["zone"] for s in trace])  # autonomous: waited for above
     assert is_subsequence(ZONE_SEQUENCE, zones), zones

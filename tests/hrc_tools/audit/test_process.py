@@ -377,3 +377,46 @@ def test_truth_on_time_is_judged_as_before(auditor: TruthAuditor) -> None:
         auditor.on_truth_state(STATE_KEY, state(k, stamp), received_wall_ns=stamp + 2_000_000)
     auditor.process()
     assert auditor.report(1.0)["robots"]["ur5"]["violations"] == 10
+
+
+def _as_open(cell_config: CellConfig) -> CellConfig:
+    robot = cell_config.robots["ur5"]
+    controller = robot.controller.model_copy(update={"control": "open"})
+    return cell_config.model_copy(update={"robots": {"ur5": robot.model_copy(update={"controller": controller})}})
+
+
+def test_an_open_robot_is_judged_by_its_speed_fraction_not_its_override(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    """An open controller reports override 1.0 whatever its speed; its stop lasts max_j |q̇_j| / q̇max_j of its
+    stop time, and the auditor judges that stop: a slow open robot near a person passes where the same state
+    read as a closed one at δ = 1 (a full stop ahead) fails, and a fast one fails as the closed one does."""
+    near = (0.45, -0.35, 1.45)  # a hand 0.3 m above the touching one: ~0.2 m from the tool
+    slow = [0.05 * v for v in QD]  # 1.6 % of the base's limit (3.15 rad/s): a 4 ms stop
+
+    def run(config: CellConfig, qd: list[float]) -> dict[str, object]:
+        auditor = TruthAuditor(config, {"ur5": ur5}, START_NS)
+        for k in range(10):
+            stamp = START_NS + k * CYCLE_NS
+            auditor.on_truth_humans(humans(k + 1, stamp, near))
+            message = JointState(
+                robot="ur5",
+                seq=k,
+                stamp_ns=stamp,
+                q=Q_PICK_ABOVE,
+                qd=qd,
+                qd_nominal=qd,
+                override=1.0,
+                override_seq=k,
+                mode="running",
+            )
+            auditor.on_truth_state(STATE_KEY, to_payload(message))
+        auditor.process()
+        return auditor.report(1.0)["robots"]["ur5"]
+
+    assert run(cell_config, slow)["violations"] == 10  # closed at δ = 1: a 0.24 s stop with K = 1.6 m/s
+    open_slow = run(_as_open(cell_config), slow)
+    assert open_slow["violations"] == 0
+    assert open_slow["smallest_margin_m"] > 0.0
+    fast = [v * 3.0 for v in QD]  # the base at 95 % of its limit: nearly the whole stop ahead
+    assert run(_as_open(cell_config), fast)["violations"] == 10

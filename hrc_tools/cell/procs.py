@@ -127,6 +127,13 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def free_udp_port() -> int:
+    """A free UDP port on 127.0.0.1 (a vendor face's, e.g. ABB EGM's PC)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
 def free_endpoint() -> str:
     """A Zenoh endpoint on a free loopback port, e.g. ``tcp/127.0.0.1:40123``."""
     return f"tcp/127.0.0.1:{free_port()}"
@@ -411,6 +418,8 @@ class Cell:
     logs: dict[str, Path] = field(default_factory=dict)
     name: str = "demo"
     relay_endpoint: str = ""
+    tracker_relay_endpoint: str = ""
+    """Where the tracker relay's side A listens (``running_cell(tracker_relay=...)`` only)."""
     bridge_endpoint: str = ""
     """Where the controller bridge listens (a robot behind a bridge only): its joint states come from there."""
     envs: dict[str, dict[str, str]] = field(default_factory=dict)
@@ -501,12 +510,14 @@ def running_cell(
     trackers: list[list[str]] | None = None,
     controller_relay: list[str] | None = None,
     face: list[str] | None = None,
+    tracker_relay: list[str] | None = None,
 ) -> Iterator[Cell]:
     """Start gateway, controller emulator and tracker emulator(s); stop them with SIGINT afterwards.
 
     ``trackers``: extra arguments of each tracker emulator process (default: one process, all trackers).
     ``controller_relay``: if given, the controller reaches the gateway only through ``hrc-fault-relay``
-    (these are its extra arguments); the relay's side A listens on ``cell.relay_endpoint``.
+    (these are its extra arguments); the relay's side A listens on ``cell.relay_endpoint``. ``tracker_relay``: the
+    same for the tracker(s) (program ``relay-tracker``, side A on ``cell.tracker_relay_endpoint``).
 
     A cell whose (only) robot has a bridged ``interface`` (``ur_rtde``, ``abb_rws``) is run as ``hrc-cell`` runs it:
     the emulator serves the vendor's face and program ``bridge`` (``hrc-controller-bridge``, listening on
@@ -521,6 +532,13 @@ def running_cell(
     if controller_relay is not None:
         commands["relay"] = ("hrc_tools.faultinject", ["--a-listen", relay_ep, "--b-connect", gw_ep, *controller_relay])
     upstream = relay_ep if controller_relay is not None else gw_ep
+    tracker_relay_ep = free_endpoint() if tracker_relay is not None else ""
+    if tracker_relay is not None:
+        commands["relay-tracker"] = (
+            "hrc_tools.faultinject",
+            ["--a-listen", tracker_relay_ep, "--b-connect", gw_ep, *tracker_relay],
+        )
+    tracker_upstream = tracker_relay_ep or gw_ep
     loaded = load_cell_config(config)
     bridged = [name for name, robot in loaded.robots.items() if robot.interface.kind != "zenoh"]
     envs: dict[str, dict[str, str]] = {}
@@ -539,7 +557,7 @@ def running_cell(
         commands["controller"] = ("controller_emu", [*cfg, "--zenoh-listen", ctrl_ep, "--zenoh-connect", upstream])
     for i, extra in enumerate(trackers or [[]]):
         name = "tracker" if i == 0 else f"tracker-{i + 1}"
-        args = [*cfg, "--zenoh-connect", gw_ep, "--seed", str(seed + i), *scenario_args, *extra]
+        args = [*cfg, "--zenoh-connect", tracker_upstream, "--seed", str(seed + i), *scenario_args, *extra]
         commands[name] = ("tracker_emu", args)
     logs = {name: tmp_path / f"{name}.log" for name in commands}
     cell = Cell(
@@ -551,6 +569,7 @@ def running_cell(
         logs,
         name=loaded.cell,
         relay_endpoint=relay_ep,
+        tracker_relay_endpoint=tracker_relay_ep,
         bridge_endpoint=bridge_ep,
         envs=envs,
     )

@@ -3,13 +3,12 @@ what its default scenario shows, and when a recording of it may end."""
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 from typing import Any
 
 from hrc_contract.config import AbbEgmInterfaceConfig
 from hrc_runtime.config import load_cell_config
-from hrc_tools.cell.procs import write_cell_config
+from hrc_tools.cell.procs import free_udp_port, write_cell_config
 from support.paths import REPO_ROOT
 
 CONFIG = REPO_ROOT / "configs" / "cell_open_panda_egm.toml"
@@ -19,12 +18,6 @@ SCENARIO_S = 31.0
 ZONE_SEQUENCE = ["autonomous", "guarded_distance", "safety_exception", "autonomous"]
 """As the Zenoh-driven open Panda's (tests/e2e/test_open_cell.py): LP (13) keeps δ = 1 by self-motion until the
 person reaches the protective distance."""
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def egm_cell(tmp_path: Path) -> Path:

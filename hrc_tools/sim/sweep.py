@@ -46,6 +46,7 @@ from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config, read_toml, resolve_urdf
 from hrc_tools.sim.bridged import INTERFACES, default_interface
 from hrc_tools.sim.cell import simulate
+from hrc_tools.sim.faulty_planners import FAULTY_PLANNERS
 from hrc_tools.sim.human_speed import beyond_k, fastest_approach_mps, robot_bases_xy_m
 from hrc_tools.sim.ros2_adapter import with_zed_trackers
 from hrc_tools.sim.scenarios import case_of_cell
@@ -110,6 +111,8 @@ class CaseResult:
     contact_speeds_mps: list[float] = dataclasses.field(default_factory=list)
     rejected: dict[str, dict[str, int]] = dataclasses.field(default_factory=dict)
     bridges: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    plans: dict[str, int] = dataclasses.field(default_factory=dict)
+    """The planner layer's plans asked for (``requests``) and taken up (``adopted``), all robots; empty without it."""
 
 
 @dataclass(frozen=True)
@@ -178,6 +181,8 @@ class SweepSummary:
     tracks: dict[str, int] = dataclasses.field(default_factory=dict)
     cases_lost_at_end: int = 0
     contact_speeds_mps: list[float] = dataclasses.field(default_factory=list)
+    plans: dict[str, int] = dataclasses.field(default_factory=dict)
+    """The planner layer's plans asked for and taken up over all cases (empty without it)."""
 
 
 # -- one case (in a worker) ---------------------------------------------------------------------------
@@ -208,6 +213,8 @@ class CellVariant:
         zed_trackers: the cases' trackers are ZED cameras read through the gateway's ROS 2 adapter
             (:mod:`hrc_tools.sim.ros2_adapter`); a change of the cases, not of the cell.
         zed_body_fitting: those cameras fit hidden keypoints (``enable_body_fitting``); off: hidden keypoints NaN.
+        planner_fault: the planner layer's backend fails on purpose (:data:`hrc_tools.sim.faulty_planners.
+            FAULTY_PLANNERS`: ``through_the_person``, ``silent``); for a cell with ``[planner] enabled``.
     """
 
     unsafe_ignore_delay: bool = False
@@ -222,6 +229,7 @@ class CellVariant:
     interface: str | None = None
     zed_trackers: bool = False
     zed_body_fitting: bool = False
+    planner_fault: str | None = None
 
     def apply(self, config: CellConfig) -> CellConfig:
         """``config`` with these changes (validated)."""
@@ -272,6 +280,7 @@ def _init_worker(config_path: str | None, variant: CellVariant) -> None:
     _WORKER["hostile_tracking"] = variant.hostile_tracking
     _WORKER["zed_trackers"] = variant.zed_trackers
     _WORKER["zed_body_fitting"] = variant.zed_body_fitting
+    _WORKER["planner_fault"] = variant.planner_fault
 
 
 def run_case(
@@ -285,15 +294,21 @@ def run_case(
     hostile_tracking: bool = False,
     zed_trackers: bool = False,
     zed_body_fitting: bool = False,
+    planner_fault: str | None = None,
 ) -> CaseResult:
     """Generate case ``index`` of the sweep ``sweep_seed`` (its trackers with line of sight if ``occlusion``, read as
     ZED cameras through the ROS 2 adapter if ``zed_trackers``, fitting hidden keypoints if ``zed_body_fitting``) and
-    simulate it."""
+    simulate it; ``planner_fault``: the planner layer's backend fails so (:data:`FAULTY_PLANNERS`)."""
     case = case_of_cell(config, sweep_seed, index, duration_s, occlusion=occlusion, hostile_tracking=hostile_tracking)
     case_config = case.config(config)
     if zed_trackers:
         case_config = with_zed_trackers(case_config, body_fitting=zed_body_fitting)
-    result = simulate(case_config, robots, case.scenario, case.links, duration_s, case.seed)
+    backend = None if planner_fault is None else FAULTY_PLANNERS[planner_fault]
+    result = simulate(case_config, robots, case.scenario, case.links, duration_s, case.seed, planner_backend=backend)
+    plans = Counter[str]()
+    for stats in result.planner.values():
+        plans["requests"] += sum(stats["requests"].values())
+        plans["adopted"] += stats["adopted"]
     audit = result.audit
     approach_mps = fastest_approach_mps(case.scenario, robot_bases_xy_m(config))
     return CaseResult(
@@ -327,6 +342,7 @@ def run_case(
         contact_speeds_mps=[round(v, 4) for v in audit.contact_speeds_mps],
         rejected={topic: dict(reasons) for topic, reasons in result.rejected.items()},
         bridges={name: dict(b) for name, b in result.bridges.items()},
+        plans=dict(plans),
     )
 
 
@@ -342,6 +358,7 @@ def _run_in_worker(task: tuple[int, int, float]) -> CaseResult:
         hostile_tracking=_WORKER["hostile_tracking"],
         zed_trackers=_WORKER["zed_trackers"],
         zed_body_fitting=_WORKER["zed_body_fitting"],
+        planner_fault=_WORKER["planner_fault"],
     )
 
 
@@ -426,6 +443,7 @@ def summarize(results: list[CaseResult], wall_s: float, human_speed_mps: float =
         tracks=dict(sorted(sum((Counter(r.tracks) for r in results), Counter()).items())),
         cases_lost_at_end=sum(1 for r in results if r.lost_at_end),
         contact_speeds_mps=sorted(v for r in results for v in r.contact_speeds_mps),
+        plans=dict(sorted(sum((Counter(r.plans) for r in results), Counter()).items())),
     )
 
 
@@ -505,6 +523,11 @@ def format_table(summary: SweepSummary, workers: int) -> str:
         ("contacts (onsets) / their speed [m/s]", contact_speeds_text(summary.contact_speeds_mps)),
         ("tracks lost / released", _tracks_text(summary.tracks)),
         ("scenarios ending with a lost track", str(summary.cases_lost_at_end)),
+        *(
+            [("plans asked for / taken up", f"{summary.plans.get('requests', 0)} / {summary.plans.get('adopted', 0)}")]
+            if summary.plans
+            else []
+        ),
         *_group_rows("within K", summary.within_k),
         *_group_rows("faster than K (no guarantee)", summary.beyond_k),
         ("simulated time [s]", f"{summary.simulated_s:.0f}"),
@@ -646,6 +669,13 @@ def _parser() -> argparse.ArgumentParser:
         "a hidden keypoint is an estimate, not NaN)",
     )
     parser.add_argument(
+        "--planner-fault",
+        choices=sorted(FAULTY_PLANNERS),
+        default=None,
+        help="the planner layer fails on purpose (a cell with [planner] enabled): through_the_person (its paths "
+        "ignore the people) or silent (it never answers); the scaling layer must bound every command anyway",
+    )
+    parser.add_argument(
         "--first-case",
         type=int,
         default=0,
@@ -703,6 +733,8 @@ def _report(args: argparse.Namespace, variant: CellVariant, summary: SweepSummar
         print(f"ZED trackers ({fitting}): every frame went through the ROS 2 adapter (keypoints -> CDR -> capsules)")
     if args.method is not None:
         print(f"method: {args.method}")
+    if args.planner_fault is not None:
+        print(f"planner fault: {args.planner_fault} (the planner layer failed on purpose in every case)")
     if summary.interrupted:
         print(f"INTERRUPTED: {summary.scenarios} of {args.scenarios} scenarios ran; the table covers those")
     print(format_table(summary, args.workers))
@@ -789,13 +821,20 @@ def cli(argv: list[str] | None = None) -> None:
         unsafe_release_by_id=args.unsafe_release_by_id,
         zed_trackers=args.zed_trackers,
         zed_body_fitting=args.zed_body_fitting,
+        planner_fault=args.planner_fault,
     )
     try:
-        method = variant.apply(load_cell_config(args.config)).safety.method
+        applied = variant.apply(load_cell_config(args.config))
     except (ConfigError, ValidationError) as exc:
         reason = " ".join(str(exc).split())
         print(f"hrc-sweep: invalid configuration: {reason}", file=sys.stderr)
         sys.exit(2)
+    method = applied.safety.method
+    if args.planner_fault is not None and not applied.planner.enabled:
+        parser.error(
+            f"--planner-fault {args.planner_fault}: the cell {args.config or 'configs/cell.toml'} has no planner "
+            "layer; allowed: a cell with [planner] enabled = true (e.g. configs/cell_open_panda_planner.toml)"
+        )
     progress = _progress_printer(args.scenarios, args.quiet)
     previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM ends the sweep like Ctrl-C: table of the cases done
     try:

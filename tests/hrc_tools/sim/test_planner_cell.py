@@ -18,13 +18,13 @@ from typing import Any
 
 import pytest
 
-from gateway.planner import JointPlanner, PlanOutcome, PlanRequest
-from gateway.planner_worker import PlannerBackend, PlannerHealth, SimulatedPlanner
+from gateway.planner import JointPlanner
+from gateway.planner_worker import PlannerBackend
 from hrc_contract.config import CellConfig
-from hrc_contract.humans import NO_HUMANS
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.config import load_cell_config
 from hrc_tools.sim.cell import RunResult, simulate
+from hrc_tools.sim.faulty_planners import IgnoresPeople, NeverAnswers
 from hrc_tools.sim.links import LinkFaults
 from tracker_emu.scenario import HumanScript, Keyframe, Scenario
 
@@ -103,33 +103,6 @@ def test_the_request_16_alone_replans_when_the_person_keeps_the_robot_slow(witho
     assert stats["adopted"] >= 1
     assert request_only.audit.violations == 0
     assert request_only.program_progress_cycles > 1.2 * without_planner.program_progress_cycles
-
-
-class IgnoresPeople(SimulatedPlanner):
-    """A faulty planner: plans as if nobody were there (its paths go straight through the person)."""
-
-    def submit(self, request: PlanRequest) -> bool:
-        return super().submit(request._replace(humans=NO_HUMANS, clearance_m=0.0))
-
-
-class NeverAnswers:
-    """A faulty planner: takes every request and never answers."""
-
-    def __init__(self, planners: dict[str, JointPlanner]) -> None:
-        self.taken = 0
-
-    def submit(self, request: PlanRequest) -> bool:
-        self.taken += 1
-        return True
-
-    def poll(self) -> list[PlanOutcome]:
-        return []
-
-    def health(self) -> PlannerHealth:
-        return PlannerHealth()  # it says it runs: the replanner finds out by the time-out
-
-    def close(self) -> None:
-        pass
 
 
 @pytest.mark.parametrize("faulty", [IgnoresPeople, NeverAnswers], ids=["through_the_person", "silent"])

@@ -285,3 +285,22 @@ def test_command_refuses_body_fitting_without_zed_trackers(capsys: pytest.Captur
         cli(["--scenarios", "1", "--zed-body-fitting"])
     assert exc.value.code == 2
     assert "--zed-body-fitting needs --zed-trackers" in capsys.readouterr().err
+
+
+def test_a_planner_fault_runs_in_every_case_and_counts_its_plans(tmp_path: Path) -> None:
+    """``--planner-fault``: the faulty backend plans in each case (here: never answers), the plans are counted and
+    the auditor still finds no violation; a cell without the planner layer is refused."""
+    config = REPO_ROOT / "configs" / "cell_open_panda_planner.toml"
+    out = tmp_path / "sweep.json"
+    argv = ["--config", str(config), "--scenarios", "2", "--workers", "1", "--duration-s", "6", "--quiet"]
+    with pytest.raises(SystemExit) as exit_info:
+        cli([*argv, "--first-case", "1", "--planner-fault", "silent", "--json", str(out)])
+    assert exit_info.value.code == 0
+    doc = json.loads(out.read_text())
+    assert doc["variant"]["planner_fault"] == "silent"
+    assert doc["summary"]["plans"]["requests"] >= 1, "no case asked the planner: the fault was not exercised"
+    assert doc["summary"]["plans"].get("adopted", 0) == 0, "a planner that never answers had a plan taken up"
+    assert doc["summary"]["violations"] == 0
+    with pytest.raises(SystemExit) as refused:
+        cli(["--scenarios", "1", "--planner-fault", "silent", "--quiet"])
+    assert refused.value.code == 2

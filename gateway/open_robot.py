@@ -68,6 +68,8 @@ class OpenCommand(NamedTuple):
     rows_dropped: int
     reference_restarts: int = 0
     """Times the reference started again from the measured state because the robot did not follow (since start)."""
+    program_cycles: float = 0.0
+    """The program time made good (:meth:`OpenRobot.progress_tau_s`), in cycles of the program."""
 
 
 def active_joints(robot: RobotModel, tool_frame_id: int) -> npt.NDArray[np.intp]:
@@ -399,7 +401,9 @@ class OpenRobot:
         self.sent_next = (self.sent_next + 1) % SENT_KEPT
         n_rows = 0 if safety is None else int(safety.f_m2.size)
         dropped = 0 if safety is None else safety.dropped
-        return OpenCommand(q_next, qd, solution, n_rows, dropped, self.reference_restarts)
+        duration_s = self.trajectory.duration_s
+        program_cycles = self.progress_tau_s() / duration_s if duration_s > 0.0 else 0.0
+        return OpenCommand(q_next, qd, solution, n_rows, dropped, self.reference_restarts, program_cycles)
 
     def _rows(
         self, q_meas_rad: FloatArray, links: LinkKinematics, rows: ConstraintRows | None, humans: HumanCapsules

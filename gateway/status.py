@@ -279,6 +279,7 @@ def _open_command(decision: RobotDecision) -> dict[str, object] | None:
         "rows": command.rows,
         "rows_dropped": command.rows_dropped,
         "reference_restarts": command.reference_restarts,
+        "program_cycles": _rounded(command.program_cycles) if math.isfinite(command.program_cycles) else 0.0,
         "q_rad": [_rounded(v) for v in command.q_rad.tolist()],
         "qd_radps": [_rounded(v) for v in command.qd_radps.tolist()],
     }

@@ -129,6 +129,11 @@ class OpenCommandStatus(_Strict):
         "they were far from every reference sent within the measured round trip (the robot did not follow: a "
         "protective stop, a restart, another program).",
     )
+    program_cycles: Finite = Field(
+        0.0,
+        description="How far the program has come: the program time made good since the gateway started, in cycles "
+        "of the program (a detour around people counts as the progress toward its goal).",
+    )
     q_rad: list[Finite] = Field(description="The reference position sent for the next cycle [rad].")
     qd_radps: list[Finite] = Field(description="The reference velocity sent [rad/s].")
 

@@ -6,6 +6,9 @@ standing in the swing (scenario ``standing_inside``).
   tool's path), the events (``plan_adopted``); δ never above the LPs' bound, faults only late data (failed closed).
 - The planner's process killed: the gateway counts the death, starts it again and shows both in the status and the
   events; the robot goes on under the LPs meanwhile (δ within its bound).
+- Paper 2's two experiments apart, each in a cell of its own: the horizon check alone (no request (16): its
+  threshold at 0) and the request (16) alone (no configuration ahead checked); and the planner off, where the robot
+  waits: in the same time it makes less of its program than with the planner (``open_command.program_cycles``).
 """
 
 from __future__ import annotations
@@ -21,7 +24,8 @@ import pytest
 from support.paths import REPO_ROOT
 
 from hrc_contract.status_models import EventsResponse
-from hrc_tools.cell.procs import Cell, late_data_only, load_scale, record, running_cell
+from hrc_runtime.config import load_cell_config
+from hrc_tools.cell.procs import Cell, late_data_only, load_scale, record, running_cell, write_cell_config
 
 pytestmark = pytest.mark.e2e
 
@@ -127,3 +131,93 @@ def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bou
     assert not _within_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
     print(f"planner restarted {restart_s:.2f} s after SIGKILL (first backoff step 0.5 s)")
+
+
+IN_THE_SWING = "stands_in_the_swing"
+IN_THE_SWING_TOML = """
+description = "a person stands 1.8 m in front of the robot, in its wide swing, for the whole run"
+duration_s = 60.0
+loop = true
+
+[[humans]]
+id = "h1"
+
+[[humans.keyframes]]
+t_s = 0.0
+xy_m = [1.8, 0.0]
+heading_rad = 3.141592653589793
+
+[[humans.keyframes]]
+t_s = 60.0
+xy_m = [1.8, 0.0]
+heading_rad = 3.141592653589793
+"""
+"""Paper 2's set-up (tests/hrc_tools/sim/test_planner_cell.py): the straight swing passes within the protective band
+(the robot slows to δ < 0.2 there), a tucked one does not."""
+
+COMPARE_S = 25.0
+"""Each run of the comparison records this long once the robot runs (a few swings past the person) [s]."""
+
+
+def _planner_cell(tmp_path: Path, replan_delta_below: float | None = None, **planner: Any) -> Path:
+    """The planner cell with ``[planner]`` (and the request (16)'s threshold, ``safety.replan_delta_below``) changed
+    so."""
+    config = load_cell_config(CONFIG)
+    scenarios = tmp_path / "scenarios"
+    scenarios.mkdir(parents=True, exist_ok=True)
+    (scenarios / f"{IN_THE_SWING}.toml").write_text(IN_THE_SWING_TOML)
+    update: dict[str, Any] = {
+        "planner": config.planner.model_copy(update=planner),
+        "scenarios_dir": str(scenarios),
+    }
+    if replan_delta_below is not None:
+        update["safety"] = config.safety.model_copy(update={"replan_delta_below": replan_delta_below})
+    return write_cell_config(config.model_copy(update=update), tmp_path / "cell.toml")
+
+
+def _run_for(tmp_path: Path, config: Path, duration_s: float) -> list[dict[str, Any]]:
+    with running_cell(tmp_path, config=config, scenario=IN_THE_SWING) as cell:
+        cell.wait_until(
+            lambda s: s["controller_mode"] == "running" and not s["faults"] and s["open_command"] is not None,
+            READY_S * load_scale(),
+            "a running open robot",
+            ROBOT,
+        )
+        trace = record(cell, duration_s, ROBOT)
+        for name in ("gateway", "controller", "tracker"):
+            assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
+    assert not _within_bound(trace)
+    assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
+    return trace
+
+
+def _progress_cycles(trace: list[dict[str, Any]]) -> float:
+    cycles = [s["open_command"]["program_cycles"] for s in trace if s["open_command"] is not None]
+    return float(cycles[-1] - cycles[0])
+
+
+@pytest.mark.parametrize(
+    ("experiment", "planner", "reason"),
+    [
+        ("horizon", {"replan_delta_below": 0.0}, "horizon"),
+        ("request_16", {"horizon_s": 0.05, "horizon_step_s": 0.1}, "request"),
+    ],
+    ids=["horizon_check", "request_16"],
+)
+def test_each_of_the_papers_experiments_replans_on_its_own(
+    tmp_path: Path, experiment: str, planner: dict[str, float], reason: str
+) -> None:
+    trace = _run_for(tmp_path, _planner_cell(tmp_path, **planner), COMPARE_S)
+    plan = trace[-1]["plan"]
+    assert plan["adopted"] >= 1, (experiment, plan)
+    assert set(plan["requests"]) == {reason}, (experiment, plan["requests"])
+
+
+def test_with_the_planner_off_the_robot_waits_and_makes_less_of_its_program(tmp_path: Path) -> None:
+    off = _run_for(tmp_path / "off", _planner_cell(tmp_path / "off", enabled=False), COMPARE_S)
+    on = _run_for(tmp_path / "on", _planner_cell(tmp_path / "on"), COMPARE_S)
+    assert all(s["plan"] is None for s in off), "no planner layer when it is off"
+    progress_off, progress_on = _progress_cycles(off), _progress_cycles(on)
+    print(f"program cycles in {COMPARE_S} s beside the person: planner off {progress_off:.2f}, on {progress_on:.2f}")
+    assert on[-1]["plan"]["adopted"] >= 1
+    assert progress_on > 1.2 * progress_off, (progress_off, progress_on)

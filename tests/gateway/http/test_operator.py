@@ -346,8 +346,9 @@ def test_metrics_before_any_status_parse_and_are_empty_of_robots(client: TestCli
 class Child:
     """``python -m gateway.http.server`` fed through its standard input, as the gateway feeds it."""
 
-    def __init__(self, cell_config: CellConfig, events_log: Path) -> None:
+    def __init__(self, cell_config: CellConfig, events_log: Path, log: Path | None = None) -> None:
         self.port = free_port()
+        self._log = None if log is None else log.open("ab")
         self.proc = subprocess.Popen(
             [
                 sys.executable,
@@ -359,7 +360,10 @@ class Child:
                 str(events_log),
             ],
             stdin=subprocess.PIPE,
+            stderr=self._log,
         )
+        if self._log is not None:
+            self._log.close()  # the child has its own descriptor
         self.url = f"http://127.0.0.1:{self.port}"
         self.send(effective_config(cell_config).model_dump_json().encode())
 
@@ -397,7 +401,8 @@ def every_stream_has(results: list[list[GatewayStatus]], n: int) -> bool:
 def test_the_stream_delivers_each_status_and_ends_when_the_gateway_stops(
     cell_config: CellConfig, tmp_path: Path
 ) -> None:
-    child = Child(cell_config, tmp_path / "events.jsonl")
+    child_log = tmp_path / "child.log"
+    child = Child(cell_config, tmp_path / "events.jsonl", child_log)
     try:
         wait_for(child.answers, 20.0, "the HTTP child answers")
         readers = []
@@ -421,11 +426,12 @@ def test_the_stream_delivers_each_status_and_ends_when_the_gateway_stops(
         lines = (tmp_path / "events.jsonl").read_text().splitlines()
         assert [json.loads(line)["kind"] for line in lines] == ["start", "config_loaded"]
         # The gateway stops (its end of the pipe closes) while three streams are open: the child ends them.
-        started_s = time.monotonic()
         assert child.proc.stdin is not None
         child.proc.stdin.close()
-        assert child.proc.wait(timeout=5.0) == 0
-        assert time.monotonic() - started_s < 1.5, "open streams did not hold up the shutdown"
+        assert child.proc.wait(timeout=10.0) == 0
+        # uvicorn cancels what still runs when its graceful time-out (2 s) is spent, and says so: the child ended
+        # the streams itself instead (not a timing: a loaded machine may take longer to exit, never to say this)
+        assert "graceful shutdown exceeded" not in child_log.read_text(errors="replace"), "open streams held it up"
         for reader in readers:
             reader.join(5.0)
             assert not reader.is_alive(), "the stream ended"
@@ -438,7 +444,8 @@ def test_the_stream_delivers_each_status_and_ends_when_the_gateway_stops(
 @pytest.mark.e2e
 def test_the_http_child_counts_the_faults_of_the_start(cell_config: CellConfig, tmp_path: Path) -> None:
     """As the gateway starts: its first status has faults (no data yet); a scrape of the child counts them."""
-    child = Child(cell_config, tmp_path / "events.jsonl")
+    child_log = tmp_path / "child.log"
+    child = Child(cell_config, tmp_path / "events.jsonl", child_log)
     try:
         wait_for(child.answers, 20.0, "the HTTP child answers")
         faults = [Fault(code="joint_state_missing", reason="none yet"), Fault(code="tracker_missing", reason="none")]

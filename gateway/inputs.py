@@ -297,7 +297,7 @@ class _Robot:
     path: OverridePath = field(default_factory=OverridePath)
     above_commanded: int = 0
     sample: JointSample | None = None
-    motion: deque[joint_motion.MotionEntry] = field(default_factory=lambda: deque(maxlen=joint_motion.HISTORY_STATES))
+    motion: joint_motion.MotionHistory = field(default_factory=joint_motion.MotionHistory)
 
 
 def _robot_entry(robot: RobotModel, command_window_ns: int) -> _Robot:

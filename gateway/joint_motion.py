@@ -89,6 +89,8 @@ class MotionEntry(NamedTuple):
         moved_v_rad, moved_w_rad: Σ (v_{i−1} + v_i) / 2 · Δt_i, the same for w [rad].
         room_w_rad: Σ tol_i · Δt_i, the per-state tolerance of ``qd`` against w over each interval [rad].
         turn_rad: Σ A · Δt_i² / 4 [rad].
+        packed: the eight arrays above as the rows of one array (shape (8, n), in :data:`_PACKED` order), so that
+            judging a state against the window stacks one array per anchor, not eight.
     """
 
     stamp_ns: int
@@ -100,6 +102,19 @@ class MotionEntry(NamedTuple):
     moved_w_rad: FloatArray
     room_w_rad: FloatArray
     turn_rad: FloatArray
+    packed: FloatArray
+
+
+_PACKED = MotionEntry._fields[1:-1]
+"""The rows of :attr:`MotionEntry.packed`."""
+_Q, _V, _W, _ROOM, _MOVED_V, _MOVED_W, _ROOM_W, _TURN = range(len(_PACKED))
+
+
+def _entry(stamp_ns: int, *arrays: FloatArray) -> MotionEntry:
+    """An entry of the eight arrays (in :data:`_PACKED` order), packed once."""
+    packed = np.stack(np.broadcast_arrays(*arrays))
+    q, v, w, room, moved_v, moved_w, room_w, turn = packed
+    return MotionEntry(stamp_ns, q, v, w, room, moved_v, moved_w, room_w, turn, packed)
 
 
 class MotionContradiction(NamedTuple):
@@ -132,10 +147,10 @@ def extend(
     """
     if previous is None:
         zero = np.zeros_like(q_rad)
-        return MotionEntry(stamp_ns, q_rad, v_radps, w_radps, w_room_radps, zero, zero, zero, zero)
+        return _entry(stamp_ns, q_rad, v_radps, w_radps, w_room_radps, zero, zero, zero, zero)
     dt_s = max(0, stamp_ns - previous.stamp_ns) / NS_PER_S
     p = previous
-    return MotionEntry(
+    return _entry(
         stamp_ns,
         q_rad,
         v_radps,
@@ -146,6 +161,57 @@ def extend(
         p.room_w_rad + np.maximum(p.w_room_radps, w_room_radps) * dt_s,
         p.turn_rad + accel_radps2 * dt_s * dt_s / 4.0,
     )
+
+
+class MotionHistory(deque[MotionEntry]):
+    """The accepted states of one chain, oldest first (a deque of at most :data:`HISTORY_STATES`), with their packed
+    arrays and stamps kept side by side in one buffer: judging a state against the window takes a view of it instead
+    of stacking an array per anchor (a joint state arrives every 4 ms per robot; the stacking was most of its cost)."""
+
+    def __init__(self, maxlen: int = HISTORY_STATES) -> None:
+        super().__init__(maxlen=maxlen)
+        self._packed: FloatArray | None = None  # (2 · maxlen, 8, n): rows [start, end) mirror the deque
+        self._stamps = np.zeros(2 * maxlen, dtype=np.int64)
+        self._start = self._end = 0
+
+    def append(self, entry: MotionEntry) -> None:
+        maxlen = self.maxlen or HISTORY_STATES
+        if self._packed is None or self._packed.shape[1:] != entry.packed.shape:
+            super().clear()
+            self._packed = np.empty((2 * maxlen, *entry.packed.shape))
+            self._start = self._end = 0
+        if self._end == self._packed.shape[0]:  # full: the newest maxlen − 1 rows move to the front
+            keep = min(len(self), maxlen - 1)
+            self._packed[:keep] = self._packed[self._end - keep : self._end]
+            self._stamps[:keep] = self._stamps[self._end - keep : self._end]
+            self._start, self._end = 0, keep
+        super().append(entry)
+        self._packed[self._end] = entry.packed
+        self._stamps[self._end] = entry.stamp_ns
+        self._end += 1
+        self._start = self._end - len(self)
+
+    def clear(self) -> None:
+        super().clear()
+        self._start = self._end = 0
+
+    def window(self, oldest_ns: float) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+        """The packed arrays (anchors, 8, n) and stamps of the entries stamped at or after ``oldest_ns``, or of the
+        newest alone when none is; views, valid until the next append. Raises IndexError when empty."""
+        if not self or self._packed is None:
+            raise IndexError("an empty history has no window")
+        stamps = self._stamps[self._start : self._end]
+        first = min(int(np.searchsorted(stamps, oldest_ns, side="left")), len(stamps) - 1)
+        return self._packed[self._start + first : self._end], stamps[first:]
+
+
+def _window(history: deque[MotionEntry], oldest_ns: float) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """The packed arrays and stamps of the anchors within the window (any deque; a :class:`MotionHistory` without
+    stacking). The stamps of a chain increase (older or repeated states are refused before they are kept)."""
+    if isinstance(history, MotionHistory):
+        return history.window(oldest_ns)
+    anchors = [a for a in history if a.stamp_ns >= oldest_ns] or [history[-1]]
+    return np.stack([a.packed for a in anchors]), np.array([a.stamp_ns for a in anchors], dtype=np.int64)
 
 
 def _slack_rad(speed_max_radps: FloatArray, turn_rad: FloatArray) -> FloatArray:
@@ -162,7 +228,7 @@ class _Judged(NamedTuple):
     """A state against each anchor (rows) and joint (columns): how far ``q`` moved from what each velocity
     integrates to, and how far it may [rad]."""
 
-    anchors: list[MotionEntry]
+    anchor_stamps_ns: npt.NDArray[np.int64]
     moved_rad: FloatArray
     integrated_v_rad: FloatArray
     integrated_w_rad: FloatArray
@@ -176,23 +242,22 @@ def _judge(history: deque[MotionEntry], state: MotionEntry) -> _Judged | None:
     if not history:
         return None
     # the newest accepted state always, however old: a stream slower than the window is still judged
-    anchors = [a for a in history if state.stamp_ns - a.stamp_ns <= WINDOW_S * NS_PER_S] or [history[-1]]
-    stack = {name: np.stack([getattr(a, name) for a in anchors]) for name in MotionEntry._fields[1:]}
-    moved_rad = state.q_rad - stack["q_rad"]
-    turn_rad = state.turn_rad - stack["turn_rad"]
-    speed_v = np.maximum(_suffix_max(np.abs(stack["v_radps"])), np.abs(state.v_radps))
-    speed_w = np.maximum(_suffix_max(np.abs(stack["w_radps"])), np.abs(state.w_radps))
-    integrated_v = state.moved_v_rad - stack["moved_v_rad"]
-    integrated_w = state.moved_w_rad - stack["moved_w_rad"]
+    stack, stamps = _window(history, state.stamp_ns - WINDOW_S * NS_PER_S)  # (anchors, 8, joints)
+    moved_rad = state.q_rad - stack[:, _Q]
+    turn_rad = state.turn_rad - stack[:, _TURN]
+    speed_v = np.maximum(_suffix_max(np.abs(stack[:, _V])), np.abs(state.v_radps))
+    speed_w = np.maximum(_suffix_max(np.abs(stack[:, _W])), np.abs(state.w_radps))
+    integrated_v = state.moved_v_rad - stack[:, _MOVED_V]
+    integrated_w = state.moved_w_rad - stack[:, _MOVED_W]
     return _Judged(
-        anchors,
+        stamps,
         moved_rad,
         integrated_v,
         integrated_w,
         np.abs(moved_rad - integrated_v),
         _slack_rad(speed_v, turn_rad),
         np.abs(moved_rad - integrated_w),
-        state.room_w_rad - stack["room_w_rad"] + _slack_rad(speed_w, turn_rad),
+        state.room_w_rad - stack[:, _ROOM_W] + _slack_rad(speed_w, turn_rad),
     )
 
 
@@ -214,7 +279,7 @@ def contradiction(history: deque[MotionEntry], state: MotionEntry) -> MotionCont
     k, j = (int(i) for i in np.unravel_index(int(np.argmax(off)), off.shape))
     of_qd = off_v[k, j] >= off_w[k, j]
     integrated = judged.integrated_v_rad if of_qd else judged.integrated_w_rad
-    dt_ms = (state.stamp_ns - judged.anchors[k].stamp_ns) / 1e6
+    dt_ms = (state.stamp_ns - int(judged.anchor_stamps_ns[k])) / 1e6
     detail = (
         f"joint {j} moved {judged.moved_rad[k, j]:+.4f} rad in {dt_ms:.1f} ms, "
         f"{'qd' if of_qd else 'override × qd_nominal'} integrate to {integrated[k, j]:+.4f} rad "

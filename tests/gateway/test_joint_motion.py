@@ -91,3 +91,35 @@ def test_a_constant_stamp_offset_costs_at_most_the_ends(seed: int) -> None:
                        np.array([v]), ROOM, A)  # fmt: skip
         assert contradiction(history, state) is None
         history.append(state)
+
+
+def test_the_history_buffer_judges_as_the_plain_deque_through_wraps_and_clears() -> None:
+    """:class:`MotionHistory` (the door's: views of one buffer) and a plain deque of the same entries give the same
+    verdicts, state by state, over a chain long enough to wrap its buffer several times, with a lie and a restart."""
+    rng = np.random.default_rng(5)
+    plain: deque[MotionEntry] = deque(maxlen=joint_motion.HISTORY_STATES)
+    buffered = joint_motion.MotionHistory()
+    q, previous, verdicts = np.zeros(3), None, 0
+    room, accel = np.full(3, 0.01), np.full(3, 60.0)
+    for k in range(5 * joint_motion.HISTORY_STATES):
+        v = np.array([1.0, -0.5, 0.2]) * np.sin(k / 40.0)
+        q = q + v * 0.004 + rng.normal(0.0, 2e-4, 3)
+        claimed = np.zeros(3) if 300 <= k < 330 else v  # a stretch that claims rest while moving
+        state = extend(previous, k * 4 * MS + int(rng.integers(0, 500_000)), q.copy(), claimed, claimed, room, accel)
+        ours, theirs = contradiction(buffered, state), contradiction(plain, state)
+        assert (ours is None) == (theirs is None), k
+        if ours is not None and theirs is not None:
+            assert ours.detail == theirs.detail
+            assert np.array_equal(ours.joints, theirs.joints)
+            verdicts += 1
+        assert tolerance_used(buffered, state) == tolerance_used(plain, state)
+        if k == 400:  # a restart: both start a new chain
+            buffered.clear()
+            plain.clear()
+            previous = None
+            continue
+        buffered.append(state)
+        plain.append(state)
+        previous = state
+    assert verdicts > 0, "the lie was never found: the comparison judged nothing"
+    assert len(buffered) == len(plain) == joint_motion.HISTORY_STATES

@@ -17,7 +17,7 @@ from bench.reaction import SEQ_GAP, RunSettings, run_once
 from gateway.status import loop_status
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.rate_loop import RateLoop
-from hrc_tools.cell.procs import with_retries
+from hrc_tools.cell.procs import load_scale, with_retries
 
 RATE_HZ = 20.0
 SAMPLES = 60
@@ -47,7 +47,9 @@ def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_drive
         # this process lost on its way (its own receiving, on a loaded host) says nothing of the gateway.
         judged = SAMPLES - run["excluded"].get(SEQ_GAP, 0)
         assert judged >= SAMPLES // 2, f"this process lost too many overrides to judge: {detail}"
-        assert matched >= 0.8 * judged, detail
+        # A loaded host delays the gateway's event cycle past the next samples (excluded as ambiguous or late): the
+        # share matched falls with the load; what only event cycles do (the teeth below: 0) holds at any load.
+        assert matched >= 0.8 / load_scale() * judged, detail
         assert by["event_cycle"] >= 0.8 * matched, detail
         assert run["gateway_event_cycles_during_run"] > 0
     else:

@@ -28,7 +28,7 @@ import queue
 import signal
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol
@@ -389,6 +389,25 @@ def _serve(
         answers.send(outcome)
 
 
+ANSWERS_KEPT = 8
+"""The planner's last answer times a robot's join is judged by (the longest of them)."""
+
+
+def join_lead_s(lead_s: float, last_feasible_s: float, delta: float, answer_s: float) -> float:
+    """How far ahead on the trajectory (task time) a new path joins it [s].
+
+    ``lead_s`` (``planner.join_lead_s``), but not beyond the last feasible configuration ahead (``last_feasible_s``):
+    a plan that starts there starts outside the people's clearance. Yet never less than the task time the robot
+    covers while the planner works (``delta`` × ``answer_s``, the planner's recent answer time; at most
+    ``lead_s``): a join the robot passes before the answer comes back is rejected, and a robot already inside the
+    clearance (last feasible 0) that creeps on at a small δ would otherwise have every plan rejected until it stops,
+    then stand in a protective stop that no plan can lift. A join inside the clearance is what the planner's
+    start-inside inflation is for; the scaling layer bounds the robot on its way there as everywhere.
+    """
+    least_s = min(max(delta, 0.0) * answer_s, lead_s)
+    return max(min(lead_s, max(last_feasible_s, 0.0)), least_s)
+
+
 def goal_candidates(
     trajectory: Trajectory, after_tau_s: float, count: int = GOALS_PER_REQUEST
 ) -> tuple[tuple[np.ndarray, float], ...]:
@@ -490,9 +509,16 @@ class Replanner:
     """After a plan is adopted, the request (16) replans again only after this (``safety.replan_after_s``: δ must
     have stayed low on the new path as long as on the old one) [s]."""
     request_quiet_until_ns: int = 0
+    pending_since_ns: int = 0
+    answer_s: deque[float] = field(default_factory=lambda: deque(maxlen=ANSWERS_KEPT))
+    """How long the last answers took, request to answer, on the loop's clock (a simulated cell's too) [s]."""
 
     def __post_init__(self) -> None:
         self.data = self.open_robot.robot.model.createData()
+
+    def answer_time_s(self) -> float:
+        """The longest of the last answers' times (``join_lead_s`` before the first) [s]."""
+        return max(self.answer_s) if self.answer_s else self.config.join_lead_s
 
     def view(self, backend: PlannerHealth | None = None) -> PlanView:
         """What the status shows of this robot's planner layer now (``backend``: the planner's own state)."""
@@ -520,6 +546,7 @@ class Replanner:
         """An answer from the backend: adopt its plan if the robot can still follow it from where it is."""
         if self.pending is not None and outcome.start_key == self.pending:
             self.pending = None
+            self.answer_s.append(max(now_ns - self.pending_since_ns, 0) / NS_PER_S)
         self.stats.planning_s.append(outcome.planning_s)
         self.stats.planning_total_s += outcome.planning_s
         if outcome.plan is None:
@@ -576,13 +603,18 @@ class Replanner:
             t_end_s,
             self.config.plan_growth_s,
         )
+        lead_s = join_lead_s(
+            self.config.join_lead_s, verdict.last_feasible_t_s, self.open_robot.delta_prev, self.answer_time_s()
+        )
+        if plan is not None:
+            lead_s = min(lead_s, max(t_end_s - t_now_s, 0.0))
         if verdict.infeasible_t_s is not None:
             reason = "horizon"
-            t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
+            t_join_s = t_now_s + lead_s
             obstruction_s = t_now_s + verdict.infeasible_t_s
         elif request_16 and humans.n_capsules and now_ns >= self.request_quiet_until_ns:
             reason = "request"
-            t_join_s = t_now_s + min(self.config.join_lead_s, verdict.last_feasible_t_s)
+            t_join_s = t_now_s + lead_s
             obstruction_s = t_join_s
         else:
             return
@@ -604,6 +636,7 @@ class Replanner:
         )
         if backend.submit(request):
             self.pending = request.start_key
+            self.pending_since_ns = now_ns
             self.pending_deadline_ns = now_ns + int(PENDING_TIMEOUT_FACTOR * self.config.time_limit_s * NS_PER_S)
             self.stats.requests[reason] += 1
             # after this request, wait before the next (a plan needs time to take the robot away)

@@ -4,6 +4,7 @@
   clock, audited every controller cycle against the truth; returns a :class:`RunResult`.
 - :class:`LinkFault`, :class:`LinkFaults` (``hrc_tools.sim.links``): delay, jitter, loss and duplication per path.
 - :func:`generate_case` (``hrc_tools.sim.scenarios``): seeded random people, sensors and link faults.
+- ``hrc_tools.sim.faulty_planners``: planners that answer through the person or never (``hrc-sweep --planner-fault``).
 - ``python -m hrc_tools.sim`` / ``hrc-sweep`` (``hrc_tools.sim.sweep``): the randomized sweep and its table.
 """
 
@@ -20,6 +21,7 @@ __all__ = [
     "bridged",
     "cell",
     "exchanges",
+    "faulty_planners",
     "generate_case",
     "human_speed",
     "links",

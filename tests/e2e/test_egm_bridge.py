@@ -43,8 +43,10 @@ pytestmark = pytest.mark.e2e
 DETECT_S = 3.0
 RECOVER_S = 15.0
 FOLLOW_TOLERANCE_RAD = 0.05
-"""The robot's true q within this of the gateway's newest command (one command is q_{k+1}: 4 ms of motion at most
-2.6 rad/s is 10 mrad, plus the EGM exchange's cycle and the follower's lag at K = 20 /s) [rad]."""
+"""The robot's true q within this of one of the gateway's recent commands (one command is q_{k+1}: 4 ms of motion at
+most 2.6 rad/s is 10 mrad, plus the EGM exchange's cycle and the follower's lag at K = 20 /s) [rad]."""
+FOLLOW_LAG_S = 0.06
+"""A state is matched with the commands that arrived this long before it (times scaled by the load) [s]."""
 STAND_RADPS = 1e-3
 
 
@@ -115,22 +117,32 @@ def test_the_default_scenario_through_egm(egm_cell: Path, tmp_path: Path) -> Non
 
 
 def _assert_follows(commands: list[tuple[float, JointCommand]], truth: list[tuple[float, JointState]]) -> None:
-    """The robot's true q is near the gateway's newest command whenever commands stream, and it moved."""
+    """The robot's true q is near one of the gateway's commands of the last FOLLOW_LAG_S whenever commands stream,
+    and it moved.
+
+    Times are this test's arrival times of two streams from two processes: a loaded host delays either by a few
+    cycles, so a state is matched with the commands of a short window before it, not with the newest one alone. A
+    robot that does not follow its references is still far from all of them.
+    """
     assert len(commands) > 1000
     assert len(truth) > 1000
+    lag_s = FOLLOW_LAG_S * load_scale()
     command_t = np.array([t for t, _ in commands])
     command_q = np.array([c.q for _, c in commands])
     errors = []
     for t, state in truth:
-        i = int(np.searchsorted(command_t, t)) - 1
-        if i < 0 or t - command_t[i] > 0.02:
+        last = int(np.searchsorted(command_t, t, side="right"))
+        first = int(np.searchsorted(command_t, t - lag_s))
+        if last == 0 or t - command_t[last - 1] > 0.02:
             continue  # no command just before: nothing to follow
-        errors.append(float(np.max(np.abs(np.array(state.q) - command_q[i]))))
+        window = command_q[first:last]
+        errors.append(float(np.min(np.max(np.abs(window - np.array(state.q)), axis=1))))
     assert len(errors) > 1000
     errors_sorted = sorted(errors)
     p99 = errors_sorted[int(0.99 * (len(errors) - 1))]
     assert p99 < FOLLOW_TOLERANCE_RAD, (
-        f"true q from the command: p50 {errors_sorted[len(errors) // 2]:.4f} rad, p99 {p99:.4f} rad"
+        f"true q from the commands of the last {lag_s:.3f} s: p50 {errors_sorted[len(errors) // 2]:.4f} rad, "
+        f"p99 {p99:.4f} rad"
     )
     q_truth = np.array([s.q for _, s in truth])
     assert float(np.max(np.ptp(q_truth, axis=0))) > 0.3, "the robot did not run its program"

@@ -29,6 +29,7 @@ from gateway.planner_worker import (
     SimulatedPlanner,
     ThreadedPlanner,
     goal_candidates,
+    join_lead_s,
     restart_backoff_s,
 )
 from gateway.status import robot_status
@@ -330,6 +331,15 @@ def test_the_replanner_asks_on_a_blocked_horizon_or_the_request_and_not_while_fa
     assert len(backend.requests) == 2  # far away, no request (16): nothing to do
     quiet.cycle(200_000_000, person(3.5, 3.0), True, False, resume_m, backend)
     assert backend.requests[-1].reason == "request"
+
+
+def test_the_join_lies_ahead_of_where_the_robot_gets_while_the_planner_works() -> None:
+    assert join_lead_s(0.1, 0.5, 1.0, 0.3) == pytest.approx(0.1)  # the configured lead where it is clear
+    assert join_lead_s(0.1, 0.04, 0.1, 0.3) == pytest.approx(0.04)  # not beyond the last feasible configuration ...
+    # ... unless the robot gets past it before the answer: a robot creeping at δ = 0.05 inside the clearance
+    assert join_lead_s(0.1, 0.0, 0.05, 0.3) == pytest.approx(0.015)
+    assert join_lead_s(0.1, 0.0, 1.0, 0.3) == pytest.approx(0.1)  # never beyond the configured lead
+    assert join_lead_s(0.1, 0.0, 0.0, 0.3) == 0.0  # a robot standing still joins where it stands
 
 
 def test_goal_candidates_are_the_next_program_waypoints(program: Trajectory) -> None:

@@ -342,6 +342,26 @@ def test_the_join_lies_ahead_of_where_the_robot_gets_while_the_planner_works() -
     assert join_lead_s(0.1, 0.0, 0.0, 0.3) == 0.0  # a robot standing still joins where it stands
 
 
+def test_the_replanner_joins_ahead_by_what_the_robot_covers_in_its_planners_answer_time(
+    config: CellConfig, panda: RobotModel, program: Trajectory
+) -> None:
+    settings = PlannerConfig(enabled=True, horizon_s=1.0, check_every_s=0.1, retry_after_s=0.5, time_limit_s=0.5)
+    robot = open_robot(config, panda, program)
+    robot.tau_s, robot.delta_prev = 0.35, 0.2
+    backend = Recorder()
+    replanner = Replanner("panda", settings, 1.6, robot)
+    close = person(0.6, 0.0)  # the robot is already inside the clearance: no configuration ahead is feasible
+    replanner.cycle(0, close, False, False, 0.5, backend)
+    first = backend.requests[-1]
+    assert first.t_join_s - first.t_now_s == pytest.approx(0.2 * settings.join_lead_s)  # before any answer
+    replanner.take(PlanOutcome("panda", None, "no_path", 0.3, first.start_key), 300_000_000)  # answered in 0.3 s
+    assert replanner.answer_time_s() == pytest.approx(0.3)
+    replanner.cycle(900_000_000, close, False, False, 0.5, backend)
+    second = backend.requests[-1]
+    assert second is not first
+    assert second.t_join_s - second.t_now_s == pytest.approx(0.2 * 0.3)  # δ × the answer time: not passed meanwhile
+
+
 def test_goal_candidates_are_the_next_program_waypoints(program: Trajectory) -> None:
     assert len(goal_candidates(program, 0.35)) == 1  # the next station only: a later one would skip it
     goals = goal_candidates(program, 0.35, count=2)

@@ -1,10 +1,13 @@
 """Paper 1's "guarded distance" (Fig. 9): an open Panda steps aside with its elbow where a closed one can only slow.
 
     .venv/bin/python -m bench.guarded_distance [--seed 1] [--plot out/bench/guarded_distance.png]
+    .venv/bin/python -m bench.guarded_distance --scenario beside_elbow --program panda_elbow_out
 
-One scenario (``configs/scenarios/behind_elbow.toml``: a person walks up behind the robot on its elbow's side and
-stands 1.5 m from the base axis for 8.5 s) in the simulated cell (:func:`hrc_tools.sim.cell.simulate`: the real
-gateway node, tracker emulator and controller nodes, audited every cycle), the same seed twice: the Panda of
+One scenario (default ``configs/scenarios/behind_elbow.toml``: a person walks up behind the robot on its elbow's side
+and stands 1.5 m from the base axis for 8.5 s, the Panda's pick and place; or ``beside_elbow`` with the program
+``panda_elbow_out``: the elbow held out toward a person standing beside the robot) in the simulated cell
+(:func:`hrc_tools.sim.cell.simulate`: the real gateway node, tracker emulator and controller nodes, audited every
+cycle), the same seed twice: the Panda of
 ``configs/cell_open_panda.toml`` behind its open controller (LP (9)/(13)), and the same Panda behind a closed
 controller (eq. (15), the override). Per run: program cycles completed, mean δ and the share of time at δ = 1 while
 the person stands, the smallest true distance, the elbow's displacement and the auditor's violations; a plot of δ,
@@ -30,9 +33,10 @@ from tracker_emu.scenario import load_scenario
 
 NAME = "guarded_distance"
 CONFIG = "configs/cell_open_panda.toml"
-SCENARIO = "configs/scenarios/behind_elbow.toml"
+SCENARIO = "behind_elbow"
+PROGRAM = "panda_pick_place"
 STANDING_S = (6.5, 15.0)
-"""When the person stands behind the robot [s] (the scenario's keyframes)."""
+"""When the person stands near the robot [s] (the keyframes of both scenarios)."""
 ELBOW_LINK = "elbow"
 """The Panda link whose first end (``panda_link3``) is the elbow of the plot."""
 
@@ -45,9 +49,21 @@ def with_control(config: CellConfig, control: str) -> CellConfig:
     return config.model_copy(update={"robots": robots})
 
 
-def run_one(config: CellConfig, seed: int) -> tuple[dict[str, Any], list[TraceSample]]:
+def with_program(config: CellConfig, program: str) -> CellConfig:
+    """The cell with the Panda running ``configs/programs/<program>.toml``."""
+    path = Path(config.robots["panda"].program).parent / f"{program}.toml"
+    if not path.is_file():
+        raise SystemExit(f"no program {path}; allowed: {sorted(p.stem for p in path.parent.glob('*.toml'))}")
+    robots = {**config.robots, "panda": config.robots["panda"].model_copy(update={"program": str(path)})}
+    return config.model_copy(update={"robots": robots})
+
+
+def run_one(config: CellConfig, seed: int, scenario_name: str) -> tuple[dict[str, Any], list[TraceSample]]:
     robots = {name: load_robot_model(name, r) for name, r in config.robots.items()}
-    scenario = load_scenario(SCENARIO)
+    path = Path(config.scenarios_dir) / f"{scenario_name}.toml"
+    if not path.is_file():
+        raise SystemExit(f"no scenario {path}; allowed: {sorted(p.stem for p in path.parent.glob('*.toml'))}")
+    scenario = load_scenario(path)
     samples: list[TraceSample] = []
     result = simulate(
         config,
@@ -123,13 +139,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", type=Path, default=default_json_path(NAME))
     parser.add_argument("--plot", type=Path, default=None, help="write the plot here (PNG)")
+    parser.add_argument("--scenario", default=SCENARIO, help=f"configs/scenarios/<name>.toml (default {SCENARIO})")
+    parser.add_argument("--program", default=PROGRAM, help=f"configs/programs/<name>.toml (default {PROGRAM})")
     args = parser.parse_args(argv)
     print_header("guarded distance: an open Panda (LP (9)/(13)) against a closed one, same scenario and seed")
-    base = load_cell_config(CONFIG)
-    report = Report(NAME, {"seed": args.seed, "config": CONFIG, "scenario": SCENARIO, "standing_s": STANDING_S})
+    base = with_program(load_cell_config(CONFIG), args.program)
+    report = Report(
+        NAME,
+        {
+            "seed": args.seed,
+            "config": CONFIG,
+            "scenario": args.scenario,
+            "program": args.program,
+            "standing_s": STANDING_S,
+        },
+    )
     traces: dict[str, list[TraceSample]] = {}
     for control in ("open", "closed"):
-        figures, samples = run_one(with_control(base, control), args.seed)
+        figures, samples = run_one(with_control(base, control), args.seed, args.scenario)
         report.results[control] = figures
         traces[control] = samples
     keys = list(report.results["open"])

@@ -44,7 +44,11 @@ them is faster as well as feasible (eq. (15) slows any approach within a band be
 INFLATION_STEPS = (0.5, 0.0)
 """When the start is inside the grown people (a person close by: the request (16)), the clearance is then tried at
 these fractions of itself: a plan that starts there must first be allowed to leave."""
-
+PATH_ATTEMPTS = 3
+"""Paths searched per goal and clearance when a path's timing fails (TOPP-RA's spline or the trapezoid cuts into a
+person): the next with the seed + 1. RRT-Connect's path for one seed is one random draw; which draw a machine gets
+depends on the last bits of the collision distances (a test's plan that timed on one machine cut a corner on
+another, 2026-12-05), so one untimeable path says nothing about the goal."""
 
 TOOL_PATH_POINTS = 32
 """The tool's positions along a plan made for the status and the recording (evenly spaced in plan time): a line
@@ -230,36 +234,39 @@ class JointPlanner:
         goal[inactive] = q_join[inactive]
         if not self.valid(goal, humans, grow_m):
             return None, "goal_invalid"
-        points = self.path(q_join, goal, humans, grow_m, request.seed)
-        if points is None:
-            return None, "no_path"
 
         def clear(q_active: FloatArray) -> bool:
             return self.valid(_fill(q_join, self.active, q_active), humans, grow_m)
 
-        for qd_start in (qd_join, np.zeros_like(qd_join)):
-            try:
-                timed = plan_math.time_path(
-                    points[:, self.active], qd_start[self.active], self.qd_max_radps, self.qdd_max_radps2, clear
-                )
-            except TimingError:
-                continue
-            try:
-                plan = plan_math.splice(
-                    request.old,
-                    request.t_now_s,
-                    request.t_join_s,
-                    _FullPath(timed, q_join, self.active),
-                    goal_tau_s,
-                    request.start_key,
-                    request.reason,
-                    _fill(np.zeros_like(qd_start), self.active, qd_start[self.active]),  # the others are held
-                    clearance_m=grow_m,
-                )
-            except ValueError:
-                return None, "no_join"
-            return plan, ""
-        return None, "no_timing"
+        failure = "no_path"
+        for attempt in range(PATH_ATTEMPTS):
+            points = self.path(q_join, goal, humans, grow_m, request.seed + attempt)
+            if points is None:
+                return None, failure  # RRT-Connect found none in its time: another seed would not either, as a rule
+            for qd_start in (qd_join, np.zeros_like(qd_join)):
+                try:
+                    timed = plan_math.time_path(
+                        points[:, self.active], qd_start[self.active], self.qd_max_radps, self.qdd_max_radps2, clear
+                    )
+                except TimingError:
+                    continue
+                try:
+                    plan = plan_math.splice(
+                        request.old,
+                        request.t_now_s,
+                        request.t_join_s,
+                        _FullPath(timed, q_join, self.active),
+                        goal_tau_s,
+                        request.start_key,
+                        request.reason,
+                        _fill(np.zeros_like(qd_start), self.active, qd_start[self.active]),  # the others are held
+                        clearance_m=grow_m,
+                    )
+                except ValueError:
+                    return None, "no_join"
+                return plan, ""
+            failure = "no_timing"
+        return None, failure
 
 
 def warm_up() -> None:

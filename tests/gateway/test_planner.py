@@ -20,7 +20,7 @@ from gateway.core import RobotDecision, SafetyCore
 from gateway.delay import DelayBudget
 from gateway.open_robot import OpenRobot
 from gateway.plan import Plan, TimedPath
-from gateway.planner import TOOL_PATH_POINTS, JointPlanner, PlanOutcome, PlanRequest
+from gateway.planner import PATH_ATTEMPTS, TOOL_PATH_POINTS, JointPlanner, PlanOutcome, PlanRequest
 from gateway.planner_worker import (
     DIED,
     PlannerHealth,
@@ -488,6 +488,39 @@ def test_the_core_builds_the_planner_layer_only_when_enabled(config: CellConfig,
     assert plain.states["panda"].replanner is None
     simulated = SafetyCore(config, {"panda": panda}, SimulatedPlanner)
     assert isinstance(simulated.planner, SimulatedPlanner)
+
+
+class FirstPathsCut(JointPlanner):
+    """A planner whose first ``cut`` paths go straight through the person (no timing can keep them clear)."""
+
+    cut: int = 0
+    seeds: list[int]
+
+    def path(
+        self, q_start_rad: np.ndarray, q_goal_rad: np.ndarray, humans: HumanCapsules, grow_m: float, seed: int
+    ) -> np.ndarray | None:
+        self.seeds.append(seed)
+        if len(self.seeds) <= self.cut:
+            return np.array([q_start_rad, q_goal_rad])  # the straight swing, through the person at (1, 0)
+        return super().path(q_start_rad, q_goal_rad, humans, grow_m, seed)
+
+
+@pytest.mark.parametrize("cut", [1, PATH_ATTEMPTS - 1, PATH_ATTEMPTS])
+def test_a_path_that_cannot_be_timed_clear_of_the_person_is_searched_again_with_the_next_seed(
+    planner: JointPlanner, program: Trajectory, cut: int
+) -> None:
+    cutting = FirstPathsCut(planner.robot, planner.active, planner.qd_max_radps, planner.qdd_max_radps2, 1.0)
+    cutting.cut, cutting.seeds = cut, []
+    outcome = cutting.solve(request(program, person(1.0, 0.0), 3))
+    first_level = cutting.seeds[: min(cut + 1, PATH_ATTEMPTS)]
+    assert first_level == [3 + k for k in range(len(first_level))]  # the seeds in turn, at the first clearance
+    if cut < PATH_ATTEMPTS:
+        assert outcome.plan is not None, outcome.failure
+        assert len(cutting.seeds) == cut + 1
+    else:  # every attempt at the first clearance cut through: given up, and said why
+        assert outcome.plan is None
+        assert outcome.failure == "no_timing"
+        assert len(cutting.seeds) == PATH_ATTEMPTS
 
 
 def test_a_plan_spliced_into_a_plan_keeps_only_the_stretch_it_needs(program: Trajectory, planner: JointPlanner) -> None:

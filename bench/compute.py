@@ -128,6 +128,8 @@ class Rig:
         self.n_humans = n_humans
         self.start_ns = start_ns
         self.cycle = 0
+        self.frame_cycles = np.zeros(0, dtype=bool)
+        """Per timed cycle of the last :meth:`run`: whether it took new tracker frames (the tracks' update)."""
         self.joint_seq = 0
         self.human_seq = 0
         self.override_seq = 0
@@ -234,7 +236,9 @@ class Rig:
         self.deltas.clear()
         self.callback_ns.clear()
         times = np.empty(cycles, dtype=np.int64)
+        self.frame_cycles = np.zeros(cycles, dtype=bool)
         for k in range(cycles):
+            self.frame_cycles[k] = self.cycle % HUMAN_EVERY_CYCLES == 0  # this cycle takes new tracker frames
             times[k], _ = self.step(self.feed())
         return times
 
@@ -447,6 +451,10 @@ def run(
         report.results["reference"] = {
             "workload": Workload(1, 2).label,
             "compute_us": reference,
+            "compute_us_by_frame": {
+                "with_new_tracker_frames": summary(times[rig.frame_cycles], 1e-3),
+                "without": summary(times[~rig.frame_cycles], 1e-3),
+            },
             "sanity": rig.sanity(),
             "callbacks_us_not_in_cycle": callbacks,
         }
@@ -513,6 +521,26 @@ def print_report(doc: dict[str, Any]) -> None:
     ]
     rows += [[r["name"], r.get("mean_us"), None, r.get("p95_us"), None, r.get("max_us")] for r in doc["references"]]
     print(table(["compute per cycle [µs]", "mean", "p50", "p95", "p99", "max"], rows))
+    by_frame = ref.get("compute_us_by_frame")
+    if by_frame:
+        print(f"\nthe same cycles, split (tracker frames arrive every {HUMAN_EVERY_CYCLES} cycles) [µs]")
+        print(
+            table(
+                ["cycles", "n", "mean", "p50", "p95", "p99", "max"],
+                [
+                    [
+                        name.replace("_", " "),
+                        v["n"],
+                        v.get("mean"),
+                        v.get("p50"),
+                        v.get("p95"),
+                        v.get("p99"),
+                        v.get("max"),
+                    ]
+                    for name, v in by_frame.items()
+                ],
+            )
+        )
     print("\n" + targets_table([Target.from_dict(t) for t in doc["targets"]]))
     print("\nwhere the time goes (instrumented pass) [µs]")
     print(

@@ -43,6 +43,10 @@ def test_compute_benchmark_runs(tmp_path: Path) -> None:
     doc = _load(out)
     reference = doc["results"]["reference"]
     assert reference["compute_us"]["n"] == 30
+    # the cycles that take new tracker frames (every 8th, from the 5 warm-up cycles on: 8, 16, 24, 32) apart
+    split = reference["compute_us_by_frame"]
+    assert split["with_new_tracker_frames"]["n"] == 4
+    assert split["without"]["n"] == 26
     # The reference workload is what it claims: fresh data, confirmed override path, 2 × 15 capsules.
     assert reference["sanity"]["faults"] == {}
     assert reference["sanity"]["capsules_per_cycle"] == 30

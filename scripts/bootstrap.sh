@@ -44,8 +44,16 @@ fi
 # libfaketime (Debian's package libfaketime): the soak (bench/soak.py) and tests/e2e/test_clock_step.py step an
 # emulator's wall clock through it. Installed only when missing, as root, with apt; elsewhere the soak reports the
 # clock steps as not injected and the test skips, each saying why.
-if ! ls /usr/lib/*/faketime/libfaketimeMT.so.1 /usr/lib/faketime/libfaketimeMT.so.1 \
-    /usr/local/lib/faketime/libfaketimeMT.so.1 >/dev/null 2>&1; then
+# (Any one of the places will do: `ls` of all three fails when one is absent, and reinstalled it on every run.)
+have_faketime() {
+  local f
+  for f in /usr/lib/*/faketime/libfaketimeMT.so.1 /usr/lib/faketime/libfaketimeMT.so.1 \
+      /usr/local/lib/faketime/libfaketimeMT.so.1; do
+    [ -e "$f" ] && return 0
+  done
+  return 1
+}
+if ! have_faketime; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "bootstrap: installing libfaketime (for the soak's and the e2e test's wall-clock steps)" >&2
     if ! { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libfaketime; } \

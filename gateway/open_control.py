@@ -11,10 +11,11 @@ driven by the gateway itself: each cycle it solves, with the variables z = (q̇_
     q_min ≤ q_ref + Δt q̇ ≤ q_max                                       (9f)
     0 ≤ δ ≤ 1                                                           (9g)
 
-then, with δ fixed at the optimum δ*, LP (13): min ‖q̇ − q̇⁰‖_∞ over the same rows, which uses the redundant degrees of
-freedom to follow the reference self-motion q̇⁰ (here: away from the nearest people, back to the program's posture
-when nobody is near) without slowing the task. The safety rows are those of eq. (15) (docs/safety-math.md §2–§4)
-with q̇ free instead of δ q̇_nominal: the same distances, Δ, f and horizons, evaluated at the *measured* joints.
+then, with δ fixed at the optimum δ* (half a percent below it when δ* < 1: :data:`SELF_MOTION_ROOM`), LP (13):
+min ‖q̇ − q̇⁰‖_∞ over the same rows, which uses the redundant degrees of freedom to follow the reference self-motion
+q̇⁰ (here: away from the nearest people, back to the program's posture when nobody is near) without slowing the task.
+The safety rows are those of eq. (15) (docs/safety-math.md §2–§4) with q̇ free instead of δ q̇_nominal: the same
+distances, Δ, f and horizons, evaluated at the *measured* joints.
 
 LP (9) can be infeasible (a robot moving faster than q̈max Δt that must stop: (9d) forbids it in one step). Then, and
 whenever an input fails closed, the command is :func:`ramp_stop`: the current joint velocity scaled down along its
@@ -48,6 +49,12 @@ ROW_TOLERANCE = 1e-6
 """How far a solver's answer may exceed a row's right-hand side and still be sent, relative to the row's scale plus
 1 m² (DAQP's primal tolerance is 1e-6): 1e-6 m² on a row with f = 0 lets a link approach at about a micrometre per
 second. A row exceeded by more fails the command closed (the ramp stop)."""
+SELF_MOTION_ROOM = 0.005
+"""When LP (9) bounds δ below 1, LP (13) runs at δ* (1 − this): at δ* itself LP (9)'s vertex leaves the redundant
+joints no range (the rows that bind fix every direction), so the self-motion could never take the arm away from the
+rows that slow it. Half a percent of δ is about what one cycle's acceleration window (9d) lets δ change (q̈max Δt /
+q̇ ≈ 1 %), so LP (13) stays feasible; it also leaves the binding rows that much slack for the next cycle's tightening.
+Measured (docs/benchmarks.md, "Guarded distance, elbow out"): 0.001 too little, 0.003–0.01 alike."""
 _SENSE_EQUALITY = 5
 _EXIT_OPTIMAL = (1, 2)  # DAQP: 1 optimal, 2 soft-optimal
 
@@ -350,12 +357,24 @@ def decide(
         return stop("commanded")
     delta = min(delta_star, allowed)
     why = bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
-    second = solve_lp13(rows, task, delta, lower, upper, qd_self_radps)
+    room = with_self_motion_room(delta, delta_star, task)
+    second = solve_lp13(rows, task, room, lower, upper, qd_self_radps)
     if second is not None and not violated_rows(every_row, second[0]).size:
-        return Solution(second[0], delta, "lp13", why, second[1])
+        return Solution(second[0], room, "lp13", why, second[1])
     if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap
         return stop("capped_infeasible")
     return Solution(qd9, delta, "lp9", why)
+
+
+def with_self_motion_room(delta: float, delta_star: float, task: Task) -> float:
+    """δ for LP (13): δ* (1 − :data:`SELF_MOTION_ROOM`) when LP (9) bounds it below 1 (as :func:`bounded_by` reads
+    it), nothing lower was asked for and the robot has joints beyond the task (a UR5 has none: its LP (9) *is* eq.
+    (15) and keeps eq. (15)'s δ); else ``delta`` (at δ = 1 the redundancy is free already; a zone's lower δ leaves room
+    of its own)."""
+    redundant = task.jacobian.shape[1] > task.jacobian.shape[0]
+    if redundant and delta == delta_star and delta_star < 1.0 - 1e-9:
+        return delta_star * (1.0 - SELF_MOTION_ROOM)
+    return delta
 
 
 def fixed_cap(value: float) -> Callable[[float], float]:

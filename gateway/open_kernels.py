@@ -44,6 +44,7 @@ from gateway.open_control import (
     SafetyRows,
     Solution,
     Task,
+    with_self_motion_room,
 )
 
 _OK = 0
@@ -493,9 +494,10 @@ class OpenLp:
             return stop("commanded")
         delta = min(delta_star, allowed)
         why = self.bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
-        second = self.lp13(task, delta, qd_self_radps)
+        room = with_self_motion_room(delta, delta_star, task)
+        second = self.lp13(task, room, qd_self_radps)
         if second is not None and not _breaks_a_row(rows.a_s, rows.f_m2, second[0]):
-            return Solution(second[0], delta, "lp13", why, second[1])
+            return Solution(second[0], room, "lp13", why, second[1])
         if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap
             return stop("capped_infeasible")
         return Solution(qd9, delta, "lp9", why)

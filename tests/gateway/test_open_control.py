@@ -125,6 +125,34 @@ def test_an_lp9_that_cannot_stop_in_time_falls_back_to_the_ramp_stop() -> None:
     assert solution.qd_radps == pytest.approx(qd_prev * (0.75 - 0.008) / 0.75)
 
 
+def test_lp13_runs_a_half_percent_below_a_bounded_delta_on_a_redundant_arm_only() -> None:
+    seven = Task(np.zeros((6, 7)), np.zeros(6), np.zeros(6))  # a Panda: one joint beyond the tool's pose
+    six = Task(np.zeros((6, 6)), np.zeros(6), np.zeros(6))  # a UR5: LP (9) is eq. (15), no room to make
+    assert open_control.with_self_motion_room(0.6, 0.6, seven) == pytest.approx(0.6 * (1.0 - 0.005))
+    assert open_control.with_self_motion_room(0.6, 0.6, six) == 0.6
+    assert open_control.with_self_motion_room(1.0, 1.0, seven) == 1.0  # unbounded: the redundancy is free
+    assert open_control.with_self_motion_room(1.0 - 1e-14, 1.0 - 1e-14, seven) == 1.0 - 1e-14  # 1 to the solver
+    assert open_control.with_self_motion_room(0.3, 0.6, seven) == 0.3  # a zone asked for less: room of its own
+
+
+def test_the_self_motion_has_room_where_lp9_bounds_delta_on_a_redundant_arm() -> None:
+    """Two joints, a 1-D task (J = [1, 1]): the redundant direction is (1, −1). LP (9) bounds δ where both joints are
+    at the top of their one-cycle window, so at δ* itself the self-motion has no range at all (either joint lower
+    would lower δ). Half a percent below δ*, LP (13) can follow the reference's wish to slow joint 1."""
+    rows = SafetyRows(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.intp), np.zeros(0, np.intp), 0)
+    task = Task(np.array([[1.0, 1.0]]), np.array([1.0]), np.zeros(1))
+    limits = _limits(2, qd_max=2.0, t_brake_s=0.5)  # q̈max Δt = 0.016
+    qd_prev = np.array([0.3, 0.3])
+    solution = open_control.decide(
+        rows, task, qd_prev, np.zeros(2), limits, DT_S, np.array([0.316, 0.0]), open_control.fixed_cap(1.0), ("l0",)
+    )
+    assert solution.how == "lp13"
+    assert solution.delta == pytest.approx(0.632 * 0.995)
+    assert solution.qd_radps[0] == pytest.approx(0.316)
+    assert solution.qd_radps[1] == pytest.approx(0.316 - 0.632 * 0.005)  # 0.316 at δ*: no self-motion at all
+    assert float(task.jacobian[0] @ solution.qd_radps) == pytest.approx(solution.delta, abs=1e-9)
+
+
 def test_the_ramp_stop_ends_within_the_longest_braking_time_and_never_brakes_a_joint_harder_than_its_bound() -> None:
     limits = Limits(np.array([2.0, 1.0, 3.0]), np.array([4.0, 5.0, 6.0]), -np.ones(3), np.ones(3), 0.5)
     qd = np.array([2.0, -0.4, 1.5])

@@ -37,6 +37,7 @@ from gateway.events import EventLog
 from gateway.handoff import LatestJobThread
 from gateway.http.server import HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode, NodeRecorder
+from gateway.open_robot import acceleration_warning
 from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
 from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
@@ -638,7 +639,12 @@ def build_node(config: CellConfig, wake: threading.Event | None, recorder: NodeR
     robots = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
-    return GatewayNode(config, robots, on_tracker_change=None if wake is None else wake.set, recorder=recorder)
+    node = GatewayNode(config, robots, on_tracker_change=None if wake is None else wake.set, recorder=recorder)
+    for name, state in node.core.states.items():
+        warning = None if state.open is None else acceleration_warning(name, state.open.accelerations_over_limit)
+        if warning is not None:
+            log.warning("%s", warning)
+    return node
 
 
 def _close_recording(recorder: GatewayRecorder) -> None:

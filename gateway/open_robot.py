@@ -9,7 +9,7 @@ at the reference (what it is told). :meth:`gateway.open_kernels.OpenLp.decide` (
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -121,6 +121,55 @@ def nearest_people(
     return a + t[:, None] * axis, np.asarray(distance, dtype=float)
 
 
+class AccelerationOverLimit(NamedTuple):
+    """A move of the program whose joint accelerates faster than the open controller's q̈max allows (LP (9d))."""
+
+    waypoint: int
+    """The waypoint the move goes into."""
+    joint: str
+    accel_radps2: float
+    """That joint's acceleration in the move at δ = 1 [rad/s²]."""
+    limit_radps2: float
+    """Its q̈max = q̇max / ``controller.braking_time_s`` [rad/s²]."""
+
+
+def accelerations_over_limit(
+    trajectory: Trajectory, joint_names: Sequence[str], active: npt.NDArray[np.intp], qdd_max_radps2: FloatArray
+) -> list[AccelerationOverLimit]:
+    """Per move of the program, its joint (of ``active``, limits ``qdd_max_radps2`` in that order) that accelerates
+    most above its q̈max, if any: such a move cannot be followed at δ = 1 (window (9d) of LP (9)), so δ drops in it
+    with nobody near. Productivity, not safety: the rows hold whatever δ is."""
+    out = []
+    for segment in trajectory.segments:
+        if segment.distance_rad == 0.0:
+            continue
+        accel = segment.accel_radps2 * np.abs(segment.direction[active])
+        over = accel - qdd_max_radps2 * (1.0 + 1e-9)
+        j = int(np.argmax(over))
+        if over[j] > 0.0:
+            out.append(
+                AccelerationOverLimit(
+                    segment.waypoint, joint_names[int(active[j])], float(accel[j]), float(qdd_max_radps2[j])
+                )
+            )
+    return out
+
+
+def acceleration_warning(robot: str, over: Sequence[AccelerationOverLimit]) -> str | None:
+    """One line for the operator when a program accelerates faster than its open controller's q̈max, else None."""
+    if not over:
+        return None
+    worst = max(over, key=lambda o: o.accel_radps2 / o.limit_radps2)
+    waypoints = ", ".join(str(o.waypoint) for o in over)
+    return (
+        f"robot {robot!r}: {len(over)} move(s) of its program (into waypoint(s) {waypoints}) accelerate faster than "
+        f"the open controller's q̈max = q̇max / controller.braking_time_s, e.g. {worst.joint} at "
+        f"{worst.accel_radps2:.2f} rad/s² against {worst.limit_radps2:.2f} rad/s² (into waypoint {worst.waypoint}): "
+        "LP (9) cannot follow those moves at δ = 1, so δ drops there with nobody near (safety is unaffected); "
+        "lower those waypoints' max_accel_radps2 to keep full speed"
+    )
+
+
 @dataclass
 class OpenRobot:
     """An open robot's program time, reference and the LPs' fixed inputs."""
@@ -159,6 +208,8 @@ class OpenRobot:
     sent_next: int = 0
     reference_restarts: int = 0
     """Times the reference started again from the measured joints after the first (the robot did not follow)."""
+    accelerations_over_limit: list[AccelerationOverLimit] = field(init=False, repr=False, compare=False)
+    """The program's moves that accelerate faster than :attr:`limits` allow (:func:`accelerations_over_limit`)."""
 
     def __post_init__(self) -> None:
         robot = self.robot
@@ -179,6 +230,9 @@ class OpenRobot:
             np.asarray(robot.model.lowerPositionLimit, dtype=float)[self.active],
             np.asarray(robot.model.upperPositionLimit, dtype=float)[self.active],
             self.stop_time_s,
+        )
+        self.accelerations_over_limit = accelerations_over_limit(
+            self.trajectory, robot.joint_names, self.active, self.limits.qdd_max_radps2
         )
         self.lp = OpenLp()
         self.sent_q_rad = np.zeros((SENT_KEPT, self.active.size))

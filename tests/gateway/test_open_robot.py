@@ -3,9 +3,13 @@
 
 from __future__ import annotations
 
-import numpy as np
+import logging
 
-from gateway.open_robot import RESYNC_RAD, OpenRobot
+import numpy as np
+import pytest
+
+from gateway.main import build_node
+from gateway.open_robot import RESYNC_RAD, OpenRobot, acceleration_warning, accelerations_over_limit
 from hrc_devices.robots.model import load_robot_model
 from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.config import load_cell_config
@@ -64,3 +68,43 @@ def test_the_reference_of_now_alone_is_followed_without_history() -> None:
     open_robot.q_ref_rad = np.array(q0, dtype=float)
     assert open_robot.followed(np.array(q0) + 0.5 * RESYNC_RAD, 5_000 * MS, round_trip_s=0.2)
     assert not open_robot.followed(np.array(q0) + 2.0 * RESYNC_RAD, 5_000 * MS, round_trip_s=0.2)
+
+
+def test_a_program_accelerating_faster_than_the_open_controllers_qdd_max_is_named_per_move() -> None:
+    """The pick and place accelerates panda_joint1 at 5 rad/s² (waypoints' max_accel_radps2) in two moves, above the
+    open Panda's q̇max / braking time = 2.175 / 0.5 = 4.35 rad/s²: both moves are named; at a limit exactly that
+    acceleration none is, just below it both are."""
+    open_robot = panda()
+    over = open_robot.accelerations_over_limit
+    assert [(o.joint, o.waypoint) for o in over] == [("panda_joint1", 3), ("panda_joint1", 0)]
+    assert [o.accel_radps2 for o in over] == pytest.approx([5.0, 5.0])
+    assert [o.limit_radps2 for o in over] == pytest.approx([4.35, 4.35])
+    joint_names = open_robot.robot.joint_names
+    exact = np.full(open_robot.active.size, 5.0)
+    assert accelerations_over_limit(open_robot.trajectory, joint_names, open_robot.active, exact) == []
+    assert len(accelerations_over_limit(open_robot.trajectory, joint_names, open_robot.active, exact - 1e-6)) == 2
+
+
+def test_a_program_within_qdd_max_has_no_move_over_it_and_no_warning() -> None:
+    config = load_cell_config("configs/cell_open_panda.toml")
+    robot = load_robot_model("panda", config.robots["panda"])
+    trajectory = load_trajectory("configs/programs/panda_elbow_out.toml", robot)
+    open_robot = OpenRobot(robot, trajectory, 0.004, config.robots["panda"].controller.braking_time_s)
+    assert open_robot.accelerations_over_limit == []
+    assert acceleration_warning("panda", open_robot.accelerations_over_limit) is None
+
+
+def test_the_gateway_warns_at_start_up_of_an_open_robots_program_it_cannot_follow_at_full_speed(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The operator reads which moves, which joint and the limit, once at start-up (a closed robot: no such line)."""
+    with caplog.at_level(logging.WARNING, logger="hrc-gateway"):
+        build_node(load_cell_config("configs/cell_open_panda.toml"), None)
+    lines = [r.getMessage() for r in caplog.records if "q̈max" in r.getMessage()]
+    assert len(lines) == 1
+    assert "robot 'panda': 2 move(s)" in lines[0]
+    assert "panda_joint1 at 5.00 rad/s² against 4.35 rad/s²" in lines[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="hrc-gateway"):
+        build_node(load_cell_config("configs/cell.toml"), None)
+    assert not [r for r in caplog.records if "q̈max" in r.getMessage()]

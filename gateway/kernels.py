@@ -661,6 +661,146 @@ def capsules_within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> 
     )
 
 
+# -- the tracks' frame path (gateway/tracks.py): one compiled call where numpy took a dozen --------------
+
+
+@_compiled
+def _frame_bodies(h_a: Any, h_b: Any, radius: Any, starts: Any) -> Any:
+    n_people = starts.shape[0] - 1
+    centres = np.empty((n_people, 3))
+    low = np.empty((n_people, 3))
+    high = np.empty((n_people, 3))
+    r_max = np.empty(n_people)
+    for p in range(n_people):
+        first, end = starts[p], starts[p + 1]
+        r = radius[first]
+        for i in range(first + 1, end):
+            r = max(r, radius[i])
+        r_max[p] = r
+        for axis in range(3):
+            total = 0.0
+            lo = min(h_a[first, axis], h_b[first, axis])
+            hi = max(h_a[first, axis], h_b[first, axis])
+            for i in range(first, end):
+                a, b = h_a[i, axis], h_b[i, axis]
+                total += a + b
+                lo = min(lo, min(a, b))
+                hi = max(hi, max(a, b))
+            centres[p, axis] = total / (2.0 * (end - first))
+            low[p, axis] = lo
+            high[p, axis] = hi
+    return centres, low, high, r_max
+
+
+def frame_bodies(
+    capsules: HumanCapsules, starts: npt.NDArray[np.int64]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Per person of a frame (``starts``: :func:`hrc_contract.humans.human_starts`, int64; every person has a capsule,
+    the capsules finite as the door admits them): the mean of their capsules' end points [m], the box around those
+    end points (lower, upper corner [m]) and their largest radius [m]. The compiled
+    :func:`gateway.tracks.frame_bodies_reference`."""
+    if starts.shape[0] < 2:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    return _frame_bodies(  # type: ignore[no-any-return]
+        _kernel_array(capsules.h_a_world), _kernel_array(capsules.h_b_world), _kernel_array(capsules.radius_m), starts
+    )
+
+
+@_compiled
+def _moved_within(b_a: Any, b_b: Any, b_r: Any, a_a: Any, a_b: Any, a_r: Any, starts: Any, reach_m: float) -> Any:
+    n_people = starts.shape[0] - 1
+    out = np.empty(n_people, dtype=np.bool_)
+    for p in range(n_people):
+        ok = True
+        for i in range(starts[p], starts[p + 1]):
+            limit = reach_m - max(a_r[i] - b_r[i], 0.0)
+            ax, ay, az = a_a[i, 0] - b_a[i, 0], a_a[i, 1] - b_a[i, 1], a_a[i, 2] - b_a[i, 2]
+            bx, by, bz = a_b[i, 0] - b_b[i, 0], a_b[i, 1] - b_b[i, 1], a_b[i, 2] - b_b[i, 2]
+            limit2 = limit * limit
+            if not (limit >= 0.0 and ax * ax + ay * ay + az * az <= limit2 and bx * bx + by * by + bz * bz <= limit2):
+                ok = False
+                break
+        out[p] = ok
+    return out
+
+
+def moved_within(
+    before: HumanCapsules, after: HumanCapsules, starts: npt.NDArray[np.int64], reach_m: float
+) -> npt.NDArray[np.bool_]:
+    """Per person (``starts`` as :func:`frame_bodies`) of two frames listing the same capsules in the same order:
+    whether every end point moved at most ``reach_m`` minus the growth of its radius [m] (False where that is
+    negative or not a number). The compiled :func:`gateway.tracks.moved_within_reference`."""
+    if starts.shape[0] < 2:
+        return np.zeros(0, dtype=bool)
+    return _moved_within(  # type: ignore[no-any-return]
+        _kernel_array(before.h_a_world),
+        _kernel_array(before.h_b_world),
+        _kernel_array(before.radius_m),
+        _kernel_array(after.h_a_world),
+        _kernel_array(after.h_b_world),
+        _kernel_array(after.radius_m),
+        starts,
+        float(reach_m),
+    )
+
+
+@_compiled
+def _others_maybe_near(
+    lo: Any,
+    hi: Any,
+    r_max: Any,
+    stamp_ns: Any,
+    noise_m: Any,
+    person: Any,
+    rows_lo: Any,
+    rows_hi: Any,
+    rows_r: Any,
+    rows_stamp_ns: Any,
+    rows_noise_m: Any,
+    rows_person: Any,
+    rows_seen: Any,
+    reach_speed_mps: float,
+    margin_m: float,
+) -> Any:
+    n, m = lo.shape[0], rows_r.shape[0]
+    out = np.zeros((n, m), dtype=np.bool_)
+    for i in range(n):
+        for k in range(m):
+            if not rows_seen[k] or rows_person[k] == person[i]:
+                continue
+            grow = reach_speed_mps * abs(rows_stamp_ns[k] - stamp_ns[i]) / 1e9 + margin_m + noise_m[i] + rows_noise_m[k]
+            below, above = lo[i, 0] - rows_lo[k, 0], rows_hi[k, 0] - hi[i, 0]
+            low_gap, high_gap = min(below, above), max(below, above)
+            for axis in range(1, 3):
+                below, above = lo[i, axis] - rows_lo[k, axis], rows_hi[k, axis] - hi[i, axis]
+                low_gap = min(low_gap, min(below, above))
+                high_gap = max(high_gap, max(below, above))
+            out[i, k] = low_gap + rows_r[k] + grow >= 0.0 or r_max[i] + grow - high_gap >= 0.0
+    return out
+
+
+BodyBoxes = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, npt.NDArray[np.int64]]
+"""Bodies for :func:`others_maybe_near`: box lower, upper corner [m], largest radius [m], capture stamp [ns], tracker
+noise [m], person."""
+RowBoxes = tuple[
+    FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, npt.NDArray[np.int64], npt.NDArray[np.bool_]
+]
+"""The live tracks for :func:`others_maybe_near`: as :data:`BodyBoxes`, and whether each is seen."""
+
+
+def others_maybe_near(
+    bodies: BodyBoxes,
+    rows: RowBoxes,
+    reach_speed_mps: float,
+    margin_m: float,
+) -> npt.NDArray[np.bool_]:
+    """Per body (``bodies``: box lower, upper corner [m], largest radius [m], capture stamp [ns], tracker noise [m],
+    person) × per row (``rows``: the same of the live tracks, and whether each is seen): whether the row is another
+    person's seen track whose box could nest with the body's grown by ``K_reach · |Δt|``, ``margin_m`` and both
+    noises. The compiled :func:`gateway.tracks.others_maybe_near_reference`."""
+    return _others_maybe_near(*bodies, *rows, float(reach_speed_mps), float(margin_m))  # type: ignore[no-any-return]
+
+
 def check_chain(robot: RobotModel, chain: KinematicChain, seed: int = CHECK_SEED) -> None:
     """Compare the compiled kinematics of ``chain`` with Pinocchio's on seeded random states of ``robot``.
 

@@ -29,6 +29,7 @@ Pure: no I/O, no clock; every time is passed in (monotonic [ns]).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections import deque
@@ -41,7 +42,8 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.bodies import check_within, covers, near, within
-from hrc_contract.config import CellConfig, TrackingConfig
+from gateway.kernels import BodyBoxes, RowBoxes, frame_bodies, moved_within, others_maybe_near
+from hrc_contract.config import CellConfig, ConfigError, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
 
 FloatArray = npt.NDArray[np.float64]
@@ -283,6 +285,7 @@ class TrackSet:
 
     def __init__(self, config: CellConfig, *, release_by_id_unsafe: bool | None = None) -> None:
         check_within()  # the compiled body test, held to its reference and compiled before the first frame
+        check_frame_kernels()  # and the frame path's
         self.tracking = config.tracking
         self.reach_speed_mps = reach_speed_mps(config)
         self._noise_m = {name: NOISE_SIGMAS * t.noise_std_m for name, t in config.trackers.items()}
@@ -363,20 +366,15 @@ class TrackSet:
         margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
         starts = human_starts(capsules)
+        starts_array = np.array(starts, dtype=np.int64)
         prefix = len(tracker) + 1
         continued: list[Track | None] = (
             [None] * (len(starts) - 1) if previous is None else _same_people(previous, capsules)
         )
-        centres = (
-            np.add.reduceat(capsules.h_a_world + capsules.h_b_world, starts[:-1], axis=0)
-            / (2.0 * np.diff(starts))[:, None]
-            if len(starts) > 1
-            else np.zeros((0, 3))
-        )
-        boxes = _boxes(capsules, starts)
+        centres, box_lo, box_hi, box_r = frame_bodies(capsules, starts_array)
         if previous is not None and any(t is not None for t in continued):
             dt_s = (captured_ns - previous.captured_ns) / NS_PER_S
-            ok = moved_within(previous.capsules, capsules, starts, self.reach_speed_mps * dt_s + margin_m)
+            ok = moved_within(previous.capsules, capsules, starts_array, self.reach_speed_mps * dt_s + margin_m)
             continued = [t if t is not None and ok[k] else None for k, t in enumerate(continued)]
         taken: set[int] = {t.serial for t in continued if t is not None}
         for k, (start, end) in enumerate(itertools.pairwise(starts)):
@@ -401,7 +399,7 @@ class TrackSet:
             track = continued[k]
             if track is None:
                 track = self._new_track(tracker, capsules.human_ids[start][prefix:], capsules, start, end, captured_ns)
-            track.observe(capsules, start, end, captured_ns, centres[k], (boxes[0][k], boxes[1][k], float(boxes[2][k])))
+            track.observe(capsules, start, end, captured_ns, centres[k], (box_lo[k], box_hi[k], float(box_r[k])))
             self._table.set(track)
             order.append(track)
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))
@@ -563,23 +561,29 @@ class TrackSet:
         n = len(table.tracks)
         if n < 2 or not observed:
             return [[] for _ in observed]
-        lo = np.array([t.box_lo_m for t in observed])
-        hi = np.array([t.box_hi_m for t in observed])
-        r_max = np.array([t.radius_max_m for t in observed])
-        stamps = np.array([t.last_seen_mono_ns for t in observed], dtype=np.float64)
-        noise = np.array([self._noise_m.get(t.tracker, 0.0) for t in observed])
-        grow = (
-            self.reach_speed_mps * np.abs(table.stamp_ns[None, :n] - stamps[:, None]) / NS_PER_S
-            + self.tracking.association_margin_m
-            + noise[:, None]
-            + table.noise_m[None, :n]
+        bodies = (
+            np.array([t.box_lo_m for t in observed]),
+            np.array([t.box_hi_m for t in observed]),
+            np.array([t.radius_max_m for t in observed]),
+            np.array([t.last_seen_mono_ns for t in observed], dtype=np.float64),
+            np.array([self._noise_m.get(t.tracker, 0.0) for t in observed]),
+            np.array([t.person.serial for t in observed], dtype=np.int64),
         )
-        maybe = table.may_nest(lo, hi, r_max, grow)
         rows = table.tracks
-        seen = np.array([t.state is TrackState.SEEN for t in rows])
-        person_of_row = np.array([t.person.serial for t in rows])
-        person_of_observed = np.array([t.person.serial for t in observed])
-        maybe &= seen[None, :] & (person_of_observed[:, None] != person_of_row[None, :])
+        maybe = others_maybe_near(
+            bodies,
+            (
+                table.lo_m[:n],
+                table.hi_m[:n],
+                table.radius_m[:n],
+                table.stamp_ns[:n],
+                table.noise_m[:n],
+                np.array([t.person.serial for t in rows], dtype=np.int64),
+                np.array([t.state is TrackState.SEEN for t in rows], dtype=np.bool_),
+            ),
+            self.reach_speed_mps,
+            self.tracking.association_margin_m,
+        )
         out: list[list[Track]] = [[] for _ in observed]
         for i, k in zip(*np.nonzero(maybe), strict=True):
             out[i].append(rows[k])
@@ -794,13 +798,17 @@ def _box(capsules: HumanCapsules) -> tuple[FloatArray, FloatArray, float]:
     return ends.min(axis=0), ends.max(axis=0), float(capsules.radius_m.max())
 
 
-def _boxes(capsules: HumanCapsules, starts: Sequence[int]) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Per person of a frame (``starts``: :func:`human_starts`): :func:`_box` of their capsules, as arrays."""
+def frame_bodies_reference(
+    capsules: HumanCapsules, starts: Sequence[int]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Per person of a frame (``starts``: :func:`human_starts`): the mean of their capsules' end points [m] and
+    :func:`_box` of their capsules, as arrays. numpy, the reference of :func:`gateway.kernels.frame_bodies`."""
     if len(starts) < 2:
-        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
     at = np.asarray(starts[:-1])
     a, b = capsules.h_a_world, capsules.h_b_world
     return (
+        np.add.reduceat(a + b, at, axis=0) / (2.0 * np.diff(starts))[:, None],
         np.minimum.reduceat(np.minimum(a, b), at, axis=0),
         np.maximum.reduceat(np.maximum(a, b), at, axis=0),
         np.maximum.reduceat(capsules.radius_m, at),
@@ -873,22 +881,55 @@ class _BoxTable:
         """Per body given (rows of ``lo_m``, ``hi_m``, ``radius_m``) × per table row: whether one may lie inside the
         other grown by ``grow_m`` (bodies × rows) [m]; see :func:`_boxes_may_nest`."""
         n = len(self.tracks)
+        return _may_nest_matrix(lo_m, hi_m, radius_m, self.lo_m[:n], self.hi_m[:n], self.radius_m[:n], grow_m)
 
-        def gaps(axis: int) -> tuple[FloatArray, FloatArray]:
-            below = lo_m[:, axis, None] - self.lo_m[None, :n, axis]
-            above = self.hi_m[None, :n, axis] - hi_m[:, axis, None]
-            return np.minimum(below, above), np.maximum(below, above)
 
-        # per pair, the least and the most by which the others' box reaches past this one's: one (bodies × rows)
-        # matrix per axis, no 3-D temporaries
-        low_gap, high_gap = gaps(0)
-        for axis in (1, 2):
-            least, most = gaps(axis)
-            np.minimum(low_gap, least, out=low_gap)
-            np.maximum(high_gap, most, out=high_gap)
-        inside_them = low_gap + self.radius_m[None, :n] + grow_m >= 0.0
-        inside_it = radius_m[:, None] + grow_m - high_gap >= 0.0
-        return inside_them | inside_it
+def _may_nest_matrix(
+    lo_m: FloatArray,
+    hi_m: FloatArray,
+    radius_m: FloatArray,
+    rows_lo_m: FloatArray,
+    rows_hi_m: FloatArray,
+    rows_radius_m: FloatArray,
+    grow_m: FloatArray,
+) -> npt.NDArray[np.bool_]:
+    """Per body (``lo_m``, ``hi_m``, ``radius_m``) × per row (``rows_*``): whether one may lie inside the other grown
+    by ``grow_m`` (bodies × rows) [m]; see :func:`_boxes_may_nest`."""
+
+    def gaps(axis: int) -> tuple[FloatArray, FloatArray]:
+        below = lo_m[:, axis, None] - rows_lo_m[None, :, axis]
+        above = rows_hi_m[None, :, axis] - hi_m[:, axis, None]
+        return np.minimum(below, above), np.maximum(below, above)
+
+    # per pair, the least and the most by which the others' box reaches past this one's: one (bodies × rows)
+    # matrix per axis, no 3-D temporaries
+    low_gap, high_gap = gaps(0)
+    for axis in (1, 2):
+        least, most = gaps(axis)
+        np.minimum(low_gap, least, out=low_gap)
+        np.maximum(high_gap, most, out=high_gap)
+    inside_them = low_gap + rows_radius_m[None, :] + grow_m >= 0.0
+    inside_it = radius_m[:, None] + grow_m - high_gap >= 0.0
+    return inside_them | inside_it
+
+
+def others_maybe_near_reference(
+    bodies: BodyBoxes,
+    rows: RowBoxes,
+    reach_speed_mps: float,
+    margin_m: float,
+) -> npt.NDArray[np.bool_]:
+    """numpy, the reference of :func:`gateway.kernels.others_maybe_near` (the arguments as there)."""
+    lo, hi, r_max, stamps_ns, noise_m, person = bodies
+    rows_lo, rows_hi, rows_r, rows_stamp_ns, rows_noise_m, rows_person, rows_seen = rows
+    grow = (
+        reach_speed_mps * np.abs(rows_stamp_ns[None, :] - stamps_ns[:, None]) / NS_PER_S
+        + margin_m
+        + noise_m[:, None]
+        + rows_noise_m[None, :]
+    )
+    maybe = _may_nest_matrix(lo, hi, r_max, rows_lo, rows_hi, rows_r, grow)
+    return maybe & rows_seen[None, :] & (person[:, None] != rows_person[None, :])  # type: ignore[no-any-return]
 
 
 class _Previous(NamedTuple):
@@ -909,16 +950,96 @@ def _same_people(previous: _Previous, capsules: HumanCapsules) -> list[Track | N
     return [t if t.state is TrackState.SEEN else None for t in previous.tracks[:n]]
 
 
-def moved_within(
+def moved_within_reference(
     before: HumanCapsules, after: HumanCapsules, starts: Sequence[int], reach_m: float
 ) -> npt.NDArray[np.bool_]:
     """Per human (``starts``: index of each one's first capsule, and the end) of two frames listing the same capsules
-    in the same order: whether every end point moved at most ``reach_m`` minus the growth of its radius [m]."""
+    in the same order: whether every end point moved at most ``reach_m`` minus the growth of its radius [m]. numpy,
+    the reference of :func:`gateway.kernels.moved_within`."""
     if after.n_capsules == 0:
         return np.zeros(0, dtype=bool)
     limit = reach_m - np.maximum(after.radius_m - before.radius_m, 0.0)
     da = after.h_a_world - before.h_a_world
     db = after.h_b_world - before.h_b_world
-    ok = (np.einsum("ij,ij->i", da, da) <= limit * limit) & (np.einsum("ij,ij->i", db, db) <= limit * limit)
+    da2 = da[:, 0] * da[:, 0] + da[:, 1] * da[:, 1] + da[:, 2] * da[:, 2]
+    db2 = db[:, 0] * db[:, 0] + db[:, 1] * db[:, 1] + db[:, 2] * db[:, 2]
+    ok = (da2 <= limit * limit) & (db2 <= limit * limit)
     ok &= limit >= 0.0
     return np.logical_and.reduceat(ok, list(starts[:-1]))
+
+
+CHECK_FRAMES = 32
+CHECK_SEED = 20260415
+CENTRE_TOLERANCE_M = 1e-12
+"""The compiled centres may differ from numpy's in the order of the sum (numpy's reduction does not promise one):
+by a few ulp; boxes, radii and every yes/no must match exactly."""
+
+
+def _random_frame(rng: np.random.Generator, n_people: int) -> tuple[HumanCapsules, npt.NDArray[np.int64]]:
+    sizes = rng.integers(1, 16, n_people)
+    n = int(sizes.sum())
+    a = rng.uniform(-3.0, 3.0, (n, 3))
+    b = a + rng.uniform(-0.4, 0.4, (n, 3)) * (rng.random((n, 1)) < 0.8)  # some points (a == b)
+    ids = tuple(f"h{p}" for p, size in enumerate(sizes) for _ in range(size))
+    frame = HumanCapsules(a, b, rng.uniform(0.0, 0.3, n), ids, ("p",) * n)
+    return frame, np.array(human_starts(frame), dtype=np.int64)
+
+
+@functools.cache  # once per process: the compiled code does not change in it
+def check_frame_kernels(seed: int = CHECK_SEED) -> None:
+    """Hold the compiled frame path (:func:`gateway.kernels.frame_bodies`, :func:`gateway.kernels.moved_within`,
+    :func:`gateway.kernels.others_maybe_near`) to its numpy references on seeded random frames: bit for bit, the
+    centres within :data:`CENTRE_TOLERANCE_M` (and compile it, or load it from numba's cache, before the first frame).
+
+    Raises:
+        ConfigError: the two disagree on a frame.
+    """
+    rng = np.random.default_rng(seed)
+    for k in range(CHECK_FRAMES):
+        after, starts = _random_frame(rng, int(rng.integers(1, 6)))
+        n = after.n_capsules
+        moved = rng.uniform(0.0, 0.3) * (rng.random((n, 1)) < 0.9)
+        before = after._replace(
+            h_a_world=after.h_a_world + rng.uniform(-1.0, 1.0, (n, 3)) * moved,
+            h_b_world=after.h_b_world + rng.uniform(-1.0, 1.0, (n, 3)) * moved,
+            radius_m=after.radius_m + rng.uniform(-0.05, 0.05, n),
+        )
+        reach_m = float(rng.uniform(0.0, 0.5))
+        compiled_bodies = frame_bodies(after, starts)
+        reference_bodies = frame_bodies_reference(after, list(starts))
+        centres_off_m = float(np.max(np.abs(compiled_bodies[0] - reference_bodies[0]), initial=0.0))
+        rows_n = int(rng.integers(1, 12))
+        rows_lo = rng.uniform(-3.0, 3.0, (rows_n, 3))
+        rows: RowBoxes = (
+            rows_lo,
+            rows_lo + rng.uniform(0.0, 2.0, (rows_n, 3)),
+            rng.uniform(0.0, 0.3, rows_n),
+            rng.uniform(0.0, 1e9, rows_n),
+            rng.uniform(0.0, 0.05, rows_n),
+            rng.integers(0, 4, rows_n).astype(np.int64),
+            rng.random(rows_n) < 0.7,
+        )
+        people = len(starts) - 1
+        bodies: BodyBoxes = (
+            reference_bodies[1],
+            reference_bodies[2],
+            reference_bodies[3],
+            rng.uniform(0.0, 1e9, people),
+            rng.uniform(0.0, 0.05, people),
+            rng.integers(0, 4, people).astype(np.int64),
+        )
+        speed, margin = float(rng.uniform(1.0, 2.0)), float(rng.uniform(0.0, 0.3))
+        got: list[npt.NDArray[np.generic]] = [
+            *compiled_bodies[1:],
+            moved_within(before, after, starts, reach_m),
+            others_maybe_near(bodies, rows, speed, margin),
+        ]
+        expected: list[npt.NDArray[np.generic]] = [
+            *reference_bodies[1:],
+            moved_within_reference(before, after, list(starts), reach_m),
+            others_maybe_near_reference(bodies, rows, speed, margin),
+        ]
+        if not centres_off_m <= CENTRE_TOLERANCE_M or not all(
+            np.array_equal(g, e) for g, e in zip(got, expected, strict=True)
+        ):
+            raise ConfigError(f"the compiled frame path differs from its numpy reference on seeded frame {k}")

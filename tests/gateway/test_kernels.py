@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 from support.known_cases import FAR_TORSO, NEAR_HAND, NOW, Cell
 
-from gateway import kernels
+from gateway import kernels, tracks
 from gateway.core import SafetyCore
 from gateway.kernels import CHECK_TOLERANCE, RobotKernels, check_chain
 from gateway.kinematics import PRISMATIC, REVOLUTE, kinematic_chain
@@ -381,3 +381,103 @@ def test_a_read_only_source_tree_caches_in_the_temp_dir(monkeypatch: pytest.Monk
     monkeypatch.setattr(numba.config, "CACHE_DIR", "/somewhere/chosen")
     kernels._use_writable_cache_dir()
     assert numba.config.CACHE_DIR == "/somewhere/chosen"
+
+
+# -- the tracks' frame path: compiled against numpy ----------------------------------------------------
+
+
+def _two_people(shift_m: float = 0.0, grow_m: float = 0.0) -> tuple[HumanCapsules, np.ndarray]:
+    """Two people of 2 and 3 capsules; every end point moved by ``shift_m`` along x, each radius grown by ``grow_m``."""
+    a = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.9], [2.0, 0.0, 0.0], [2.0, 0.0, 0.9], [2.0, 0.2, 1.2]])
+    a[:, 0] += shift_m
+    b = a + np.array([0.0, 0.0, 0.5])
+    ids = ("t/a", "t/a", "t/b", "t/b", "t/b")
+    return HumanCapsules(a, b, np.full(5, 0.1) + grow_m, ids, ("p",) * 5), np.array([0, 2, 5], dtype=np.int64)
+
+
+@pytest.mark.parametrize(
+    ("shift_m", "grow_m", "reach_m", "expected"),
+    [
+        (0.25, 0.0, 0.25, [True, True]),  # moved exactly the reach: within
+        (0.25, 0.0, np.nextafter(0.25, 0.0), [False, False]),  # a hair less reach: not
+        (0.0, 0.04, 0.05, [True, True]),  # grown less than the reach, not moved
+        (0.0, 0.06, 0.05, [False, False]),  # grown more than the reach: never, not moved
+        (0.1, 0.0, math.nan, [False, False]),  # no number: not (a new track, decided by the covering test)
+    ],
+)
+def test_the_compiled_moved_within_equals_numpy_at_its_edges(
+    shift_m: float, grow_m: float, reach_m: float, expected: list[bool]
+) -> None:
+    before, starts = _two_people()
+    after, _ = _two_people(shift_m, grow_m)
+    compiled = kernels.moved_within(before, after, starts, reach_m)
+    assert compiled.tolist() == expected
+    assert compiled.tolist() == tracks.moved_within_reference(before, after, list(starts), reach_m).tolist()
+
+
+def test_one_person_moved_too_far_is_not_continued_the_other_is() -> None:
+    before, starts = _two_people()
+    after = before._replace(h_a_world=before.h_a_world + np.array([[0.0] * 3] * 4 + [[0.5, 0.0, 0.0]]))
+    assert kernels.moved_within(before, after, starts, 0.3).tolist() == [True, False]
+
+
+def test_the_compiled_frame_bodies_equal_numpy() -> None:
+    frame, starts = _two_people()
+    compiled = kernels.frame_bodies(frame, starts)
+    reference = tracks.frame_bodies_reference(frame, list(starts))
+    for got, expected in zip(compiled, reference, strict=True):
+        np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(compiled[1][1], [2.0, 0.0, 0.0])  # lower corner of the second person
+    np.testing.assert_array_equal(compiled[2][1], [2.0, 0.2, 1.7])  # upper corner
+
+
+def test_others_maybe_near_skips_the_same_person_and_every_track_not_seen() -> None:
+    """Three rows at one body's box: another person's seen track (a candidate), the same person's, another person's
+    lost one: only the first is a candidate, compiled and numpy alike."""
+    frame, starts = _two_people()
+    _, lo, hi, r_max = kernels.frame_bodies(frame, starts)
+    bodies = (lo[:1], hi[:1], r_max[:1], np.zeros(1), np.zeros(1), np.array([1], dtype=np.int64))
+    rows = (
+        np.repeat(lo[:1], 3, axis=0),
+        np.repeat(hi[:1], 3, axis=0),
+        np.full(3, 0.1),
+        np.zeros(3),
+        np.zeros(3),
+        np.array([2, 1, 3], dtype=np.int64),
+        np.array([True, True, False]),
+    )
+    compiled = kernels.others_maybe_near(bodies, rows, 1.6, 0.1)
+    assert compiled.tolist() == [[True, False, False]]
+    assert compiled.tolist() == tracks.others_maybe_near_reference(bodies, rows, 1.6, 0.1).tolist()
+
+
+def test_others_maybe_near_grows_with_the_time_between_the_stamps() -> None:
+    """The second person 2 m away: not a candidate at equal stamps, a candidate 1.2 s apart at 1.6 m/s."""
+    frame, starts = _two_people()
+    _, lo, hi, r_max = kernels.frame_bodies(frame, starts)
+    person = np.array([1, 2], dtype=np.int64)
+    for dt_s, expected in ((0.0, False), (1.2, True)):
+        bodies = (lo[:1], hi[:1], r_max[:1], np.zeros(1), np.zeros(1), person[:1])
+        rows = (lo[1:], hi[1:], r_max[1:], np.array([dt_s * 1e9]), np.zeros(1), person[1:], np.array([True]))
+        assert kernels.others_maybe_near(bodies, rows, 1.6, 0.1).tolist() == [[expected]]
+        assert tracks.others_maybe_near_reference(bodies, rows, 1.6, 0.1).tolist() == [[expected]]
+
+
+def test_the_frame_path_check_refuses_a_compiled_path_that_differs(monkeypatch: pytest.MonkeyPatch) -> None:
+    tracks.check_frame_kernels.__wrapped__()  # the real one passes
+    monkeypatch.setattr(tracks, "moved_within", lambda before, after, starts, reach_m: np.ones(len(starts) - 1, bool))
+    with pytest.raises(ConfigError, match="compiled frame path differs"):
+        tracks.check_frame_kernels.__wrapped__()
+
+
+def test_a_frame_adds_no_compiled_signature(cell_config: CellConfig, ur5: RobotModel) -> None:
+    """The start-up check compiles the frame path for the types the loop passes: frames in the loop add none."""
+    cell = Cell(cell_config, ur5)
+    names = ("_frame_bodies", "_moved_within", "_others_maybe_near")
+    compiled = {name: len(getattr(kernels, name).signatures) for name in names}
+    assert all(compiled.values())
+    for k, capsules in enumerate(([FAR_TORSO], [NEAR_HAND, FAR_TORSO], [NEAR_HAND, FAR_TORSO])):
+        now = NOW + k * 33_000_000
+        cell.feed(now, capsules)
+        cell.step(now)
+    assert {name: len(getattr(kernels, name).signatures) for name in names} == compiled

@@ -317,6 +317,24 @@ def late_data_only(statuses: Sequence[Status]) -> list[str]:
     return sorted(problems)
 
 
+def recovered(status: Status) -> bool:
+    """Whether a robot's status shows operation resumed after a fault: no fault, the controller running, and the robot
+    moving (δ > 0), or held by its zone for a reason the status itself shows: a safety exception ends only beyond
+    ``thresholds_m.resume_m``, which grows with the measured delay, so on a busy machine (longer delays) a person who
+    stands just beyond it when idle keeps the robot stopped, as the safety function demands.
+    """
+    if status["faults"] or status["controller_mode"] != "running":
+        return False
+    if status["delta"] > 0.0:
+        return True
+    distance_m = status["min_distance_m"]
+    return (
+        status["zone"] == "safety_exception"
+        and distance_m is not None
+        and distance_m < status["thresholds_m"]["resume_m"]
+    )
+
+
 def load_scale(load_per_core: float | None = None) -> float:
     """How much longer than on an idle machine a wait may take here: the 1-minute load average per core, between 1
     and :data:`MAX_LOAD_SCALE` (a start-up that takes 10 s idle takes about 40 s at a load of 8 on 2 cores, where the

@@ -38,6 +38,7 @@ from hrc_tools.cell.procs import (
     is_subsequence,
     late_data_only,
     record,
+    recovered,
     running_cell,
     write_cell_config,
 )
@@ -185,7 +186,7 @@ def test_a_silent_controller_stops_the_robot(cell: Cell) -> None:
         assert any(f["reason"].startswith("joint state is ") and "(limit " in f["reason"] for f in status["faults"])
     finally:
         cell.controller.send_signal(signal.SIGCONT)
-    cell.wait_until(_healthy, RECOVER_S, "recovery after the controller answered again")
+    cell.wait_until(recovered, RECOVER_S, "recovery after the controller answered again")
     _assert_alive(cell)
 
 
@@ -203,7 +204,7 @@ def test_a_slow_controller_stops_the_robot(kind: str, tmp_path: Path) -> None:
         status = cell.wait_until(_stopped_by(STOPS), DETECT_S + 2 * SLOW_LINK_S, f"one of {sorted(STOPS)} with δ = 0")
         assert any(f["code"] in STOPS and "(limit " in f["reason"] for f in status["faults"]), status["faults"]
         relay.delay_s = 0.0
-        cell.wait_until(_healthy, RECOVER_S, "recovery after the link is fast again")
+        cell.wait_until(recovered, RECOVER_S, "recovery after the link is fast again")
         _assert_alive(cell)
 
 
@@ -287,5 +288,5 @@ def test_a_dead_bridge_leaves_the_robot_to_the_controllers_watchdog(cell: Cell) 
     assert after[-1].override == 0.0
     assert all(v == 0.0 for v in after[-1].qd)
     cell.start("bridge")
-    cell.wait_until(_healthy, RECOVER_S, "recovery with a new bridge")
+    cell.wait_until(recovered, RECOVER_S, "recovery with a new bridge")
     _assert_alive(cell)

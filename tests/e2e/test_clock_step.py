@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from bench.soak import FAKETIME_CACHE_S, NO_FAKETIME, HostClock, find_libfaketime, remove_dead_faketime_files
-from hrc_tools.cell.procs import program_env, running_cell, stop_program
+from hrc_tools.cell.procs import program_env, recovered, running_cell, stop_program
 
 pytestmark = pytest.mark.e2e
 
@@ -68,7 +68,7 @@ def test_a_clock_step_on_the_trackers_host_stops_the_robot_until_the_clock_is_se
         assert _stamp_rejections(status, reason) > rejected_before, status["inputs"]["rejected"]
 
         clock.step(0.0)
-        cell.wait_until(_healthy, RECOVER_S, "a moving robot again, the tracker's clock set right")
+        cell.wait_until(recovered, RECOVER_S, "a moving robot again, the tracker's clock set right")
         for name in ("gateway", "controller", "tracker"):
             assert cell.procs[name].poll() is None, f"{name} exited\n{cell.tail()}"
     remove_dead_faketime_files()

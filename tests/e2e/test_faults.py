@@ -9,6 +9,7 @@ import json
 import signal
 import threading
 import time
+from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ import zenoh
 from hrc_contract import keys
 from hrc_contract.messages import Capsule, Human, Humans, JointState, parse_message, to_payload
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import Cell, load_scale, running_cell, stop_program
+from hrc_tools.cell.procs import Cell, load_scale, recovered, running_cell, stop_program
 
 pytestmark = pytest.mark.e2e
 
@@ -88,7 +89,7 @@ def test_tracker_lost_stops_the_robot_and_recovers(tmp_path: Path, how: str) -> 
         assert any(f["reason"].startswith("tracker '") and " s old " in f["reason"] for f in status["faults"])
         assert (cell.get("/readyz")).status_code == 503
         _bring_back(cell, "tracker", how)
-        cell.wait_until(_healthy, RECOVER_S, "recovery after the tracker came back")
+        cell.wait_until(recovered, RECOVER_S, "recovery after the tracker came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 
 
@@ -100,7 +101,7 @@ def test_controller_lost_is_a_fault_and_recovers(tmp_path: Path, how: str) -> No
         status = cell.wait_until(_stopped_with("joint_state_stale"), DETECT_S, "a joint_state_stale fault")
         assert "override_path_stale" in _fault_codes(status) or status["delta"] == 0.0
         _bring_back(cell, "controller", how)
-        cell.wait_until(_healthy, RECOVER_S, "recovery after the controller came back")
+        cell.wait_until(recovered, RECOVER_S, "recovery after the controller came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 
 
@@ -130,7 +131,7 @@ def test_gateway_lost_stops_the_controller_and_operation_resumes(tmp_path: Path,
                 RECOVER_S,
                 "the controller resuming after the gateway came back",
             )
-        cell.wait_until(_healthy, RECOVER_S, "a fault-free status after the gateway came back")
+        cell.wait_until(recovered, RECOVER_S, "a fault-free status after the gateway came back")
         _assert_alive(cell, "gateway", "controller", "tracker")
 
 
@@ -145,7 +146,7 @@ def test_one_of_two_trackers_silent_fails_closed(tmp_path: Path) -> None:
         assert "'side'" in reasons
         assert "'front'" not in reasons
         cell.procs["tracker-2"].send_signal(signal.SIGCONT)
-        cell.wait_until(_healthy, RECOVER_S, "recovery after the side tracker came back")
+        cell.wait_until(recovered, RECOVER_S, "recovery after the side tracker came back")
 
 
 def _humans(seq: int, stamp_ns: int) -> bytes:
@@ -169,15 +170,16 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
                     pub.put(_humans(seq, time.time_ns() + offset_ns))
                     time.sleep(1 / 50)  # 50 Hz: a late frame under load stays well inside max_data_age_s
 
-            def publish_until_healthy(timeout_s: float) -> bool:
+            def publish_until(predicate: Callable[[dict[str, Any]], bool], timeout_s: float) -> bool:
                 deadline = time.monotonic() + timeout_s * load_scale()
                 while time.monotonic() < deadline:
                     publish_for(0.2)
-                    if _healthy(cell.robot() or {"faults": [1]}):
+                    status = cell.robot()
+                    if status is not None and predicate(status):
                         return True
                 return False
 
-            assert publish_until_healthy(READY_S), cell.tail()
+            assert publish_until(_healthy, READY_S), cell.tail()
             offset_ns = 10_000_000_000  # the tracker's clock jumps 10 s ahead
             publish_for(0.5)
             status = cell.robot()
@@ -190,7 +192,7 @@ def test_clock_jump_in_a_tracker_stops_the_robot_until_the_clock_is_sane(tmp_pat
             publish_for(0.5)
             assert cell.robot()["delta"] == 0.0  # type: ignore[index]
             offset_ns = 0
-            assert publish_until_healthy(RECOVER_S), cell.tail()
+            assert publish_until(recovered, RECOVER_S), cell.tail()
         _assert_alive(cell, "gateway", "controller", "tracker")
 
 
@@ -215,5 +217,5 @@ def test_partition_between_gateway_and_controller_stops_and_resumes(tmp_path: Pa
             assert any(s.mode == "protective_stop" and s.override == 0.0 for s in watch.since(cut_ns)), (
                 "the controller did not stop on its own behind the partition"
             )
-            cell.wait_until(_healthy, RECOVER_S, "recovery after the partition healed")
+            cell.wait_until(recovered, RECOVER_S, "recovery after the partition healed")
         _assert_alive(cell, "gateway", "controller", "tracker", "relay")

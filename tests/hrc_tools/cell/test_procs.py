@@ -9,7 +9,7 @@ import time
 import pytest
 
 from hrc_tools.cell import procs
-from hrc_tools.cell.procs import MAX_LOAD_SCALE, StartupError, late_data_only, load_scale, wait_for
+from hrc_tools.cell.procs import MAX_LOAD_SCALE, StartupError, late_data_only, load_scale, recovered, wait_for
 
 
 @pytest.mark.parametrize(
@@ -45,3 +45,24 @@ def test_late_data_that_failed_closed_is_all_a_busy_machine_explains() -> None:
         "joint_state_implausible: joint_state_implausible here"
     ]
     assert late_data_only([_status(0.3, "tracker_stale")]) == ["δ = 0.3 with faults ['tracker_stale']"]
+
+
+def _robot(delta: float, zone: str, distance_m: float | None, resume_m: float = 1.2, *codes: str) -> dict[str, object]:
+    return {
+        **_status(delta, *codes),
+        "controller_mode": "running",
+        "zone": zone,
+        "min_distance_m": distance_m,
+        "thresholds_m": {"resume_m": resume_m},
+    }
+
+
+def test_recovered_is_moving_or_held_by_a_distance_the_status_shows() -> None:
+    assert recovered(_robot(0.4, "reduced_speed", 1.5))
+    assert recovered(_robot(0.0, "safety_exception", 1.18))  # the person stands inside the resume distance (1.2 m)
+    assert not recovered(_robot(0.0, "safety_exception", 1.25))  # beyond it: the robot should have resumed
+    assert not recovered(_robot(0.0, "safety_exception", None))  # nobody seen: nothing holds it
+    assert not recovered(_robot(0.0, "reduced_speed", 1.0))  # stopped outside a safety exception
+    assert not recovered(_robot(0.0, "safety_exception", 1.0, 1.2, "tracker_stale"))  # a fault still shown
+    assert not recovered(_robot(0.5, "reduced_speed", 1.5, 1.2, "tracker_stale"))
+    assert not recovered({**_robot(0.5, "reduced_speed", 1.5), "controller_mode": "protective_stop"})

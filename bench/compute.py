@@ -58,8 +58,10 @@ reach (beyond it every frame is rejected as ``outside_world`` and the cycle comp
 
 Q0_RAD = np.array([0.3, -1.2, 1.4, -0.5, 1.2, 0.0])
 
-TARGET_P50_US = 40.0
-TARGET_P99_US = 100.0
+TARGET_P50_US = 15.0
+TARGET_P99_US = 40.0
+TARGET_MAX_US = 150.0
+"""Issue 36's targets for the reference workload (the earlier 40 / 100 µs were met at p50 only)."""
 REFERENCES = [
     {
         "name": "Zanchettin et al. 2016 (paper 1), LP per cycle",
@@ -468,6 +470,7 @@ def run(
     report.targets = [
         Target("compute p50 (reference workload)", reference["p50"], TARGET_P50_US, "µs"),
         Target("compute p99 (reference workload)", reference["p99"], TARGET_P99_US, "µs"),
+        Target("compute max (reference workload)", reference["max"], TARGET_MAX_US, "µs"),
     ]
     report.notes = [
         "Figures on a shared 2-core machine are indicative: see load_average.",

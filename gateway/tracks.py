@@ -561,25 +561,21 @@ class TrackSet:
         n = len(table.tracks)
         if n < 2 or not observed:
             return [[] for _ in observed]
-        bodies = (
-            np.array([t.box_lo_m for t in observed]),
-            np.array([t.box_hi_m for t in observed]),
-            np.array([t.radius_max_m for t in observed]),
-            np.array([t.last_seen_mono_ns for t in observed], dtype=np.float64),
-            np.array([self._noise_m.get(t.tracker, 0.0) for t in observed]),
-            np.array([t.person.serial for t in observed], dtype=np.int64),
-        )
         rows = table.tracks
+        persons = np.fromiter((t.person.serial for t in rows), np.int64, n)
+        # the observed tracks are live, so rows of the table, whose box, capture time and noise are theirs (set when
+        # they were seen in this frame)
+        at = np.fromiter(map(table.row_of, observed), np.intp, len(observed))
         maybe = others_maybe_near(
-            bodies,
+            (table.lo_m[at], table.hi_m[at], table.radius_m[at], table.stamp_ns[at], table.noise_m[at], persons[at]),
             (
                 table.lo_m[:n],
                 table.hi_m[:n],
                 table.radius_m[:n],
                 table.stamp_ns[:n],
                 table.noise_m[:n],
-                np.array([t.person.serial for t in rows], dtype=np.int64),
-                np.array([t.state is TrackState.SEEN for t in rows], dtype=np.bool_),
+                persons,
+                np.fromiter((t.state is TrackState.SEEN for t in rows), np.bool_, n),
             ),
             self.reach_speed_mps,
             self.tracking.association_margin_m,
@@ -857,6 +853,10 @@ class _BoxTable:
         self._row[track.serial] = n
         self.noise_m[n] = noise_m
         self.set(track)
+
+    def row_of(self, track: Track) -> int:
+        """The track's row (it is live)."""
+        return self._row[track.serial]
 
     def set(self, track: Track) -> None:
         """The track's box and capture time changed (it was seen)."""

@@ -515,7 +515,7 @@ def _log_overruns_and_stalls(intervals: DecisionIntervals, overruns_logged: int,
     if intervals.overruns and not overruns_logged:
         overruns_logged = intervals.overruns
         log.warning(
-            "a decision with δ > 0 was in force %.1f ms longer than its delay budget counted (the loop was "
+            "a decision with δ > 0 was in force %.3f ms longer than its delay budget counted (the loop was "
             "held up); later decisions budget the longer interval (loop.budget_overruns)",
             1e3 * intervals.worst_overrun_s,
         )

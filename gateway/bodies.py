@@ -106,6 +106,15 @@ def _perfect_matching(fits: BoolArray) -> bool:
     return all(augment(i, [False] * m) for i in sorted(range(n), key=lambda i: len(options[i])))
 
 
+def random_capsules(rng: np.random.Generator, human_ids: tuple[str, ...], half_span_m: float) -> HumanCapsules:
+    """Seeded random capsules for the start-up checks of the compiled code against its references: one per id, end
+    points within ±``half_span_m`` [m] (a fifth of them points, a == b), radii 0–0.3 m."""
+    n = len(human_ids)
+    a = rng.uniform(-half_span_m, half_span_m, (n, 3))
+    b = a + rng.uniform(-0.4, 0.4, (n, 3)) * (rng.random((n, 1)) < 0.8)
+    return HumanCapsules(a, b, rng.uniform(0.0, 0.3, n), human_ids, ("p",) * n)
+
+
 CHECK_PAIRS = 64
 CHECK_SEED = 20211115
 
@@ -119,11 +128,7 @@ def check_within(seed: int = CHECK_SEED) -> None:
     """
     rng = np.random.default_rng(seed)
     for k in range(CHECK_PAIRS):
-        bodies = []
-        for n in (int(rng.integers(1, 6)), int(rng.integers(1, 16))):
-            a = rng.uniform(-1.0, 1.0, (n, 3))
-            b = a + rng.uniform(-0.4, 0.4, (n, 3)) * (rng.random((n, 1)) < 0.8)  # some points (a == b)
-            bodies.append(HumanCapsules(a, b, rng.uniform(0.0, 0.3, n), ("x",) * n, ("p",) * n))
+        bodies = [random_capsules(rng, ("x",) * n, 1.0) for n in (int(rng.integers(1, 6)), int(rng.integers(1, 16)))]
         grow_m = float(rng.uniform(0.0, 1.5))
         for small, big in (bodies, bodies[::-1]):
             if within(small, big, grow_m) != within_reference(small, big, grow_m):

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from gateway.bodies import check_within, covers, near, within
+from gateway.bodies import check_within, covers, near, random_capsules, within
 from gateway.kernels import BodyBoxes, RowBoxes, frame_bodies, moved_within, others_maybe_near
 from hrc_contract.config import CellConfig, ConfigError, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
@@ -977,11 +977,7 @@ by a few ulp; boxes, radii and every yes/no must match exactly."""
 
 def _random_frame(rng: np.random.Generator, n_people: int) -> tuple[HumanCapsules, npt.NDArray[np.int64]]:
     sizes = rng.integers(1, 16, n_people)
-    n = int(sizes.sum())
-    a = rng.uniform(-3.0, 3.0, (n, 3))
-    b = a + rng.uniform(-0.4, 0.4, (n, 3)) * (rng.random((n, 1)) < 0.8)  # some points (a == b)
-    ids = tuple(f"h{p}" for p, size in enumerate(sizes) for _ in range(size))
-    frame = HumanCapsules(a, b, rng.uniform(0.0, 0.3, n), ids, ("p",) * n)
+    frame = random_capsules(rng, tuple(f"h{p}" for p, size in enumerate(sizes) for _ in range(size)), 3.0)
     return frame, np.array(human_starts(frame), dtype=np.int64)
 
 

@@ -35,11 +35,14 @@ confirms the first write of that value, the conservative time). A steady δ ther
 write per read-back: the mean reduction is about d / 2 (ABB: half a percent step, UR: 5e-5) beyond the quantisation.
 
 **The override echo.** ``override_seq`` is the seq of the newest override a confirmed write carried (the newest
-override accepted when the write was handed out), confirmed by a reading received after that write that shows its
-value; writes awaiting their read-back written before the confirmed one are then superseded (the controller applies
-writes in order, so their value can never show again). Never on write. The gateway's measured override path
-(gateway send → bridge → vendor link → controller → vendor link → bridge → gateway) therefore includes the vendor
-link's delay with a steady δ too, and the read-back latency in the statistics covers every provable write.
+override accepted when the write was handed out), confirmed by a reading received after that write, and stamped at
+or after it, that shows its value; writes awaiting their read-back written before the confirmed one are then
+superseded (the controller applies writes in order, so their value can never show again). Never on write. The stamp
+rule matters for a write that cannot be proven (at the floor, at 0): a reading taken before it and received after it
+shows the same value, and its stamp would put the echo before the gateway sent the override (``echo_before_send``,
+seen once in a full test run beside ``bench.cpu_hog``). The gateway's measured override path (gateway send → bridge
+→ vendor link → controller → vendor link → bridge → gateway) therefore includes the vendor link's delay with a
+steady δ too, and the read-back latency in the statistics covers every provable write.
 
 **What is reported, and why (ramps).** Let s be the controller's read-back of the scaling it applies
 (``speed_fraction × speed_scaling``; 0 while the program does not run), a the ratio the robot really runs at, p the
@@ -329,6 +332,8 @@ class _Write(NamedTuple):
     written_mono_ns: int
     provable: bool
     """Its value differed from the value in force and every other awaited value when written."""
+    written_wall_ns: int
+    """When it was written on the bridge's wall clock [ns]: only a reading stamped at or after it confirms it."""
 
 
 class NominalVelocity(NamedTuple):
@@ -681,11 +686,11 @@ class Bridge:
             if any(_same(w.value, written) for w in self._awaiting):
                 return  # not new to the controller: the earlier write of this value stands (the conservative time)
             if self._in_force is None:  # before the first reading nothing is proven: it confirms no override
-                self._awaiting.append(_Write(written, None, now.mono_ns, provable=False))
+                self._awaiting.append(_Write(written, None, now.mono_ns, False, now.wall_ns))
                 return
             provable = not _same(self._in_force, written)
             self._unprovable += not provable
-            self._awaiting.append(_Write(written, handed.seq, now.mono_ns, provable))
+            self._awaiting.append(_Write(written, handed.seq, now.mono_ns, provable, now.wall_ns))
 
     # -- readings (the reader's loop) ------------------------------------------------------------
 
@@ -706,7 +711,8 @@ class Bridge:
             self._previous = reading
             self._readings += 1
             self._last_readback = reading.speed_fraction
-            self._confirm(reading)
+            stamp_ns = self._stamp_clock.stamp_ns(reading.received_wall_ns, reading.controller_time_s)
+            self._confirm(reading, stamp_ns)
             self._in_force = reading.speed_fraction
             dt_s = None if previous is None else (reading.received_mono_ns - previous.received_mono_ns) / NS_PER_S
             t_s, previous_t_s = _time_s(reading), None if previous is None else _time_s(previous)
@@ -749,7 +755,6 @@ class Bridge:
                 mode = "protective_stop"
             elif applied == 0.0 and nominal.override == 0.0:
                 mode = "stopped"  # the controller holds its input at 0 and the robot stands
-            stamp_ns = self._stamp_clock.stamp_ns(reading.received_wall_ns, reading.controller_time_s)
             state = JointState(
                 robot=self.settings.robot,
                 seq=self._seq,
@@ -825,13 +830,15 @@ class Bridge:
             return _Handed(target, seq, accepted_mono_ns, fresh=True, dithered=False)
         return _Handed(value, seq, accepted_mono_ns, fresh=True, dithered=value < target)
 
-    def _confirm(self, reading: ControllerReading) -> None:
-        """Confirm the awaited write whose value the reading shows (written before it received), and the override it
-        carried; the writes awaited before it are superseded."""
+    def _confirm(self, reading: ControllerReading, stamp_ns: int) -> None:
+        """Confirm the awaited write whose value the reading shows (written before it was received, and before its
+        stamp ``stamp_ns``: a reading taken before the write, received after it, shows the value in force, which an
+        unprovable write shares; its stamp would put the override's echo before the gateway sent it), and the
+        override it carried; the writes awaited before it are superseded."""
         shown, t_ns = reading.speed_fraction, reading.received_mono_ns
         for index in range(len(self._awaiting) - 1, -1, -1):
             write = self._awaiting[index]
-            if write.written_mono_ns <= t_ns and _same(write.value, shown):
+            if write.written_mono_ns <= t_ns and write.written_wall_ns <= stamp_ns and _same(write.value, shown):
                 break
         else:
             return

@@ -1001,3 +1001,29 @@ def test_stamps_follow_a_slow_controller_clock_within_the_window_and_never_go_ba
         previous = stamp
         worst_lag_ns = max(worst_lag_ns, taken_ns + 50_000 - stamp)
     assert worst_lag_ns <= 1e-3 * STAMP_WINDOW_S * 1e9 + 100_000
+
+
+@pytest.mark.parametrize("delta", [0.0, 0.01005])
+def test_a_reading_taken_before_an_unprovable_write_does_not_confirm_it(delta: float) -> None:
+    """At 0 and at the floor a write repeats the value in force. A reading taken before it (its controller time) but
+    received after it shows that value too: it must not confirm the override, or the echo is stamped before the
+    gateway sent it (the gateway's ``echo_before_send``, seen under load); the next reading taken after it does."""
+    bridge = Bridge(settings())
+    controller_s = 100.0  # the controller's clock at t = 0
+    for k in range(3):  # the value in force: delta, read back on time (the stamp clock learns the offset)
+        bridge.on_override(override(k, delta, 0.004 * k), at(0.004 * k))
+        write(bridge, 0.004 * k + 0.0005)
+        bridge.on_reading(reading(0.004 * k + 0.002, delta, controller_time_s=controller_s + 0.004 * k + 0.002))
+    first_seq = bridge.on_reading(reading(0.0105, delta, controller_time_s=controller_s + 0.0105))
+    assert first_seq is not None
+    in_force_seq = first_seq.override_seq
+    assert bridge.on_override(override(7, delta, 0.020), at(0.020)) is None
+    assert write(bridge, 0.021) is not None  # the same value again: unprovable
+    taken_before = bridge.on_reading(reading(0.030, delta, controller_time_s=controller_s + 0.015))
+    assert taken_before is not None
+    assert taken_before.stamp_ns < at(0.021).wall_ns
+    assert taken_before.override_seq == in_force_seq, "a reading older than the write confirmed it"
+    taken_after = bridge.on_reading(reading(0.032, delta, controller_time_s=controller_s + 0.031))
+    assert taken_after is not None
+    assert taken_after.override_seq == 7
+    assert taken_after.stamp_ns >= at(0.020).wall_ns

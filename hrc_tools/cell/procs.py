@@ -318,18 +318,20 @@ def late_data_only(statuses: Sequence[Status]) -> list[str]:
 
 
 def recovered(status: Status) -> bool:
-    """Whether a robot's status shows operation resumed after a fault: no fault, the controller running, and the robot
-    moving (δ > 0), or held by its zone for a reason the status itself shows: a safety exception ends only beyond
-    ``thresholds_m.resume_m``, which grows with the measured delay, so on a busy machine (longer delays) a person who
-    stands just beyond it when idle keeps the robot stopped, as the safety function demands.
+    """Whether a robot's status shows operation resumed after a fault: no fault, and the robot moving (δ > 0, the
+    controller running), or held by its zone for a reason the status itself shows: a safety exception ends only
+    beyond ``thresholds_m.resume_m``, which grows with the measured delay, so on a busy machine (longer delays) a
+    person who stands just beyond it when idle keeps the robot stopped, as the safety function demands (the
+    controller then holds δ = 0: ``stopped``, or still ramping down; never its own ``protective_stop``).
     """
-    if status["faults"] or status["controller_mode"] != "running":
+    if status["faults"]:
         return False
     if status["delta"] > 0.0:
-        return True
+        return bool(status["controller_mode"] == "running")
     distance_m = status["min_distance_m"]
     return (
-        status["zone"] == "safety_exception"
+        status["controller_mode"] in ("running", "stopped")
+        and status["zone"] == "safety_exception"
         and distance_m is not None
         and distance_m < status["thresholds_m"]["resume_m"]
     )

@@ -66,3 +66,6 @@ def test_recovered_is_moving_or_held_by_a_distance_the_status_shows() -> None:
     assert not recovered(_robot(0.0, "safety_exception", 1.0, 1.2, "tracker_stale"))  # a fault still shown
     assert not recovered(_robot(0.5, "reduced_speed", 1.5, 1.2, "tracker_stale"))
     assert not recovered({**_robot(0.5, "reduced_speed", 1.5), "controller_mode": "protective_stop"})
+    held = {**_robot(0.0, "safety_exception", 1.18), "controller_mode": "stopped"}  # δ = 0 applied: the robot stands
+    assert recovered(held)
+    assert not recovered({**held, "controller_mode": "protective_stop"})  # its watchdog: no overrides reach it

@@ -400,10 +400,15 @@ class OpenRobot:
         assert self.q_ref_rad is not None
         assert self.qd_prev_radps is not None
         elapsed_s = self.period_s if self.last_mono_ns is None else max(0.0, (now_mono_ns - self.last_mono_ns) / 1e9)
-        elapsed_s = min(elapsed_s, 1.0)
+        # One reference per period: a decision that comes late (the loop was held up) continues from the reference
+        # sent last, which the controller has reached and holds, instead of jumping ahead by the time lost. Jumping
+        # ahead put the program's velocity of a later time (a few ms further into a deceleration) out of the one
+        # cycle's acceleration window (9d): LP (9) had no answer and the robot made a ramp stop (0.5 s) for one late
+        # tick. The time lost slows the program by as much; an early decision (an event cycle) moves on by less.
+        step_s = min(elapsed_s, self.period_s)
         self.last_mono_ns = now_mono_ns
-        self._advance(elapsed_s * self.delta_prev)
-        self.q_ref_rad = self.q_ref_rad + elapsed_s * self.qd_prev_radps
+        self._advance(step_s * self.delta_prev)
+        self.q_ref_rad = self.q_ref_rad + step_s * self.qd_prev_radps
         if not self.followed(q_meas_rad, now_mono_ns, round_trip_s):
             self.start_from(q_meas_rad, qd_meas_radps)
             self.reference_restarts += 1

@@ -74,11 +74,24 @@ def test_the_gateway_streams_lp_commands_and_stops_the_open_robot_near_the_perso
     assert all(len(c.q) == len(c.qd) == 9 for c in commands)
     free = [s for s in trace if s["zone"] == "autonomous" and s["open_command"] is not None]
     assert free
-    assert {s["open_command"]["how"] for s in free} == {"lp13"}
+    # A loop held up longer than the robot's drift allows (RESYNC_RAD) starts the reference again from the measured
+    # joints, and LP (9) may have no answer from there (a ramp stop); a late tick alone must not do that.
+    unexplained = [s for s in free if s["open_command"]["how"] != "lp13" and not _after_a_restart(trace, s)]
+    assert not unexplained, [(s["t_s"], s["open_command"]["how"]) for s in unexplained]
+    assert sum(s["open_command"]["how"] == "lp13" for s in free) > 0.9 * len(free)
     near = [s for s in trace if s["zone"] == "safety_exception" and s["min_distance_m"] is not None]
     assert near
     assert all(s["open_command"]["how"].startswith("ramp_stop") for s in near)
     assert any(max(map(abs, s["open_command"]["qd_radps"])) == 0.0 for s in near)  # standing
+
+
+def _after_a_restart(trace: list[dict[str, Any]], sample: dict[str, Any], within_s: float = 1.0) -> bool:
+    """The reference started again from the measured joints within ``within_s`` before ``sample`` (a ramp stop lasts
+    at most the braking time, 0.5 s, and the status is sampled at 25 Hz)."""
+    commanded = [s for s in trace if s["open_command"] is not None]
+    before = [s for s in commanded if s["t_s"] <= sample["t_s"] - within_s] or commanded[:1]
+    restarts_then = before[-1]["open_command"]["reference_restarts"]
+    return bool(sample["open_command"]["reference_restarts"] > restarts_then)
 
 
 def test_an_open_controller_stops_on_its_own_when_the_gateway_is_killed(tmp_path: Path) -> None:

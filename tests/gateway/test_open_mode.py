@@ -5,6 +5,7 @@ the numpy reference, a fault commands the ramp stop, and the test switch that dr
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -68,6 +69,24 @@ def test_an_open_panda_runs_its_program_at_full_speed_with_nobody_in_the_cell() 
     # the program advances at its own pace (τ ≈ the time run) and the joints move
     assert cell.node.core.states["panda"].open.tau_s == pytest.approx(3.0, abs=0.1)  # type: ignore[union-attr]
     assert np.ptp([s.q_rad[0] for s in steps]) > 0.5
+
+
+def test_a_late_decision_goes_on_from_the_reference_sent_last_without_a_ramp_stop() -> None:
+    """The loop misses one decision in 37 (a late tick, 8 ms instead of 4) over a whole program cycle: the program
+    goes on at full speed with LP (13). Before, the reference jumped ahead by the time lost, the program's velocity
+    there lay outside the acceleration window (9d) in its decelerations and each late tick in one began a ramp stop
+    (113 of 1289 decisions)."""
+    cell = OpenCell()
+    duration_s = cell.trajectory.duration_s + 0.2
+    steps = cell.run(duration_s, held_up=lambda n: n % 37 == 36)
+    cycles = math.ceil(duration_s / 0.004)
+    assert len(steps) == cycles - cycles // 37  # the late ticks made no decision
+    running = [s for s in steps if s.t_s > 0.1]
+    assert {s.decision.open_command.solution.how for s in running} == {"lp13"}  # type: ignore[union-attr]
+    assert all(s.decision.delta > 1.0 - 1e-6 for s in running)
+    # the time lost slows the program by as much: τ moves one period per decision (at δ = 1)
+    tau_s = cell.node.core.states["panda"].open.tau_s  # type: ignore[union-attr]
+    assert tau_s == pytest.approx(len(steps) * 0.004, abs=0.03)
 
 
 def test_every_command_of_the_lps_keeps_the_rows_with_the_measured_delay() -> None:

@@ -6,6 +6,7 @@ Zenoh and the emulator's own follower are tested end to end elsewhere."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -150,13 +151,22 @@ class OpenCell:
             key = keys.tracker_humans(self.config.cell, tracker)
             self.node.on_message(key, json.dumps(raw).encode(), clocks(self.t_ns))
 
-    def run(self, duration_s: float, people: Callable[[float], list[dict[str, Any]]] = lambda t: []) -> list[Step]:
+    def run(
+        self,
+        duration_s: float,
+        people: Callable[[float], list[dict[str, Any]]] = lambda t: [],
+        held_up: Callable[[int], bool] = lambda cycle: False,
+    ) -> list[Step]:
         """Run for ``duration_s``: people's frames at 33 ms (``people(t)`` → the humans of the frame), a joint state
-        and a decision every 4 ms; the follower applies each command from the next cycle on."""
+        and a decision every 4 ms; the follower applies each command from the next cycle on. ``held_up(n)``: the
+        gateway's loop misses the decision of cycle ``n`` (counted from 0 in this run; the controller and the
+        trackers go on)."""
         steps = []
         end_ns = self.t_ns + round(duration_s * 1e9)
         next_frame_ns = self.t_ns
-        while self.t_ns < end_ns:
+        for n in itertools.count():
+            if self.t_ns >= end_ns:
+                break
             self._follow(CYCLE_NS / 1e9)
             self.t_ns += CYCLE_NS
             if self.t_ns >= next_frame_ns:
@@ -164,6 +174,8 @@ class OpenCell:
                 next_frame_ns += 33 * MS
             if not self.silent_joint_states:
                 self._joint_state()
+            if held_up(n):
+                continue
             cycle = self.node.cycle(clocks(self.t_ns + 2 * MS), CYCLE_NS / 1e9)
             message = cycle.overrides.get(self.name)
             if isinstance(message, JointCommand):

@@ -42,7 +42,14 @@ from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
 from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
 from gateway.stalls import STALL_SUMMARY_EVERY_S, Phase, StallMonitor, StallSummary
-from gateway.status import StatusJob, cycle_status, effective_config, loop_status
+from gateway.status import (
+    StatusJob,
+    cycle_status,
+    effective_config,
+    human_capsules,
+    human_capsules_json,
+    loop_status,
+)
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import JointCommand, Override, to_payload
@@ -212,24 +219,34 @@ class DecisionIntervals:
         self._moving = moving
 
 
-def status_json(doc: GatewayStatus) -> bytes:
-    """``doc.model_dump_json()``, its ``human_capsules`` serialised :data:`STATUS_CAPSULES_PER_CHUNK` at a time.
+def status_json(doc: GatewayStatus, capsules_json: bytes | None = None) -> bytes:
+    """``doc.model_dump_json()``, its ``human_capsules`` serialised :data:`STATUS_CAPSULES_PER_CHUNK` at a time;
+    ``capsules_json``: the capsules already serialised (:func:`gateway.status.human_capsules_json`) for a ``doc``
+    built without them, put in their place.
 
     The same bytes; but no single call holds the interpreter lock for long (one call for a crowd of 4000
     capsules held it ~3 ms, and a loop thread that woke meanwhile waited).
     """
     capsules = doc.human_capsules
-    if len(capsules) <= STATUS_CAPSULES_PER_CHUNK:
+    if capsules_json is None and len(capsules) <= STATUS_CAPSULES_PER_CHUNK:
         return doc.model_dump_json().encode()
     empty = b'"human_capsules":[]'
-    head = doc.model_copy(update={"human_capsules": []}).model_dump_json().encode()
-    if head.count(empty) != 1:  # never with the contract's models (keys are unique); then in one call
-        return doc.model_dump_json().encode()
-    chunks = [
-        _HUMAN_CAPSULE_LIST.dump_json(capsules[k : k + STATUS_CAPSULES_PER_CHUNK])[1:-1]
-        for k in range(0, len(capsules), STATUS_CAPSULES_PER_CHUNK)
-    ]
-    return head.replace(empty, b'"human_capsules":[' + b",".join(chunks) + b"]")
+    head = (
+        doc.model_copy(update={"human_capsules": []}).model_dump_json().encode()
+        if capsules
+        else doc.model_dump_json().encode()
+    )
+    if head.count(empty) != 1:  # never with the contract's models (keys are unique)
+        if capsules_json is None:
+            return doc.model_dump_json().encode()  # then in one call
+        raise ValueError("the status document's human_capsules key is not unique")
+    if capsules_json is None:
+        chunks = [
+            _HUMAN_CAPSULE_LIST.dump_json(capsules[k : k + STATUS_CAPSULES_PER_CHUNK])[1:-1]
+            for k in range(0, len(capsules), STATUS_CAPSULES_PER_CHUNK)
+        ]
+        capsules_json = b"[" + b",".join(chunks) + b"]"
+    return head.replace(empty, b'"human_capsules":' + capsules_json)
 
 
 class StatusThread(LatestJobThread[StatusJob]):
@@ -286,10 +303,12 @@ class _StatusSink:
         collections paused (see :class:`StatusThread`)."""
         with collections_paused():
             bridges = None if self.bridges is None else self.bridges.snapshot()
-            doc = cycle_status(self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges)
-            line = status_json(doc)
+            doc = cycle_status(
+                self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges, with_capsules=False
+            )
+            line = status_json(doc, human_capsules_json(job.cycle.capsules))
             if self.ros2 is not None:
-                self.ros2.offer(job, doc)
+                self.ros2.offer(job, doc.model_copy(update={"human_capsules": human_capsules(job.cycle.capsules)}))
             return line
 
 

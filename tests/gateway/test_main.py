@@ -25,11 +25,12 @@ from gateway import main as gateway_main
 from gateway.handoff import LatestJobThread
 from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode
-from gateway.status import effective_config
+from gateway.status import effective_config, human_capsules, human_capsules_json
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, GatewayConfig
+from hrc_contract.humans import HumanCapsules
 from hrc_contract.messages import Override, parse_message
-from hrc_contract.status_models import HumanCapsuleStatus
+from hrc_contract.status_models import GatewayStatus, HumanCapsuleStatus
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
@@ -276,6 +277,31 @@ def test_the_status_line_is_the_documents_json_serialised_in_chunks(cell_config:
         capsules = [HumanCapsuleStatus.model_validate({**capsule, "human": f"front/h{k}"}) for k in range(count)]
         crowded = doc.model_copy(update={"human_capsules": capsules})
         assert gateway_main.status_json(crowded) == crowded.model_dump_json().encode(), count
+
+
+def awkward_capsules(count: int) -> HumanCapsules:
+    """``count`` capsules with the values whose JSON could differ between serialisers: -0.0, 1e-4, whole numbers,
+    large and tiny values rounded away, a number that is not finite, ids and names beyond ASCII and with quotes."""
+    rng = np.random.default_rng(count)
+    values = np.array([-0.0, 1e-4, 1.0, 12.3456789, -7.00004, 1e-9, 0.00015, np.nan, np.inf, 123456.78912])
+    a = rng.choice(values, size=(count, 3))
+    b = rng.uniform(-20.0, 20.0, size=(count, 3))
+    radius = rng.choice(np.array([0.0, 0.06, 0.1234567, 2.5]), size=count)
+    ids = tuple(f"front/h{k // 15}" if k % 7 else f'säde/"ß\\{k // 15}' for k in range(count))
+    names = tuple(f"part{k % 15}" if k % 5 else f"käsi \u2603 \t{k % 15}" for k in range(count))
+    return HumanCapsules(a, b, radius, ids, names)
+
+
+@pytest.mark.parametrize("count", [0, 1, 3, gateway_main.STATUS_CAPSULES_PER_CHUNK + 1, 4000])
+def test_the_status_line_with_capsules_serialised_apart_is_the_documents_json(count: int) -> None:
+    """The status thread's path (a document built without its capsules, the capsules serialised without models) gives
+    the bytes of the whole document's ``model_dump_json`` with the capsules validated by the models."""
+    capsules = awkward_capsules(count)
+    doc = ex.gateway_status(ur5=ex.near_robot_status())
+    whole = doc.model_copy(update={"human_capsules": human_capsules(capsules)})
+    line = gateway_main.status_json(doc, human_capsules_json(capsules))
+    assert line == whole.model_dump_json().encode()
+    assert len(GatewayStatus.model_validate_json(line).human_capsules) == count
 
 
 STALL_S = 0.05

@@ -308,7 +308,9 @@ class _StatusSink:
             )
             line = status_json(doc, human_capsules_json(job.cycle.capsules))
             if self.ros2 is not None:
-                self.ros2.offer(job, doc.model_copy(update={"human_capsules": human_capsules(job.cycle.capsules)}))
+                self.ros2.offer(
+                    job, lambda: doc.model_copy(update={"human_capsules": human_capsules(job.cycle.capsules)})
+                )
             return line
 
 

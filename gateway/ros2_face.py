@@ -30,7 +30,7 @@ import argparse
 import logging
 import math
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
@@ -343,15 +343,15 @@ class Ros2Face:
         """Snapshots not published for an error (logged)."""
         return self._thread.errors
 
-    def offer(self, job: StatusJob, doc: GatewayStatus) -> None:
+    def offer(self, job: StatusJob, doc_of: Callable[[], GatewayStatus]) -> None:
         """Hand over a snapshot, the job and the status document built of it (never blocks): dropped if it comes
-        sooner than the publish rate allows."""
+        sooner than the publish rate allows; ``doc_of`` builds the document, called only for a snapshot taken."""
         now_s = time.monotonic()
         if now_s < self._next_due_s:
             self.skipped += 1
             return
         self._next_due_s = now_s + self._period_s
-        self._thread.offer(Snapshot(job, doc))
+        self._thread.offer(Snapshot(job, doc_of()))
 
     def messages(self, snapshot: Snapshot) -> list[tuple[Ros2Publisher, bytes, int]]:
         """Every (publisher, CDR payload, source stamp [ns]) of one snapshot (what :meth:`publish` puts)."""

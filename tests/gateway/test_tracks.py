@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from typing import Any, cast
 
 import numpy as np
 import pinocchio as pin
@@ -478,3 +479,35 @@ def test_the_box_table_answers_as_the_pairwise_box_test_and_keeps_its_rows_throu
         assert (got[i, order] == want).all()
     assert got.any()  # the case is not trivial either way
     assert not got.all()
+
+
+def test_the_status_thread_shows_the_lost_persons_capsules_on_its_line_and_to_the_ros2_face(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    """The status thread serialises the capsules apart from the document (gateway.main._StatusSink): its line and the
+    document the ROS 2 face is handed show the capsules the document of :func:`cycle_status` shows."""
+    from gateway import main as gateway_main
+    from gateway.status import StatusJob, cycle_status, loop_status
+    from hrc_contract.status_models import GatewayStatus
+    from hrc_runtime.rate_loop import RateLoop
+
+    cell = Cell(cell_config, ur5)
+    node = GatewayNode(cell_config, {"ur5": ur5})
+    node.inputs, node.core = cell.store, cell.core
+    cell.feed(NOW, [hand_at_tool(ur5)])
+    node.cycle(at(NOW), 0.004)
+    cell.feed(NOW + FRAME_NS, [])
+    cycle = node.cycle(at(NOW + S), 0.004)
+    job = StatusJob(cycle, node.counters(), loop_status(RateLoop(0.004), 0, True, []), 0)
+    offered: list[GatewayStatus] = []
+
+    class Face:
+        def offer(self, _job: StatusJob, doc_of: Any) -> None:
+            offered.append(doc_of())
+
+    sink = gateway_main._StatusSink(cell_config, node.robots, cast(Any, None), cast(Any, None), ros2=cast(Any, Face()))
+    line = sink.line(job)
+    doc = cycle_status(cell_config, cycle, node.robots, job.counters, job.loop, job.stamp_ns)
+    assert {c.human for c in doc.human_capsules} == {"front/h1 (lost)", "side/h1 (lost)"}
+    assert line == doc.model_dump_json().encode()
+    assert [d.human_capsules for d in offered] == [doc.human_capsules]

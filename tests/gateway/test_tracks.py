@@ -15,7 +15,7 @@ from support.track_feed import Feed
 
 from gateway.core import SafetyCore
 from gateway.inputs import InputStore
-from gateway.node import GatewayNode
+from gateway.node import GatewayCycle, GatewayNode
 from gateway.tracks import MAX_LIVE_TRACKS, TrackState
 from hrc_contract import keys
 from hrc_contract.config import Box, CellConfig
@@ -320,19 +320,24 @@ def test_a_reset_releases_the_lost_person_and_the_robot_may_move(cell_config: Ce
     assert isinstance(node.inputs, InputStore)
 
 
-def test_the_status_lists_the_lost_person_who_holds_the_robot_and_says_what_to_do(
-    cell_config: CellConfig, ur5: RobotModel
-) -> None:
-    from gateway.status import cycle_status, loop_status
-    from hrc_runtime.rate_loop import RateLoop
-
+def a_second_after_the_hand_was_lost(cell_config: CellConfig, ur5: RobotModel) -> tuple[GatewayNode, GatewayCycle]:
+    """A node whose trackers saw a hand at the tool, then an empty frame; its cycle a second after the hand."""
     cell = Cell(cell_config, ur5)
     node = GatewayNode(cell_config, {"ur5": ur5})
     node.inputs, node.core = cell.store, cell.core
     cell.feed(NOW, [hand_at_tool(ur5)])
     node.cycle(at(NOW), 0.004)
     cell.feed(NOW + FRAME_NS, [])
-    cycle = node.cycle(at(NOW + S), 0.004)
+    return node, node.cycle(at(NOW + S), 0.004)
+
+
+def test_the_status_lists_the_lost_person_who_holds_the_robot_and_says_what_to_do(
+    cell_config: CellConfig, ur5: RobotModel
+) -> None:
+    from gateway.status import cycle_status, loop_status
+    from hrc_runtime.rate_loop import RateLoop
+
+    node, cycle = a_second_after_the_hand_was_lost(cell_config, ur5)
     doc = cycle_status(cell_config, cycle, node.robots, node.counters(), loop_status(RateLoop(0.004), 0, True, []), 0)
     lost = [t for t in doc.tracks if t.state == "lost"]
     assert [t.label for t in lost] == ["front/h1", "side/h1"]
@@ -491,13 +496,7 @@ def test_the_status_thread_shows_the_lost_persons_capsules_on_its_line_and_to_th
     from hrc_contract.status_models import GatewayStatus
     from hrc_runtime.rate_loop import RateLoop
 
-    cell = Cell(cell_config, ur5)
-    node = GatewayNode(cell_config, {"ur5": ur5})
-    node.inputs, node.core = cell.store, cell.core
-    cell.feed(NOW, [hand_at_tool(ur5)])
-    node.cycle(at(NOW), 0.004)
-    cell.feed(NOW + FRAME_NS, [])
-    cycle = node.cycle(at(NOW + S), 0.004)
+    node, cycle = a_second_after_the_hand_was_lost(cell_config, ur5)
     job = StatusJob(cycle, node.counters(), loop_status(RateLoop(0.004), 0, True, []), 0)
     offered: list[GatewayStatus] = []
 

@@ -2,10 +2,13 @@
 
 One gateway (``configs/cell.toml``, 250 Hz, its HTTP child), the real controller emulator (the joint states, the
 override echo), and a fake tracker in this process that puts a frame on every tracker key of the cell at 30 Hz.
-Two phases on the same processes, back to back (the within-run comparison):
+Three phases on the same processes, back to back (the within-run comparison):
 
 - ``sparse``: one person near the robot, whom every tracker sees (15 capsules per frame);
-- ``crowded``: the same person and a ring of people around the cell, 2000 capsules per frame and tracker (the
+- ``flood``: the same, but one tracker (authorised, its frames valid) sends them at ``--flood-hz`` (10 kHz by
+  default; the rate reached is reported) instead of 30 Hz: the door must drop the excess before parsing it
+  (``rate_exceeded``), and no decision may be held beyond its budget;
+- ``crowded``: the near person and a ring of people around the cell, 2000 capsules per frame and tracker (the
   most a frame may carry), whom every tracker sees (each person seen by both, as in a real cell).
 
 The person near the robot stands at ``--near-m`` from its base, where δ lies between 0 and 1 (the budget matters
@@ -21,7 +24,7 @@ only for a decision that lets the robot move). Measured in each phase, ``--durat
   faults (a gateway that cannot keep its budget must stop the robot and say why).
 
     python -m bench.crowded [--duration 20] [--warmup 3] [--near-m 2.4] [--wire json|packed]
-                            [--json out/bench/crowded.json]
+                            [--flood-hz 10000] [--json out/bench/crowded.json]
 """
 
 from __future__ import annotations
@@ -74,7 +77,12 @@ CROWD_RADII_M = (3.2, 3.7, 4.2, 4.7)
 """The crowd stands on rings this far from the robot's base [m] (inside the covered volume, beyond reach)."""
 PERSON_SPACING_M = 0.5
 """Distance between neighbours on a ring [m]."""
-PHASES = ("sparse", "crowded")
+PHASES = ("sparse", "flood", "crowded")
+"""In this order: the crowd's people, gone after their phase, stay as lost tracks (nothing releases them)."""
+FLOOD_HZ = 10_000.0
+"""The flooding tracker's frame rate in the ``flood`` phase [Hz] (issue 36)."""
+FLOOD_FIRST_SEQ = 1_000_000_000
+"""The flood's frames count from here: newer than every frame the tracker sent at its own rate before."""
 
 
 # -- the people ------------------------------------------------------------------------------------------
@@ -151,6 +159,9 @@ class FakeTrackers:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fake-trackers", daemon=True)
         self.frames = 0
+        self.silent: frozenset[str] = frozenset()
+        """Trackers this thread leaves out (another sender has their key: the flood)."""
+        self._seq_floor = 0
 
     def show(self, humans: list[dict[str, Any]]) -> None:
         self._templates = {t: FrameTemplate.of(t, humans, self._wire) for t in self._publishers}
@@ -165,6 +176,10 @@ class FakeTrackers:
         self._stop.set()
         self._thread.join(5.0)
 
+    def seq_beyond(self, seq: int) -> None:
+        """The next frames' ``seq`` from beyond ``seq`` (a flood put newer frames on a silent tracker's key)."""
+        self._seq_floor = seq + 1
+
     def _run(self) -> None:
         next_s = time.monotonic()
         seq = 0
@@ -173,10 +188,55 @@ class FakeTrackers:
             templates = self._templates
             if not templates:
                 continue
-            seq += 1
+            seq = max(seq + 1, self._seq_floor)
+            silent = self.silent
             for tracker, publisher in self._publishers.items():
-                publisher.put(templates[tracker].payload(seq, time.time_ns()))
+                if tracker not in silent:
+                    publisher.put(templates[tracker].payload(seq, time.time_ns()))
             self.frames += 1
+
+
+class Flood:
+    """One tracker's valid frames put as fast as ``rate_hz`` allows, from a thread of this process (a context
+    manager): what an authorised tracker gone wrong sends. ``puts`` and ``elapsed_s`` give the rate reached."""
+
+    def __init__(
+        self, session: zenoh.Session, cell: str, tracker: str, template: FrameTemplate, rate_hz: float
+    ) -> None:
+        self._publisher = session.declare_publisher(keys.tracker_humans(cell, tracker), express=True)
+        self._template = template
+        self._period_s = 1.0 / rate_hz
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="flood", daemon=True)
+        self.puts = 0
+        self.elapsed_s = 0.0
+        self.last_seq = FLOOD_FIRST_SEQ
+
+    def __enter__(self) -> Flood:
+        self._thread.start()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+
+    def _run(self) -> None:
+        started_s = next_s = time.monotonic()
+        seq = FLOOD_FIRST_SEQ
+        while not self._stop.is_set():
+            self._publisher.put(self._template.payload(seq, time.time_ns()))
+            self.last_seq = seq
+            seq += 1
+            self.puts += 1
+            next_s += self._period_s
+            wait_s = next_s - time.monotonic()
+            if wait_s > 0.0:
+                time.sleep(wait_s)  # pacing the flood, not synchronisation
+            else:
+                next_s = time.monotonic()  # behind: as fast as the puts go, without a burst to catch up
+            self.elapsed_s = time.monotonic() - started_s
 
 
 # -- what the bench receives -----------------------------------------------------------------------------
@@ -205,6 +265,8 @@ class StatusSample(NamedTuple):
     compute_max_s: float
     cycles: int
     capsules_shown: int
+    rate_exceeded: int = 0
+    """Tracker frames the door dropped before parsing them (``inputs.rejected[*]["rate_exceeded"]``), all trackers."""
 
 
 def status_sample(raw: bytes, robot: str, received_ns: int) -> StatusSample:
@@ -222,6 +284,11 @@ def status_sample(raw: bytes, robot: str, received_ns: int) -> StatusSample:
         float(loop["compute_max_s"]),
         int(loop["cycles"]),
         len(doc.get("human_capsules", ())),
+        sum(
+            int(reasons.get("rate_exceeded", 0))
+            for topic, reasons in doc["inputs"]["rejected"].items()
+            if topic.startswith("tracker/")
+        ),
     )
 
 
@@ -315,6 +382,7 @@ def analyse(decisions: Sequence[Decision], statuses: Sequence[StatusSample], per
         "sampled": held_against_budget(ordered, statuses),
         "statuses": len(statuses),
         "capsules_shown": summary([s.capsules_shown for s in statuses], 1.0, 0),
+        "rate_exceeded": _growth([s.rate_exceeded for s in statuses]),
         "missed_ticks": _growth([s.missed_cycles for s in statuses]),
         "budget_overruns": _growth([s.budget_overruns for s in statuses]),
         "cycles": _growth([s.cycles for s in statuses]),
@@ -335,6 +403,7 @@ class Settings:
     near_m: float
     rate_hz: float = RATE_HZ
     wire: str = "json"
+    flood_hz: float = FLOOD_HZ
 
 
 def _watch(duration_s: float, procs: Sequence[Any], logs: Sequence[Path], tick: Callable[[float], None]) -> None:
@@ -353,6 +422,21 @@ def _ignore(elapsed_s: float) -> None:
 
 def _measured(progress: Progress, done_s: float, phase: str, elapsed_s: float) -> None:
     progress.update(done_s + elapsed_s, phase)
+
+
+def _measure_phase(
+    recorder: Recorder,
+    phase: str,
+    settings: Settings,
+    procs: Sequence[Any],
+    logs: Sequence[Path],
+    tick: Callable[[float], None],
+) -> None:
+    """The warm-up, then ``settings.duration_s`` recorded as ``phase``."""
+    _watch(settings.warmup_s, procs, logs, _ignore)
+    recorder.phase = phase
+    _watch(settings.duration_s, procs, logs, tick)
+    recorder.phase = None
 
 
 def run_once(base: CellConfig, settings: Settings, work_dir: Path, progress: Progress) -> dict[str, Any]:
@@ -388,29 +472,54 @@ def run_once(base: CellConfig, settings: Settings, work_dir: Path, progress: Pro
             wait_for(recorder.any_status.is_set, 60.0, "the gateway's first status", procs)
         except StartupError as exc:
             raise StartupError(f"{exc}\n{exited_programs(procs, spec_logs) or log_tail(logs['gateway'])}") from None
+        flood_tracker = sorted(base.trackers)[0]
+        flooded: Flood | None = None
         for k, phase in enumerate(PHASES):
-            trackers.show(people[phase])
-            capsules = sum(len(p["capsules"]) for p in people[phase])
-            progress.message(f"... {phase}: {len(people[phase])} people, {capsules} capsules per frame and tracker")
-            _watch(settings.warmup_s, procs, spec_logs, _ignore)
-            recorder.phase = phase
-            _watch(settings.duration_s, procs, spec_logs, partial(_measured, progress, k * settings.duration_s, phase))
-            recorder.phase = None
+            shown = people["sparse" if phase == "flood" else phase]
+            trackers.show(shown)
+            capsules = sum(len(p["capsules"]) for p in shown)
+            progress.message(f"... {phase}: {len(shown)} people, {capsules} capsules per frame and tracker")
+            measured = partial(_measured, progress, k * settings.duration_s, phase)
+            if phase != "flood":
+                _measure_phase(recorder, phase, settings, procs, spec_logs, measured)
+                continue
+            progress.message(f"... {flood_tracker} floods its frames at up to {settings.flood_hz:g} Hz")
+            trackers.silent = frozenset({flood_tracker})
+            template = FrameTemplate.of(flood_tracker, shown, settings.wire)
+            with Flood(session, base.cell, flood_tracker, template, settings.flood_hz) as flood:
+                _measure_phase(recorder, phase, settings, procs, spec_logs, measured)
+            trackers.seq_beyond(flood.last_seq)
+            trackers.silent = frozenset()
+            flooded = flood
         del subscribers
         frames = trackers.frames
     recorder.stop_parsing()
     parser.join(30.0)
     period_s = 1.0 / settings.rate_hz
+    assert flooded is not None
     return {
         "tracker_frames_put": frames,
+        "flood": {
+            "tracker": flood_tracker,
+            "frames_put": flooded.puts,
+            "rate_hz": round(flooded.puts / flooded.elapsed_s, 1) if flooded.elapsed_s > 0 else None,
+        },
         "phases": {p: analyse(recorder.decisions[p], recorder.statuses[p], period_s) for p in PHASES},
     }
 
 
 def targets(phases: dict[str, Any]) -> list[Target]:
-    """Issue 17's done-when, on the crowded phase: no decision with δ > 0 held longer than budgeted, 0 missed ticks."""
+    """Issue 17's done-when, on the crowded phase: no decision with δ > 0 held longer than budgeted, 0 missed ticks;
+    issue 36's on the flood phase (when run): no decision with δ > 0 held longer than budgeted."""
     crowded = phases["crowded"]
     found = []
+    flood = phases.get("flood")
+    if flood is not None:
+        if flood["budget_overruns"] is not None:
+            found.append(
+                Target("flood: δ > 0 held longer than budgeted (gateway count)", flood["budget_overruns"], 0, "")
+            )
+        found.append(Target("flood: δ > 0 held longer than budgeted (sampled)", flood["sampled"]["held_longer"], 0, ""))
     if crowded["budget_overruns"] is not None:
         gateway_count = crowded["budget_overruns"]
         found.append(Target("δ > 0 held longer than budgeted (gateway count)", gateway_count, 0, ""))
@@ -434,6 +543,7 @@ def run(settings: Settings, config_path: Path | None, work_dir: Path) -> Report:
             "tracker_rate_hz": TRACKER_RATE_HZ,
             "capsules_per_frame": CAPSULES_PER_FRAME,
             "wire": settings.wire,
+            "flood_hz": settings.flood_hz,
             "trackers": sorted(base.trackers),
             "config": str(config_path) if config_path else "configs/cell.toml",
         },
@@ -520,6 +630,12 @@ def print_report(doc: dict[str, Any]) -> None:
         else:  # no status arrived in a phase: a gateway too busy to publish one (shown as "-" above)
             ratios += ", compute max: no status in a phase"
         print(ratios)
+    flood = doc["results"].get("flood")
+    if flood is not None and "flood" in phases:
+        print(
+            f"\nflood: {flood['tracker']} put {flood['frames_put']} frames at {flood['rate_hz']} Hz; the door dropped "
+            f"{phases['flood']['rate_exceeded']} of them before parsing (rate_exceeded)"
+        )
     print("\n" + targets_table([Target.from_dict(t) for t in doc["targets"]]))
     load = doc["load_average"]
     print(f"\nload average start {load['start']} end {load['end']}")
@@ -537,12 +653,16 @@ def main(argv: list[str] | None = None) -> int:
         default="json",
         help="how the fake trackers write their frames: hrc.humans/1 (JSON) or hrc.humans_packed/1",
     )
+    parser.add_argument(
+        "--flood-hz", type=float, default=FLOOD_HZ, help="the flooding tracker's frame rate in the flood phase [Hz]"
+    )
     parser.add_argument("--json", type=Path, default=default_json_path(NAME), help="where to write the results")
     args = parser.parse_args(argv)
-    if args.duration <= 0 or args.warmup < 0 or args.near_m <= 0:
-        parser.error("--duration and --near-m must be > 0, --warmup >= 0")
+    if args.duration <= 0 or args.warmup < 0 or args.near_m <= 0 or not args.flood_hz > 0:
+        parser.error("--duration, --near-m and --flood-hz must be > 0, --warmup >= 0")
     print_header("crowded cell: the decision interval against its budget, 2 trackers × 2000 capsules per frame")
-    report = run(Settings(args.duration, args.warmup, args.near_m, wire=args.wire), args.config, args.json.parent)
+    settings = Settings(args.duration, args.warmup, args.near_m, wire=args.wire, flood_hz=args.flood_hz)
+    report = run(settings, args.config, args.json.parent)
     doc = report.finish(args.json)
     print_report(doc)
     print(f"\nwrote {args.json}")

@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from pydantic import TypeAdapter
 
 from gateway.bridge_view import BridgeView
 from gateway.core import RobotDecision
@@ -53,7 +52,7 @@ from gateway.status import (
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.messages import JointCommand, Override, to_payload
-from hrc_contract.status_models import Event, GatewayStatus, HumanCapsuleStatus
+from hrc_contract.status_models import Event, GatewayStatus
 from hrc_devices.robots.model import RobotModel, load_robot_model
 from hrc_runtime.cli import add_config_argument, add_zenoh_arguments, run_program
 from hrc_runtime.clocks import read_clocks
@@ -86,12 +85,6 @@ GIL_SWITCH_INTERVAL_S = 0.0005
 """Python's switch interval in the gateway [s] (default 5 ms): a thread that waits for the interpreter lock asks
 its holder to drop it after this long. At the default, the loop waking while the status thread built a document
 waited ~5 ms for the lock (p50, measured with a probe thread under SCHED_FIFO); at 0.5 ms, ~0.6 ms."""
-
-STATUS_CAPSULES_PER_CHUNK = 250
-"""The status's ``human_capsules`` are serialised this many at a time: each call holds the interpreter lock (about
-0.2 ms for 250; ~3 ms for 4000 in one call, the loop waiting meanwhile)."""
-
-_HUMAN_CAPSULE_LIST: TypeAdapter[list[HumanCapsuleStatus]] = TypeAdapter(list[HumanCapsuleStatus])
 
 
 def _callback(node: GatewayNode, realtime_priority: int = 0) -> Callable[[zenoh.Sample], None]:
@@ -220,33 +213,21 @@ class DecisionIntervals:
 
 
 def status_json(doc: GatewayStatus, capsules_json: bytes | None = None) -> bytes:
-    """``doc.model_dump_json()``, its ``human_capsules`` serialised :data:`STATUS_CAPSULES_PER_CHUNK` at a time;
-    ``capsules_json``: the capsules already serialised (:func:`gateway.status.human_capsules_json`) for a ``doc``
-    built without them, put in their place.
+    """``doc.model_dump_json()``; with ``capsules_json`` (:func:`gateway.status.human_capsules_json`), a ``doc`` built
+    without its capsules gets them in their place: the same bytes as the whole document's, without a model per
+    capsule (the status thread's way: for a crowd, validating and dumping the models held the interpreter lock the
+    loop needs for tens of ms per document).
 
-    The same bytes; but no single call holds the interpreter lock for long (one call for a crowd of 4000
-    capsules held it ~3 ms, and a loop thread that woke meanwhile waited).
+    Raises:
+        ValueError: ``capsules_json`` for a document that has capsules of its own.
     """
-    capsules = doc.human_capsules
-    if capsules_json is None and len(capsules) <= STATUS_CAPSULES_PER_CHUNK:
-        return doc.model_dump_json().encode()
-    empty = b'"human_capsules":[]'
-    head = (
-        doc.model_copy(update={"human_capsules": []}).model_dump_json().encode()
-        if capsules
-        else doc.model_dump_json().encode()
-    )
-    if head.count(empty) != 1:  # never with the contract's models (keys are unique)
-        if capsules_json is None:
-            return doc.model_dump_json().encode()  # then in one call
-        raise ValueError("the status document's human_capsules key is not unique")
+    line = doc.model_dump_json().encode()
     if capsules_json is None:
-        chunks = [
-            _HUMAN_CAPSULE_LIST.dump_json(capsules[k : k + STATUS_CAPSULES_PER_CHUNK])[1:-1]
-            for k in range(0, len(capsules), STATUS_CAPSULES_PER_CHUNK)
-        ]
-        capsules_json = b"[" + b",".join(chunks) + b"]"
-    return head.replace(empty, b'"human_capsules":' + capsules_json)
+        return line
+    empty = b'"human_capsules":[]'
+    if doc.human_capsules or line.count(empty) != 1:  # the key is unique in the contract's models
+        raise ValueError("status_json: capsules given for a document that has its own")
+    return line.replace(empty, b'"human_capsules":' + capsules_json)
 
 
 class StatusThread(LatestJobThread[StatusJob]):
@@ -256,8 +237,9 @@ class StatusThread(LatestJobThread[StatusJob]):
     is replaced) and a counter (an eventfd) wakes the thread; no lock is shared with the loop, so the status thread
     being descheduled cannot hold the loop up. What it cannot avoid is Python's interpreter lock: it builds the
     document under :func:`collections_paused` (a full collection while a document of thousands of capsules is alive
-    held the lock 5–10 ms) and serialises it in chunks (:func:`status_json`), and it runs under SCHED_FIFO at
-    ``realtime_priority`` (``gateway.io_realtime_priority``) like the other threads that take the lock: at normal
+    held the lock 5–10 ms) and serialises the crowd's capsules apart, a chunk at a time
+    (:func:`gateway.status.human_capsules_json`), and it runs under SCHED_FIFO at ``realtime_priority``
+    (``gateway.io_realtime_priority``) like the other threads that take the lock: at normal
     scheduling another program could deschedule it while it held the lock, and the loop waited for the lock until
     it ran again (a priority inversion; measured on the default cell: each ``blocked`` stall at normal scheduling had
     this thread waiting 8–18 ms on a run queue meanwhile, none under SCHED_FIFO). An exception while publishing is

@@ -25,12 +25,12 @@ from gateway import main as gateway_main
 from gateway.handoff import LatestJobThread
 from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode
-from gateway.status import effective_config, human_capsules, human_capsules_json
+from gateway.status import VALIDATE_CHUNK, effective_config, human_capsules, human_capsules_json
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, GatewayConfig
 from hrc_contract.humans import HumanCapsules
 from hrc_contract.messages import Override, parse_message
-from hrc_contract.status_models import GatewayStatus, HumanCapsuleStatus
+from hrc_contract.status_models import GatewayStatus
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
@@ -270,15 +270,6 @@ def test_an_error_while_publishing_a_status_is_counted_and_the_thread_goes_on() 
     assert (status.errors, published) == (1, [2])
 
 
-def test_the_status_line_is_the_documents_json_serialised_in_chunks(cell_config: CellConfig) -> None:
-    capsule = {"human": "front/h", "name": "torso", "a_m": [0.5, 1.0, 0.9], "b_m": [0.5, 1.0, 1.4], "radius_m": 0.2}
-    doc = ex.gateway_status(ur5=ex.near_robot_status())
-    for count in (0, 3, gateway_main.STATUS_CAPSULES_PER_CHUNK + 1, 4000):
-        capsules = [HumanCapsuleStatus.model_validate({**capsule, "human": f"front/h{k}"}) for k in range(count)]
-        crowded = doc.model_copy(update={"human_capsules": capsules})
-        assert gateway_main.status_json(crowded) == crowded.model_dump_json().encode(), count
-
-
 def awkward_capsules(count: int) -> HumanCapsules:
     """``count`` capsules with the values whose JSON could differ between serialisers: -0.0, 1e-4, whole numbers,
     large and tiny values rounded away, a number that is not finite, ids and names beyond ASCII and with quotes."""
@@ -292,7 +283,7 @@ def awkward_capsules(count: int) -> HumanCapsules:
     return HumanCapsules(a, b, radius, ids, names)
 
 
-@pytest.mark.parametrize("count", [0, 1, 3, gateway_main.STATUS_CAPSULES_PER_CHUNK + 1, 4000])
+@pytest.mark.parametrize("count", [0, 1, 3, VALIDATE_CHUNK + 1, 4000])
 def test_the_status_line_with_capsules_serialised_apart_is_the_documents_json(count: int) -> None:
     """The status thread's path (a document built without its capsules, the capsules serialised without models) gives
     the bytes of the whole document's ``model_dump_json`` with the capsules validated by the models."""
@@ -302,6 +293,10 @@ def test_the_status_line_with_capsules_serialised_apart_is_the_documents_json(co
     line = gateway_main.status_json(doc, human_capsules_json(capsules))
     assert line == whole.model_dump_json().encode()
     assert len(GatewayStatus.model_validate_json(line).human_capsules) == count
+    assert gateway_main.status_json(whole) == whole.model_dump_json().encode()
+    if count:
+        with pytest.raises(ValueError, match="has its own"):
+            gateway_main.status_json(whole, human_capsules_json(capsules))
 
 
 STALL_S = 0.05

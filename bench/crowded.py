@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from types import TracebackType
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Self
 
 import msgspec
 import zenoh
@@ -140,33 +140,14 @@ class FrameTemplate(NamedTuple):
         return b'%s, "seq": %d, "stamp_ns": %d, "humans": %s}' % (self.head, seq, stamp_ns, self.humans)
 
 
-class FakeTrackers:
-    """Puts a frame on every tracker's key at ``rate_hz`` from a thread of this process (a context manager).
+class _SendingThread:
+    """A thread of this process that puts frames until the ``with`` block it serves ends (a context manager)."""
 
-    Frames are stamped when put (no capture latency); :meth:`show` changes the people from the next frame on.
-    """
-
-    def __init__(
-        self, session: zenoh.Session, cell: str, trackers: Sequence[str], rate_hz: float, wire: str = "json"
-    ) -> None:
-        self._wire = wire
-        self._publishers = {
-            t: session.declare_publisher(keys.tracker_humans(cell, t), congestion_control=zenoh.CongestionControl.BLOCK)
-            for t in trackers
-        }
-        self._period_s = 1.0 / rate_hz
-        self._templates: dict[str, FrameTemplate] = {}
+    def __init__(self, name: str) -> None:
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="fake-trackers", daemon=True)
-        self.frames = 0
-        self.silent: frozenset[str] = frozenset()
-        """Trackers this thread leaves out (another sender has their key: the flood)."""
-        self._seq_floor = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
 
-    def show(self, humans: list[dict[str, Any]]) -> None:
-        self._templates = {t: FrameTemplate.of(t, humans, self._wire) for t in self._publishers}
-
-    def __enter__(self) -> FakeTrackers:
+    def __enter__(self) -> Self:
         self._thread.start()
         return self
 
@@ -175,6 +156,35 @@ class FakeTrackers:
     ) -> None:
         self._stop.set()
         self._thread.join(5.0)
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+
+class FakeTrackers(_SendingThread):
+    """Puts a frame on every tracker's key at ``rate_hz`` from a thread of this process (a context manager).
+
+    Frames are stamped when put (no capture latency); :meth:`show` changes the people from the next frame on.
+    """
+
+    def __init__(
+        self, session: zenoh.Session, cell: str, trackers: Sequence[str], rate_hz: float, wire: str = "json"
+    ) -> None:
+        super().__init__("fake-trackers")
+        self._wire = wire
+        self._publishers = {
+            t: session.declare_publisher(keys.tracker_humans(cell, t), congestion_control=zenoh.CongestionControl.BLOCK)
+            for t in trackers
+        }
+        self._period_s = 1.0 / rate_hz
+        self._templates: dict[str, FrameTemplate] = {}
+        self.frames = 0
+        self.silent: frozenset[str] = frozenset()
+        """Trackers this thread leaves out (another sender has their key: the flood)."""
+        self._seq_floor = 0
+
+    def show(self, humans: list[dict[str, Any]]) -> None:
+        self._templates = {t: FrameTemplate.of(t, humans, self._wire) for t in self._publishers}
 
     def seq_beyond(self, seq: int) -> None:
         """The next frames' ``seq`` from beyond ``seq`` (a flood put newer frames on a silent tracker's key)."""
@@ -196,31 +206,20 @@ class FakeTrackers:
             self.frames += 1
 
 
-class Flood:
+class Flood(_SendingThread):
     """One tracker's valid frames put as fast as ``rate_hz`` allows, from a thread of this process (a context
     manager): what an authorised tracker gone wrong sends. ``puts`` and ``elapsed_s`` give the rate reached."""
 
     def __init__(
         self, session: zenoh.Session, cell: str, tracker: str, template: FrameTemplate, rate_hz: float
     ) -> None:
+        super().__init__("flood")
         self._publisher = session.declare_publisher(keys.tracker_humans(cell, tracker), express=True)
         self._template = template
         self._period_s = 1.0 / rate_hz
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="flood", daemon=True)
         self.puts = 0
         self.elapsed_s = 0.0
         self.last_seq = FLOOD_FIRST_SEQ
-
-    def __enter__(self) -> Flood:
-        self._thread.start()
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
 
     def _run(self) -> None:
         started_s = next_s = time.monotonic()

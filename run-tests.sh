@@ -1,9 +1,23 @@
 #!/usr/bin/env bash
-# Sets up .venv if needed, then lint (ruff), types (mypy) and every test (pytest), end-to-end included.
-set -euo pipefail
+# Sets up .venv if needed, then lint (ruff), types (mypy), the import contracts and every test (pytest), end-to-end
+# included. Every step runs; the exit status is non-zero if any of them failed (pytest's arguments: "$@").
+set -uo pipefail
 cd "$(dirname "$0")"
-scripts/bootstrap.sh
-echo "== ruff" && .venv/bin/ruff check . && .venv/bin/ruff format --check .
-echo "== mypy" && .venv/bin/mypy
-echo "== import contracts" && .venv/bin/lint-imports
-echo "== pytest" && exec .venv/bin/pytest "$@"
+scripts/bootstrap.sh || exit
+failed=()
+step() {
+    local name=$1
+    shift
+    echo "== $name"
+    "$@" || failed+=("$name")
+}
+step "ruff" .venv/bin/ruff check .
+step "ruff format" .venv/bin/ruff format --check .
+step "mypy" .venv/bin/mypy
+step "import contracts" .venv/bin/lint-imports
+step "pytest" .venv/bin/pytest "$@"
+if ((${#failed[@]})); then
+    echo "== FAILED: ${failed[*]}"
+    exit 1
+fi
+echo "== all passed"

@@ -21,17 +21,13 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.paths import REPO_ROOT
+from support.planner_cell import CONFIG, READY_S, ROBOT, within_bound
 
 from hrc_contract.status_models import EventsResponse
 from hrc_tools.cell.procs import Cell, late_data_only, load_scale, record, running_cell
 
 pytestmark = pytest.mark.e2e
 
-CONFIG = REPO_ROOT / "configs" / "cell_open_panda_planner.toml"
-ROBOT = "panda"
-READY_S = 40.0
-"""The gateway compiles and checks the Panda's kinematics and starts the planner's process; a shared machine."""
 PLAN_S = 15.0
 """A plan is adopted within this of a running robot on an idle machine (the swing meets the person every few
 seconds; docs/planner.md: 13 adopted in 65 s) [s]."""
@@ -41,11 +37,6 @@ def _adopted(trace: list[dict[str, Any]]) -> bool:
     """A plan adopted, and the robot seen following one (the first may be done before the recording starts)."""
     plans = [s["plan"] for s in trace if s["plan"] is not None]
     return any(p["adopted"] > 0 for p in plans) and any(p["following"] for p in plans)
-
-
-def _within_bound(trace: list[dict[str, Any]]) -> list[float]:
-    """The times at which δ exceeded the LPs' bound (none expected)."""
-    return [s["t_s"] for s in trace if s["delta"] > s["delta_bound"] + 1e-9]
 
 
 def _planner_pid(gateway_pid: int) -> int:
@@ -92,7 +83,7 @@ def test_plans_around_a_person_standing_in_the_path_are_adopted_and_delta_stays_
     assert adopted, [e.kind for e in events]
     assert adopted[0].robot == ROBOT
     assert adopted[0].cause in ("horizon", "request")
-    assert not _within_bound(trace)
+    assert not within_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
 
 
@@ -127,6 +118,6 @@ def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bou
     assert again != first
     down = [s for s in after if not s["plan"]["planner_running"]]
     assert down, "the status showed the planner down until its restart"
-    assert not _within_bound(trace)
+    assert not within_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
     print(f"planner restarted {restart_s:.2f} s after SIGKILL (first backoff step 0.5 s)")

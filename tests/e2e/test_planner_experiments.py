@@ -16,22 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.paths import REPO_ROOT
+from support.planner_cell import CONFIG, READY_S, ROBOT, within_bound
 
 from hrc_runtime.config import load_cell_config
 from hrc_tools.cell.procs import late_data_only, load_scale, record, running_cell, write_cell_config
 
 pytestmark = pytest.mark.e2e
-
-CONFIG = REPO_ROOT / "configs" / "cell_open_panda_planner.toml"
-ROBOT = "panda"
-READY_S = 40.0
-"""The gateway compiles and checks the Panda's kinematics and starts the planner's process; a shared machine."""
-
-
-def _within_bound(trace: list[dict[str, Any]]) -> list[float]:
-    """The times at which δ exceeded the LPs' bound (none expected)."""
-    return [s["t_s"] for s in trace if s["delta"] > s["delta_bound"] + 1e-9]
 
 
 IN_THE_SWING = "steps_into_the_swing"
@@ -114,7 +104,7 @@ def _run_for(tmp_path: Path, config: Path, duration_s: float) -> list[dict[str, 
         trace = record(cell, duration_s, ROBOT)
         for name in ("gateway", "controller", "tracker"):
             assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
-    assert not _within_bound(trace)
+    assert not within_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
     return trace
 

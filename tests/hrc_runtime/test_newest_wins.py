@@ -10,7 +10,7 @@ import time
 import pytest
 import zenoh
 
-from hrc_runtime.newest_wins import declare_newest_wins
+from hrc_runtime.newest_wins import RING_CAPACITY, declare_newest_wins
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_port
 
@@ -42,18 +42,25 @@ def test_a_burst_behind_a_held_handler_keeps_only_the_newest_samples() -> None:
             held.set()
             release.wait(10.0)
 
+    seen_by_session: list[int] = []  # what reached the receiving session, by a plain subscriber beside the ring
+
     with (
         zenoh.open(session_config(listen=[endpoint])) as receiver,
         zenoh.open(session_config(connect=[endpoint])) as sender,
     ):
         subscriber = declare_newest_wins(receiver, KEY, on_sample, capacity=8, name="test-burst")
-        publisher = sender.declare_publisher(KEY, express=True)
+        receiver.declare_subscriber(KEY, lambda sample: seen_by_session.append(int(sample.payload.to_bytes())))
+        # BLOCK: the burst is the receiver's to thin out; DROP let a loaded host's sender lose its last samples (500
+        # never arrived: a loaded run, 2026-12-06)
+        publisher = sender.declare_publisher(KEY, express=True, congestion_control=zenoh.CongestionControl.BLOCK)
         assert _wait_for(lambda: publisher.matching_status.matching)
         publisher.put(b"0")
         assert held.wait(5.0)
         for k in range(1, 501):
             publisher.put(str(k).encode())
-        time.sleep(0.3)  # all of it arrived meanwhile, into the ring
+        # all of it arrived meanwhile, into the ring (a fixed 0.3 s was not always enough on a loaded host)
+        assert _wait_for(lambda: bool(seen_by_session) and seen_by_session[-1] == 500, 30.0)
+        time.sleep(0.05)  # the plain subscriber's thread may run a sample before the ring has taken it
         release.set()
         assert _wait_for(lambda: received and received[-1] == 500)
         time.sleep(0.1)
@@ -79,11 +86,14 @@ def test_a_steady_stream_arrives_whole_in_order_and_a_failing_handler_does_not_s
         zenoh.open(session_config(connect=[endpoint])) as sender,
     ):
         subscriber = declare_newest_wins(receiver, KEY, on_sample, name="test-steady")
-        publisher = sender.declare_publisher(KEY, express=True)
+        publisher = sender.declare_publisher(KEY, express=True, congestion_control=zenoh.CongestionControl.BLOCK)
         assert _wait_for(lambda: publisher.matching_status.matching)
         for k in range(200):
+            # at most half a ring ahead of the handler: a stream it keeps up with (at 500 Hz an idle host's intake
+            # does; a host loaded with 3 busy processes on 2 cores once fell a ring behind and dropped, as it should)
+            assert _wait_for(lambda k=k: k - len(received) < RING_CAPACITY // 2, 30.0)
             publisher.put(str(k).encode())
-            time.sleep(0.002)  # 500 Hz: the intake keeps up
+            time.sleep(0.002)
         assert _wait_for(lambda: len(received) == 200)
         assert _intake_threads("test-steady")
         del subscriber

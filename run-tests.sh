@@ -17,7 +17,7 @@ step "mypy" .venv/bin/mypy
 step "import contracts" .venv/bin/lint-imports
 step "pytest" .venv/bin/pytest "$@"
 if ((${#failed[@]})); then
-    echo "== FAILED: ${failed[*]}"
+    printf '\n== FAILED: %s\n' "${failed[*]}"  # a new line first: an extension's exit message may lack its own
     exit 1
 fi
-echo "== all passed"
+printf '\n== all passed\n'

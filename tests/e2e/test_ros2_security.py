@@ -100,7 +100,14 @@ def test_a_valid_certificate_of_another_role_cannot_move_people_over_ros2(
     # fault of these kinds, and a person at the robot. (tracker_stale is the loaded machine's, not the forger's.)
     forged = [f for s in trace for f in s["faults"] if f["code"] in REFUSAL_FAULTS]
     assert not forged, forged[:3]
-    assert not {t: r for t, r in after["rejected"].items() if t.startswith("tracker/")}
+    # No tracker frame refused. A held-up burst beyond the door's budget (rate_exceeded) is the loaded machine's: a CI
+    # run saw 4 on front and 3 on side, which nobody forged; a forged frame within the budget shows as a fault above.
+    refused = {
+        t: {reason: n for reason, n in r.items() if reason != "rate_exceeded"}
+        for t, r in after["rejected"].items()
+        if t.startswith("tracker/")
+    }
+    assert not {t: r for t, r in refused.items() if r}, after["rejected"]
     # The genuine tracker (the emulator's certificate) went on being received throughout.
     assert after["received"]["tracker/front"] > before["received"]["tracker/front"] + 60
 

@@ -317,6 +317,18 @@ def late_data_only(statuses: Sequence[Status]) -> list[str]:
     return sorted(problems)
 
 
+def refused_tracker_frames(inputs: dict[str, Any]) -> dict[str, dict[str, int]]:
+    """The tracker frames the gateway refused, per topic and reason, from a status document's ``inputs``: every
+    rejection but ``rate_exceeded``, which a busy machine explains (a held-up burst beyond the door's budget,
+    ``gateway.inputs.FrameBudget``); a forged or broken frame within the budget is refused with its reason."""
+    refused = {
+        topic: {reason: n for reason, n in reasons.items() if reason != "rate_exceeded"}
+        for topic, reasons in inputs["rejected"].items()
+        if topic.startswith("tracker/")
+    }
+    return {topic: reasons for topic, reasons in refused.items() if reasons}
+
+
 def recovered(status: Status) -> bool:
     """Whether a robot's status shows operation resumed after a fault: no fault, and the robot moving (δ > 0, the
     controller running), or held by its zone for a reason the status itself shows: a safety exception ends only

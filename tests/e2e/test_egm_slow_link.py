@@ -114,9 +114,8 @@ def test_a_slow_link_to_the_egm_bridge_is_measured_followed_and_safe(tmp_path: P
         assert median_s >= DELAY_S - 0.002, (part, median_s)
     # the reference was never restarted while the robot followed it, and the program ran
     assert any(_restarts(s) is not None for s in trace)
-    assert not _unexplained_restarts(ready, trace), (
-        f"restarts with no late data near: {_unexplained_restarts(ready, trace)}"
-    )
+    unexplained = _unexplained_restarts(ready, trace)
+    assert not unexplained, f"restarts with no late data near: {unexplained}"
     autonomous = [s["delta"] for s in trace if s["zone"] == "autonomous" and not s["faults"]]
     assert len(autonomous) >= 10
     assert sum(autonomous) / len(autonomous) > 0.9, "the program slowed with nobody near"

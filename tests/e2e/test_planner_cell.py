@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.planner_cell import CONFIG, READY_S, ROBOT, within_bound
+from support.planner_cell import CONFIG, READY_S, ROBOT, above_bound
 
 from hrc_contract.status_models import EventsResponse
 from hrc_tools.cell.procs import Cell, late_data_only, load_scale, record, running_cell
@@ -83,7 +83,7 @@ def test_plans_around_a_person_standing_in_the_path_are_adopted_and_delta_stays_
     assert adopted, [e.kind for e in events]
     assert adopted[0].robot == ROBOT
     assert adopted[0].cause in ("horizon", "request")
-    assert not within_bound(trace)
+    assert not above_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
 
 
@@ -118,6 +118,6 @@ def test_a_killed_planner_process_is_counted_and_started_again_while_the_lps_bou
     assert again != first
     down = [s for s in after if not s["plan"]["planner_running"]]
     assert down, "the status showed the planner down until its restart"
-    assert not within_bound(trace)
+    assert not above_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
     print(f"planner restarted {restart_s:.2f} s after SIGKILL (first backoff step 0.5 s)")

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from support.planner_cell import CONFIG, READY_S, ROBOT, within_bound
+from support.planner_cell import CONFIG, READY_S, ROBOT, above_bound
 
 from hrc_runtime.config import load_cell_config
 from hrc_tools.cell.procs import late_data_only, load_scale, record, running_cell, write_cell_config
@@ -104,7 +104,7 @@ def _run_for(tmp_path: Path, config: Path, duration_s: float) -> list[dict[str, 
         trace = record(cell, duration_s, ROBOT)
         for name in ("gateway", "controller", "tracker"):
             assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
-    assert not within_bound(trace)
+    assert not above_bound(trace)
     assert late_data_only(trace) == [], "faults other than late data, or δ > 0 with a fault"
     return trace
 

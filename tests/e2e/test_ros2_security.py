@@ -26,7 +26,15 @@ from hrc_contract.messages import Capsule, Human, Humans
 from hrc_devices.ros2.rmw_zenoh import liveliness_keys
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
-from hrc_tools.cell.procs import free_endpoint, free_port, program_env, record, running_cell, wait_for
+from hrc_tools.cell.procs import (
+    free_endpoint,
+    free_port,
+    program_env,
+    record,
+    refused_tracker_frames,
+    running_cell,
+    wait_for,
+)
 from tracker_emu.body import BodyPose, body_capsules
 from tracker_emu.ros2_zed import ZedPublishers, zed_sources
 
@@ -100,14 +108,9 @@ def test_a_valid_certificate_of_another_role_cannot_move_people_over_ros2(
     # fault of these kinds, and a person at the robot. (tracker_stale is the loaded machine's, not the forger's.)
     forged = [f for s in trace for f in s["faults"] if f["code"] in REFUSAL_FAULTS]
     assert not forged, forged[:3]
-    # No tracker frame refused. A held-up burst beyond the door's budget (rate_exceeded) is the loaded machine's: a CI
-    # run saw 4 on front and 3 on side, which nobody forged; a forged frame within the budget shows as a fault above.
-    refused = {
-        t: {reason: n for reason, n in r.items() if reason != "rate_exceeded"}
-        for t, r in after["rejected"].items()
-        if t.startswith("tracker/")
-    }
-    assert not {t: r for t, r in refused.items() if r}, after["rejected"]
+    # No tracker frame refused (a CI run dropped 4 front and 3 side frames of held-up bursts as rate_exceeded; the side
+    # tracker is never forged; a forged frame within the budget shows as a fault above)
+    assert not refused_tracker_frames(after), after["rejected"]
     # The genuine tracker (the emulator's certificate) went on being received throughout.
     assert after["received"]["tracker/front"] > before["received"]["tracker/front"] + 60
 

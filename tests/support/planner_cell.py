@@ -12,6 +12,6 @@ READY_S = 40.0
 """The gateway compiles and checks the Panda's kinematics and starts the planner's process; a shared machine."""
 
 
-def within_bound(trace: list[dict[str, Any]]) -> list[float]:
+def above_bound(trace: list[dict[str, Any]]) -> list[float]:
     """The times at which δ exceeded the LPs' bound (none expected)."""
     return [s["t_s"] for s in trace if s["delta"] > s["delta_bound"] + 1e-9]

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from gateway.kernels import capsules_near, capsules_within
+from gateway.kernels import bodies_near, capsules_near, capsules_within
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -120,13 +120,15 @@ CHECK_SEED = 20211115
 
 
 def check_within(seed: int = CHECK_SEED) -> None:
-    """Hold the compiled :func:`within` to :func:`within_reference` on seeded random bodies (and compile it, or load
-    it from numba's cache, before the first frame).
+    """Hold the compiled :func:`within`, :func:`near` and :func:`gateway.kernels.bodies_near` to their numpy
+    references on seeded random bodies (and compile them, or load them from numba's cache, before the first frame).
 
     Raises:
         ConfigError: the two disagree on a pair.
     """
     rng = np.random.default_rng(seed)
+    pairs: list[HumanCapsules] = []
+    grows_m: list[float] = []
     for k in range(CHECK_PAIRS):
         bodies = [random_capsules(rng, ("x",) * n, 1.0) for n in (int(rng.integers(1, 6)), int(rng.integers(1, 16)))]
         grow_m = float(rng.uniform(0.0, 1.5))
@@ -135,3 +137,10 @@ def check_within(seed: int = CHECK_SEED) -> None:
                 raise ConfigError(f"the compiled body test differs from its numpy reference on seeded pair {k}")
         if near(bodies[0], bodies[1], grow_m) != near_reference(bodies[0], bodies[1], grow_m):
             raise ConfigError(f"the compiled body test differs from its numpy reference on seeded pair {k}")
+        pairs += bodies
+        grows_m.append(grow_m)
+    first = np.arange(0, 2 * CHECK_PAIRS, 2)
+    batched = bodies_near(pairs, first, first + 1, np.array(grows_m))
+    for k, got in enumerate(batched.tolist()):
+        if got != near_reference(pairs[2 * k], pairs[2 * k + 1], grows_m[k]):
+            raise ConfigError(f"the compiled pairs' body test differs from its numpy reference on seeded pair {k}")

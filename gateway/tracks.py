@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 
 from gateway.bodies import check_within, covers, near, random_capsules, within
-from gateway.kernels import BodyBoxes, RowBoxes, frame_bodies, moved_within, others_maybe_near
+from gateway.kernels import BodyBoxes, RowBoxes, bodies_near, frame_bodies, moved_within, others_maybe_near
 from hrc_contract.config import CellConfig, ConfigError, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
 
@@ -506,13 +506,10 @@ class TrackSet:
         stamp_ns: int,
         keep: Callable[[Track], bool] | None = None,
         max_dt_s: float = math.inf,
-        among: Sequence[Track] | None = None,
     ) -> list[Track]:
-        """Every live track (seen or lost; those ``keep`` accepts; only ``among`` when given) whose last body ``body``
-        could be, or be part of: one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both
-        trackers' noise and margin. The cap makes a tight test for joining (a late stamp must not widen it)."""
-        if among is not None:
-            return self._near_among(body, tracker, stamp_ns, keep, max_dt_s, among)
+        """Every live track (seen or lost; those ``keep`` accepts) whose last body ``body`` could be, or be part of:
+        one lies inside the other grown by ``K_reach · min(|Δt|, max_dt_s)`` and both trackers' noise and margin. The
+        cap makes a tight test for joining (a late stamp must not widen it)."""
         table = self._table
         if not table.tracks:
             return []
@@ -532,35 +529,17 @@ class TrackSet:
                 out.append(t)
         return sorted(out, key=lambda t: t.serial)
 
-    def _near_among(
-        self,
-        body: HumanCapsules,
-        tracker: str,
-        stamp_ns: int,
-        keep: Callable[[Track], bool] | None,
-        max_dt_s: float,
-        among: Sequence[Track],
-    ) -> list[Track]:
-        tracks = among if keep is None else [t for t in among if keep(t)]
-        if not tracks:
-            return []
-        lo, hi, r_max = _box(body)
-        dt_s = np.abs(np.array([t.last_seen_mono_ns for t in tracks], dtype=np.float64) - stamp_ns) / NS_PER_S
-        dt_s = np.minimum(dt_s, max_dt_s)
-        margins = np.array([self._margin_m(tracker, t.tracker) for t in tracks])
-        grow = self.reach_speed_mps * dt_s + margins
-        boxes = np.array([(t.box_lo_m, t.box_hi_m) for t in tracks])
-        radii = np.array([t.radius_max_m for t in tracks])
-        maybe = _boxes_may_nest(lo, hi, r_max, boxes[:, 0], boxes[:, 1], radii, grow)
-        return [t for k, t in enumerate(tracks) if maybe[k] and near(body, t.capsules, float(grow[k]))]
-
-    def _seen_of_others_maybe_near(self, observed: Sequence[Track]) -> list[list[Track]]:
-        """Per observed track, the seen tracks of other persons whose boxes could nest with its own (one matrix for
-        the frame: most tracks are far from everybody else's and need no closer look)."""
+    def _others_near(self, observed: Sequence[Track]) -> list[list[Track]]:
+        """Per observed track (seen), the seen tracks of other persons whose last body it could be, in the table's
+        order: :meth:`_near`'s test (box, then body, grown by ``K_reach · |Δt|`` and both trackers' noise and
+        margin). A matrix of boxes for the frame (most tracks are far from everybody else's), then every pair whose
+        boxes may nest in one compiled call. Who belongs to which person is asked again where the answer is used:
+        persons change as the frame is regrouped, bodies do not."""
         table = self._table
         n = len(table.tracks)
+        out: list[list[Track]] = [[] for _ in observed]
         if n < 2 or not observed:
-            return [[] for _ in observed]
+            return out
         rows = table.tracks
         persons = np.fromiter((t.person.serial for t in rows), np.int64, n)
         # the observed tracks are live, so rows of the table, whose box, capture time and noise are theirs (set when
@@ -580,25 +559,31 @@ class TrackSet:
             self.reach_speed_mps,
             self.tracking.association_margin_m,
         )
-        out: list[list[Track]] = [[] for _ in observed]
-        for i, k in zip(*np.nonzero(maybe), strict=True):
-            out[i].append(rows[k])
+        maybe &= np.fromiter((t.state is TrackState.SEEN for t in observed), np.bool_, len(observed))[:, None]
+        i, k = np.nonzero(maybe)
+        if not len(i):
+            return out
+        mine = at[i]
+        dt_s = np.abs(table.stamp_ns[k] - table.stamp_ns[mine]) / NS_PER_S
+        margin_m = self.tracking.association_margin_m + table.noise_m[mine] + table.noise_m[k]
+        grow = self.reach_speed_mps * dt_s + margin_m
+        lo, hi, radius = table.lo_m, table.hi_m, table.radius_m
+        boxes = _boxes_may_nest(lo[mine], hi[mine], radius[mine], lo[k], hi[k], radius[k], grow)
+        i, k, mine, grow = i[boxes], k[boxes], mine[boxes], grow[boxes]
+        involved, body = np.unique(np.concatenate((mine, k)), return_inverse=True)
+        near = bodies_near([rows[r].capsules for r in involved.tolist()], body[: len(mine)], body[len(mine) :], grow)
+        for a, b in zip(i[near].tolist(), k[near].tolist(), strict=True):
+            out[a].append(rows[b])
         return out
 
     def _regroup(self, observed: Sequence[Track]) -> None:
         """Persons after a frame: a track near another person's seen track may have swapped bodies with it, so both
         leave their persons; unless neither person has a lost track and no tracker sees both (one body: they join)."""
-        for track, maybe in zip(observed, self._seen_of_others_maybe_near(observed), strict=True):
-            if track.state is not TrackState.SEEN or not maybe:
+        for track, near_bodies in zip(observed, self._others_near(observed), strict=True):
+            if not near_bodies:
                 continue
             own = track.person
-            seen_others = self._near(
-                track.capsules,
-                track.tracker,
-                track.last_seen_mono_ns,
-                lambda t, own=own: t.person is not own and t.state is TrackState.SEEN,  # type: ignore[misc]
-                among=maybe,
-            )
+            seen_others = [t for t in near_bodies if t.person is not own and t.state is TrackState.SEEN]
             if not seen_others:
                 continue
             persons = {t.person.serial: t.person for t in seen_others}
@@ -814,15 +799,16 @@ def frame_bodies_reference(
 def _boxes_may_nest(
     lo: FloatArray,
     hi: FloatArray,
-    r_max: float,
+    r_max: float | FloatArray,
     los: FloatArray,
     his: FloatArray,
     radii: FloatArray,
     grow: FloatArray,
 ) -> npt.NDArray[np.bool_]:
     """Per body of (``los``, ``his``, ``radii``): whether one body (box ``lo``–``hi``) may lie inside the other grown
-    by ``grow`` [m], either way. Necessary for :func:`gateway.bodies.near`: every end point of a body inside another
-    grown by g lies within that one's largest radius plus g of its end points' box."""
+    by ``grow`` [m], either way (or per pair, with a row of ``lo``, ``hi`` and ``r_max`` each). Necessary for
+    :func:`gateway.bodies.near`: every end point of a body inside another grown by g lies within that one's largest
+    radius plus g of its end points' box."""
     slack = (radii + grow)[:, None]
     inside_them = ((lo >= los - slack) & (hi <= his + slack)).all(axis=1)
     slack_own = (r_max + grow)[:, None]

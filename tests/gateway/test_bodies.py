@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from gateway import bodies
-from gateway.bodies import check_within, near, near_reference, within, within_reference
+from gateway.bodies import check_within, near, near_reference, random_capsules, within, within_reference
+from gateway.kernels import bodies_near
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -62,4 +63,25 @@ def test_the_start_up_check_catches_a_compiled_test_that_disagrees(monkeypatch: 
     check_within()
     monkeypatch.setattr(bodies, "within", lambda small, big, grow_m: True)
     with pytest.raises(ConfigError, match="differs from its numpy reference"):
+        check_within()
+
+
+def test_the_pairs_of_a_frame_in_one_call_answer_as_the_reference_pair_by_pair() -> None:
+    rng = np.random.default_rng(5)
+    people = [random_capsules(rng, ("x",) * int(rng.integers(1, 16)), 1.0) for _ in range(12)]
+    rows = np.concatenate((people[0].h_a_world, people[0].h_b_world, people[0].radius_m[:, None]), axis=1)
+    people[0] = HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], people[0].human_ids, people[0].capsule_names)
+    first, second = rng.integers(0, 12, 200), rng.integers(0, 12, 200)  # people in several pairs, a body with itself
+    grow_m = rng.uniform(0.0, 1.5, 200)
+    grow_m[:3] = (np.nan, np.inf, -np.inf)
+    got = bodies_near(people, first, second, grow_m)
+    want = [near_reference(people[i], people[k], g) for i, k, g in zip(first, second, grow_m, strict=True)]
+    assert got.tolist() == want
+    assert 0 < sum(want) < len(want)
+    assert not got[:3].any()  # a grow that is not a number is no answer
+
+
+def test_the_start_up_check_catches_a_compiled_pairs_test_that_disagrees(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(bodies, "bodies_near", lambda b, first, second, grow_m: np.ones(len(first), dtype=bool))
+    with pytest.raises(ConfigError, match="pairs' body test differs"):
         check_within()

@@ -486,6 +486,42 @@ def test_the_box_table_answers_as_the_pairwise_box_test_and_keeps_its_rows_throu
     assert not got.all()
 
 
+def test_a_crowds_pairs_of_bodies_are_judged_as_one_pair_at_a_time_would(feed: Feed) -> None:
+    """The frame's regrouping asks which other persons' seen bodies each observed body could be, every pair of a
+    crowd in one compiled call: the answer is the numpy body test asked pair by pair (each grown by K·|Δt| and both
+    trackers' noise and margin)."""
+    from gateway.bodies import near_reference
+
+    rng = np.random.default_rng(11)
+    spots = rng.uniform(-2.0, 2.0, (40, 2))
+    spots[20:] = spots[:20] + rng.uniform(-0.25, 0.25, (20, 2))  # pairs of people standing close
+    front = [body("front", f"f{k}", x, y) for k, (x, y) in enumerate(spots)]
+    feed.see(0, "front", *front)
+    side = [body("side", f"s{k}", x + 0.02, y) for k, (x, y) in enumerate(spots[::2])]
+    feed.see(7 * MS, "side", *side)
+    feed.see(FRAME_NS, "front", *front)
+    tracks = feed.tracks
+    observed = [t for t in tracks.live if t.state is TrackState.SEEN]
+    got = tracks._others_near(observed)
+    pairs = 0
+    for track, near_ones in zip(observed, got, strict=True):
+        want = [
+            t.serial
+            for t in tracks._table.tracks
+            if t.state is TrackState.SEEN
+            and t.person is not track.person
+            and near_reference(
+                track.capsules,
+                t.capsules,
+                tracks.reach_speed_mps * abs(t.last_seen_mono_ns - track.last_seen_mono_ns) / S
+                + tracks._margin_m(track.tracker, t.tracker),
+            )
+        ]
+        assert [t.serial for t in near_ones] == want, track.label
+        pairs += len(want)
+    assert 0 < pairs < len(observed) * (len(observed) - 1)  # the case is not trivial either way
+
+
 def test_the_status_thread_shows_the_lost_persons_capsules_on_its_line_and_to_the_ros2_face(
     cell_config: CellConfig, ur5: RobotModel
 ) -> None:

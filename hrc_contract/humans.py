@@ -16,6 +16,7 @@ e.g. a capsule kilometres long passing a hand's width from the tool, lose all pr
 from __future__ import annotations
 
 import itertools
+import operator
 import re
 from typing import Annotated, NamedTuple
 
@@ -320,12 +321,11 @@ def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig
     """
     if capsules.n_capsules == 0:
         return None
-    low = np.asarray(plausibility.world_min_m)
-    high = np.asarray(plausibility.world_max_m)
-    for ends in (capsules.h_a_world, capsules.h_b_world):
-        if not ((ends >= low) & (ends <= high)).all():
-            return "outside_world", "a capsule end point outside the cell's world volume"
-    axis = capsules.h_b_world - capsules.h_a_world
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule
+    points = ends.reshape(-1, 3)
+    if not ((points >= plausibility.world_min_m).all() and (points <= plausibility.world_max_m).all()):
+        return "outside_world", "a capsule end point outside the cell's world volume"
+    axis = ends[:, 3:] - ends[:, :3]
     longest_sq = float(np.einsum("ij,ij->i", axis, axis).max())
     if longest_sq > plausibility.max_capsule_length_m**2:
         return (
@@ -337,38 +337,51 @@ def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig
             "radius_too_large",
             f"a radius of {float(capsules.radius_m.max()):.2f} m, at most {plausibility.max_capsule_radius_m} m",
         )
-    return _implausible_person(capsules, plausibility)
+    return _implausible_person(capsules, ends, plausibility)
 
 
 def human_starts(capsules: HumanCapsules) -> list[int]:
     """Index of each human's first capsule (a frame lists each human's capsules together), and the end."""
     ids = capsules.human_ids
     n = len(ids)
-    return [0, *(i for i in range(1, n) if ids[i] != ids[i - 1]), n] if n else [0]
+    if not n:
+        return [0]
+    # where an id differs from the one before it, without a Python step per capsule (a frame has up to 2000)
+    return [0, *itertools.compress(itertools.count(1), map(operator.ne, itertools.islice(ids, 1, None), ids)), n]
 
 
-def _implausible_person(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> tuple[str, str] | None:
-    """What no single body is, per reported person (each person's capsules are listed together)."""
+def _implausible_person(
+    capsules: HumanCapsules, ends: FloatArray, plausibility: PlausibilityConfig
+) -> tuple[str, str] | None:
+    """What no single body is, per reported person (each person's capsules are listed together; ``ends``: both end
+    points of each capsule, (n, 6)). Every person judged in a few array operations; the first person found wanting
+    is described as a check person by person would (too many parts, then a part name twice, then too large)."""
     ids = capsules.human_ids
     starts = human_starts(capsules)
     if len(set(ids)) != len(starts) - 1:
         return "duplicate_human_id", "a human id listed twice in one frame"
-    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule
     firsts = starts[:-1]
-    low = np.minimum.reduceat(np.minimum(ends[:, :3], ends[:, 3:]), firsts, axis=0)
-    high = np.maximum.reduceat(np.maximum(ends[:, :3], ends[:, 3:]), firsts, axis=0)
-    extent = np.linalg.norm(high - low, axis=1) + 2.0 * np.maximum.reduceat(capsules.radius_m, firsts)
-    for k, (start, end) in enumerate(itertools.pairwise(starts)):
-        if end - start > plausibility.max_capsules_per_person:
-            return "too_many_parts", (
-                f"person {ids[start]!r} has {end - start} capsules, at most {plausibility.max_capsules_per_person}"
-            )
-        names = capsules.capsule_names[start:end]
-        if len(set(names)) != len(names):
-            twice = sorted({n for n in names if names.count(n) > 1})
-            return "duplicate_part_name", f"person {ids[start]!r} has two capsules named {twice[0]!r}"
-        if extent[k] > plausibility.max_person_extent_m:
-            return "person_too_large", (
-                f"person {ids[start]!r} spans {extent[k]:.2f} m, at most {plausibility.max_person_extent_m} m"
-            )
-    return None
+    low = np.minimum.reduceat(ends, firsts, axis=0)
+    high = np.maximum.reduceat(ends, firsts, axis=0)
+    span = np.maximum(high[:, :3], high[:, 3:]) - np.minimum(low[:, :3], low[:, 3:])
+    extent = np.linalg.norm(span, axis=1) + 2.0 * np.maximum.reduceat(capsules.radius_m, firsts)
+    counts = np.diff(starts)
+    names = capsules.capsule_names
+    distinct = np.fromiter(map(len, map(set, map(names.__getitem__, map(slice, firsts, starts[1:])))), np.intp)
+    wanting = (counts > plausibility.max_capsules_per_person) | (distinct != counts)
+    wanting |= extent > plausibility.max_person_extent_m
+    if not wanting.any():
+        return None
+    k = int(np.argmax(wanting))
+    start, end = starts[k], starts[k + 1]
+    if end - start > plausibility.max_capsules_per_person:
+        return "too_many_parts", (
+            f"person {ids[start]!r} has {end - start} capsules, at most {plausibility.max_capsules_per_person}"
+        )
+    if distinct[k] != end - start:
+        part_names = names[start:end]
+        twice = sorted({n for n in part_names if part_names.count(n) > 1})
+        return "duplicate_part_name", f"person {ids[start]!r} has two capsules named {twice[0]!r}"
+    return "person_too_large", (
+        f"person {ids[start]!r} spans {extent[k]:.2f} m, at most {plausibility.max_person_extent_m} m"
+    )

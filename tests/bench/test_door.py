@@ -1,4 +1,5 @@
-"""bench.door runs, times three parsers on both frame sizes and reports its target (tiny run; no figure asserted)."""
+"""bench.door runs, times the parsers on every frame and admission on the crowd, and reports its targets (tiny run;
+no figure asserted)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ def test_the_door_benchmark_runs_and_reports(tmp_path: Path) -> None:
     out = tmp_path / "door.json"
     assert door.main(["--repeats", "10", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert set(doc["results"]) == set(door.SIZES)
+    assert set(doc["results"]) == {*door.SIZES, door.CROWD}
+    assert {"door + plausible", "packed + plausible"} <= set(doc["results"][door.CROWD])
     for figures in doc["results"].values():
         assert {"json.loads", "reference", "door", "packed"} <= set(figures)
         assert figures["packed_bytes"] < figures["bytes"]
@@ -27,3 +29,4 @@ def test_the_benchmarks_frames_are_valid_and_as_large_as_it_says() -> None:
     header, capsules = humans_from_payload(door.frame_payload(np.random.default_rng(0), 2, 1000))
     assert header.human_count == 2
     assert capsules.n_capsules == 2000
+    assert door.admitted(door.crowd_payload()).n_capsules == door.CROWD_CAPSULES  # and plausible: else it raises

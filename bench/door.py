@@ -10,7 +10,8 @@ what the door did before) and ``door``
 Then the same frame packed (``hrc.humans_packed/1``: a MessagePack map, each person's capsules one binary array)
 through the same door: ``packed``. Those random frames are not people (each "person" spans metres), so admission,
 the door's whole work, is timed on a third frame: the crowd of ``bench.crowded`` (2000 capsules, ~130 people),
-decoded and judged plausible (:func:`hrc_contract.humans.implausible_detail`, as ``gateway.inputs`` admits a frame):
+decoded and judged plausible (:func:`hrc_contract.humans.implausible_detail` with the compiled
+:func:`gateway.kernels.frame_numbers`, as ``gateway.inputs`` admits a frame):
 ``door + plausible`` and ``packed + plausible``. The target of issue 36 is admission p99 ≤ 0.5 ms for 2000 capsules.
 """
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from bench.crowded import crowd
+from gateway.kernels import frame_numbers
 from hrc_contract.config import PlausibilityConfig
 from hrc_contract.humans import capsules_from_message, humans_from_payload, implausible_detail, packed_payload
 from hrc_contract.messages import Humans, parse_message, parse_message_reference
@@ -79,9 +81,10 @@ def crowd_payload() -> bytes:
 
 
 def admitted(payload: bytes, plausibility: PlausibilityConfig = PlausibilityConfig()) -> object:  # noqa: B008
-    """What the gateway does to admit a frame (``gateway.inputs``): decode, then judge it plausible (it must be)."""
+    """What the gateway does to admit a frame (``gateway.inputs``): decode, then judge it plausible with the compiled
+    numbers (it must be)."""
     _, capsules = humans_from_payload(payload)
-    problem = implausible_detail(capsules, plausibility)
+    problem = implausible_detail(capsules, plausibility, frame_numbers)
     if problem is not None:
         raise AssertionError(f"the benchmark's frame is not plausible: {problem}")
     return capsules

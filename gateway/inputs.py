@@ -57,6 +57,7 @@ import numpy.typing as npt
 
 from gateway import joint_motion
 from gateway.delay import NS_PER_S, EchoProblem, OverridePath, OverridePathEstimate, WindowMax
+from gateway.kernels import check_frame_numbers, frame_numbers
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
 from hrc_contract.humans import HumanCapsules, humans_from_payload, implausible_detail
@@ -329,6 +330,7 @@ class InputStore:
             on_tracker_change: called (on the callback's thread, after storing) when what the loop sees of a
                 tracker changed, e.g. ``threading.Event.set`` to wake the loop; must not block.
         """
+        check_frame_numbers()  # the door's compiled numbers, held to their reference and compiled before a frame
         streams = config.streams
         self._plausibility = {name: config.tracker_plausibility(name) for name in config.trackers}
         self._max_future_ns = round(streams.max_future_stamp_s * NS_PER_S)
@@ -425,7 +427,7 @@ class InputStore:
             self._on_tracker_change()
             return
         mismatch = header.tracker != tracker
-        problem = None if mismatch else implausible_detail(capsules, self._plausibility[tracker])
+        problem = None if mismatch else implausible_detail(capsules, self._plausibility[tracker], frame_numbers)
         if mismatch or problem is not None:
             reason = "name_mismatch" if problem is None else problem[0]
             detail = f"tracker {header.tracker!r}" if problem is None else problem[1]

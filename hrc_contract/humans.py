@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import operator
 import re
+from collections.abc import Callable, Sequence
 from typing import Annotated, NamedTuple
 
 import msgspec
@@ -307,8 +308,15 @@ def implausible_reason(capsules: HumanCapsules, plausibility: PlausibilityConfig
     return None if found is None else found[0]
 
 
-def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig) -> tuple[str, str] | None:
+def implausible_detail(
+    capsules: HumanCapsules,
+    plausibility: PlausibilityConfig,
+    numbers: Callable[[HumanCapsules, Sequence[int], PlausibilityConfig], FrameNumbers] | None = None,
+) -> tuple[str, str] | None:
     """Why a tracker's capsules cannot be real, with what was found, or None if they can.
+
+    ``numbers``: how the frame's :class:`FrameNumbers` are computed (default :func:`frame_numbers`, numpy; the
+    gateway passes its compiled ones).
 
     Returns:
         The reason and a detail: ``outside_world`` (an end point outside ``world_min_m``..``world_max_m``),
@@ -321,23 +329,58 @@ def implausible_detail(capsules: HumanCapsules, plausibility: PlausibilityConfig
     """
     if capsules.n_capsules == 0:
         return None
-    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule
-    points = ends.reshape(-1, 3)
-    if not ((points >= plausibility.world_min_m).all() and (points <= plausibility.world_max_m).all()):
+    starts = human_starts(capsules)
+    found = (numbers or frame_numbers)(capsules, starts, plausibility)
+    if not found.inside_world:
         return "outside_world", "a capsule end point outside the cell's world volume"
-    axis = ends[:, 3:] - ends[:, :3]
-    longest_sq = float(np.einsum("ij,ij->i", axis, axis).max())
-    if longest_sq > plausibility.max_capsule_length_m**2:
+    if found.longest_sq_m2 > plausibility.max_capsule_length_m**2:
         return (
             "capsule_too_long",
-            f"a capsule {longest_sq**0.5:.2f} m long, at most {plausibility.max_capsule_length_m} m",
+            f"a capsule {found.longest_sq_m2**0.5:.2f} m long, at most {plausibility.max_capsule_length_m} m",
         )
-    if float(capsules.radius_m.max()) > plausibility.max_capsule_radius_m:
+    if found.radius_max_m > plausibility.max_capsule_radius_m:
         return (
             "radius_too_large",
-            f"a radius of {float(capsules.radius_m.max()):.2f} m, at most {plausibility.max_capsule_radius_m} m",
+            f"a radius of {found.radius_max_m:.2f} m, at most {plausibility.max_capsule_radius_m} m",
         )
-    return _implausible_person(capsules, ends, plausibility)
+    return _implausible_person(capsules, starts, found.extent_m, plausibility)
+
+
+class FrameNumbers(NamedTuple):
+    """What the plausibility rules ask of a frame's numbers (:func:`frame_numbers`)."""
+
+    inside_world: bool
+    """Every end point within ``world_min_m``..``world_max_m`` (a coordinate that is not a number is not)."""
+    longest_sq_m2: float
+    """The largest ``‖b − a‖²`` [m²]."""
+    radius_max_m: float
+    extent_m: FloatArray
+    """Per person: the diagonal of the box around their capsules' end points plus twice their largest radius [m]."""
+
+
+def frame_numbers(capsules: HumanCapsules, starts: Sequence[int], plausibility: PlausibilityConfig) -> FrameNumbers:
+    """:class:`FrameNumbers` of a frame of at least one capsule (``starts``: :func:`human_starts`), in numpy: the
+    reference of the gateway's compiled ones (``gateway.kernels.frame_numbers``), which follow its order of
+    arithmetic (each sum of squares x² + y², then + z²) to the bit."""
+    ends = np.concatenate((capsules.h_a_world, capsules.h_b_world), axis=1)  # (n, 6): both end points of a capsule
+    points = ends.reshape(-1, 3)
+    inside = bool((points >= plausibility.world_min_m).all() and (points <= plausibility.world_max_m).all())
+    axis = ends[:, 3:] - ends[:, :3]
+    firsts = starts[:-1]
+    low = np.minimum.reduceat(ends, firsts, axis=0)
+    high = np.maximum.reduceat(ends, firsts, axis=0)
+    span = np.maximum(high[:, :3], high[:, 3:]) - np.minimum(low[:, :3], low[:, 3:])
+    return FrameNumbers(
+        inside,
+        float(_norm_sq(axis).max()),
+        float(capsules.radius_m.max()),
+        np.sqrt(_norm_sq(span)) + 2.0 * np.maximum.reduceat(capsules.radius_m, firsts),
+    )
+
+
+def _norm_sq(v: FloatArray) -> FloatArray:
+    """Per row, x² + y², then + z²."""
+    return v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1] + v[:, 2] * v[:, 2]
 
 
 def human_starts(capsules: HumanCapsules) -> list[int]:
@@ -351,25 +394,20 @@ def human_starts(capsules: HumanCapsules) -> list[int]:
 
 
 def _implausible_person(
-    capsules: HumanCapsules, ends: FloatArray, plausibility: PlausibilityConfig
+    capsules: HumanCapsules, starts: list[int], extent_m: FloatArray, plausibility: PlausibilityConfig
 ) -> tuple[str, str] | None:
-    """What no single body is, per reported person (each person's capsules are listed together; ``ends``: both end
-    points of each capsule, (n, 6)). Every person judged in a few array operations; the first person found wanting
-    is described as a check person by person would (too many parts, then a part name twice, then too large)."""
+    """What no single body is, per reported person (``starts``: :func:`human_starts`; ``extent_m``: per person, as
+    :class:`FrameNumbers`). Every person judged in a few array operations; the first person found wanting is
+    described as a check person by person would (too many parts, then a part name twice, then too large)."""
     ids = capsules.human_ids
-    starts = human_starts(capsules)
     if len(set(ids)) != len(starts) - 1:
         return "duplicate_human_id", "a human id listed twice in one frame"
     firsts = starts[:-1]
-    low = np.minimum.reduceat(ends, firsts, axis=0)
-    high = np.maximum.reduceat(ends, firsts, axis=0)
-    span = np.maximum(high[:, :3], high[:, 3:]) - np.minimum(low[:, :3], low[:, 3:])
-    extent = np.linalg.norm(span, axis=1) + 2.0 * np.maximum.reduceat(capsules.radius_m, firsts)
     counts = np.diff(starts)
     names = capsules.capsule_names
     distinct = np.fromiter(map(len, map(set, map(names.__getitem__, map(slice, firsts, starts[1:])))), np.intp)
     wanting = (counts > plausibility.max_capsules_per_person) | (distinct != counts)
-    wanting |= extent > plausibility.max_person_extent_m
+    wanting |= extent_m > plausibility.max_person_extent_m
     if not wanting.any():
         return None
     k = int(np.argmax(wanting))
@@ -383,5 +421,5 @@ def _implausible_person(
         twice = sorted({n for n in part_names if part_names.count(n) > 1})
         return "duplicate_part_name", f"person {ids[start]!r} has two capsules named {twice[0]!r}"
     return "person_too_large", (
-        f"person {ids[start]!r} spans {extent[k]:.2f} m, at most {plausibility.max_person_extent_m} m"
+        f"person {ids[start]!r} spans {extent_m[k]:.2f} m, at most {plausibility.max_person_extent_m} m"
     )

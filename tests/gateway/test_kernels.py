@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -20,7 +21,7 @@ from gateway.kinematics import PRISMATIC, REVOLUTE, kinematic_chain
 from gateway.reference import separation as reference_separation
 from gateway.reference.kinematics import link_kinematics
 from gateway.separation import ConstraintRows, override_from_rows
-from hrc_contract.config import CellConfig, ConfigError, SafetyConfig
+from hrc_contract.config import CellConfig, ConfigError, PlausibilityConfig, SafetyConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
 from hrc_devices.robots import segments as reference_geometry
 from hrc_devices.robots.model import RobotModel
@@ -481,3 +482,32 @@ def test_a_frame_adds_no_compiled_signature(cell_config: CellConfig, ur5: RobotM
         cell.feed(now, capsules)
         cell.step(now)
     assert {name: len(getattr(kernels, name).signatures) for name in names} == compiled
+
+
+def test_the_doors_compiled_numbers_are_the_references_to_the_bit_on_a_crowd_and_out_of_the_world() -> None:
+    from bench.door import crowd_payload
+    from hrc_contract.humans import frame_numbers, human_starts, humans_from_payload
+
+    plausibility = PlausibilityConfig()
+    _, crowd = humans_from_payload(crowd_payload())
+    outside = crowd._replace(h_b_world=crowd.h_b_world + (0.0, 0.0, 9.0) * (np.arange(crowd.n_capsules) == 7)[:, None])
+    for capsules in (crowd, outside):
+        starts = human_starts(capsules)
+        got, want = kernels.frame_numbers(capsules, starts, plausibility), frame_numbers(capsules, starts, plausibility)
+        assert got[:3] == want[:3]
+        assert got.extent_m.tobytes() == want.extent_m.tobytes()
+    assert kernels.frame_numbers(crowd, human_starts(crowd), plausibility).inside_world
+    assert not kernels.frame_numbers(outside, human_starts(outside), plausibility).inside_world
+
+
+def test_the_door_numbers_check_refuses_compiled_numbers_that_differ(monkeypatch: pytest.MonkeyPatch) -> None:
+    kernels.check_frame_numbers.__wrapped__()  # the real ones pass
+    real = kernels.frame_numbers
+
+    def one_ulp_more(capsules: HumanCapsules, starts: Any, plausibility: PlausibilityConfig) -> Any:
+        found = real(capsules, starts, plausibility)
+        return found._replace(extent_m=np.nextafter(found.extent_m, np.inf))
+
+    monkeypatch.setattr(kernels, "frame_numbers", one_ulp_more)
+    with pytest.raises(ConfigError, match="compiled frame numbers differ"):
+        kernels.check_frame_numbers.__wrapped__()

@@ -5,10 +5,12 @@ person gives (the reference below, the door's own code before 2026-12-06), on se
 from __future__ import annotations
 
 import itertools
+from typing import Any
 
 import numpy as np
 import pytest
 
+from gateway import kernels
 from hrc_contract.config import PlausibilityConfig
 from hrc_contract.humans import HumanCapsules, human_starts, implausible_detail
 
@@ -90,13 +92,15 @@ def seeded_frame(rng: np.random.Generator) -> HumanCapsules:
     return HumanCapsules(table[:, 0:3], table[:, 3:6], table[:, 6], tuple(ids), tuple(names))
 
 
-def test_the_door_judges_seeded_frames_as_the_person_by_person_reference() -> None:
+@pytest.mark.parametrize("numbers", [None, kernels.frame_numbers], ids=["numpy", "compiled"])
+def test_the_door_judges_seeded_frames_as_the_person_by_person_reference(numbers: Any) -> None:
+    """With the contract's numbers (numpy) and with the gateway's (compiled, as its door admits frames)."""
     rng = np.random.default_rng(36)
     reasons: set[str | None] = set()
     for _ in range(1500):
         capsules = seeded_frame(rng)
         want = reference_detail(capsules, PLAUSIBILITY)
-        assert implausible_detail(capsules, PLAUSIBILITY) == want
+        assert implausible_detail(capsules, PLAUSIBILITY, numbers) == want
         reasons.add(None if want is None else want[0])
     assert reasons == {
         None,

@@ -571,8 +571,8 @@ class TrackSet:
         boxes = _boxes_may_nest(lo[mine], hi[mine], radius[mine], lo[k], hi[k], radius[k], grow)
         i, k, mine, grow = i[boxes], k[boxes], mine[boxes], grow[boxes]
         involved, body = np.unique(np.concatenate((mine, k)), return_inverse=True)
-        near = bodies_near([rows[r].capsules for r in involved.tolist()], body[: len(mine)], body[len(mine) :], grow)
-        for a, b in zip(i[near].tolist(), k[near].tolist(), strict=True):
+        is_near = bodies_near([rows[r].capsules for r in involved.tolist()], body[: len(mine)], body[len(mine) :], grow)
+        for a, b in zip(i[is_near].tolist(), k[is_near].tolist(), strict=True):
             out[a].append(rows[b])
         return out
 

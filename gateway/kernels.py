@@ -23,6 +23,7 @@ the kernels are compiled for at start-up.
 from __future__ import annotations
 
 import functools
+import operator
 import os
 import tempfile
 from collections.abc import Callable, Sequence
@@ -680,10 +681,18 @@ def bodies_near(
 ) -> npt.NDArray[np.bool_]:
     """Per pair p: :func:`capsules_near` of ``bodies[first[p]]`` and ``bodies[second[p]]`` grown by ``grow_m[p]``
     [m], all pairs in one compiled call (the tracks ask it for every pair of people whose boxes may nest in a
-    frame: a crowd of 200 people made ~1400 pairs a frame, ~8 µs of Python each one call at a time)."""
+    frame: a crowd of 200 people made ~1400 pairs a frame, ~8 µs of Python each one call at a time).
+
+    Raises:
+        ValueError: a pair's index outside ``bodies``, or ``first``, ``second`` and ``grow_m`` of different lengths.
+    """
     out = np.zeros(len(first), dtype=np.bool_)
     if not len(first):
         return out
+    if len(second) != len(first) or len(grow_m) != len(first):
+        raise ValueError(f"bodies_near: {len(first)} first, {len(second)} second, {len(grow_m)} grow; one per pair")
+    if min(first.min(), second.min()) < 0 or max(first.max(), second.max()) >= len(bodies):
+        raise ValueError(f"bodies_near: a pair's body out of range (of {len(bodies)})")  # read unchecked when compiled
     counts = np.fromiter((b.n_capsules for b in bodies), np.int64, len(bodies))
     starts = np.zeros(len(bodies) + 1, dtype=np.int64)
     np.cumsum(counts, out=starts[1:])
@@ -737,7 +746,15 @@ def _frame_numbers(h_a: Any, h_b: Any, radius: Any, starts: Any, low: Any, high:
 def frame_numbers(capsules: HumanCapsules, starts: Sequence[int], plausibility: PlausibilityConfig) -> FrameNumbers:
     """:func:`hrc_contract.humans.frame_numbers` in one compiled pass over the capsules (the door's numbers for a
     frame of 2000 capsules: ~0.2 ms of numpy calls, each holding the interpreter lock the safety loop needs). Its
-    capsules finite, as the door admits them: held to the reference at start-up (:func:`check_frame_numbers`)."""
+    capsules finite, as the door admits them: held to the reference at start-up (:func:`check_frame_numbers`).
+
+    Raises:
+        ValueError: no capsule, or ``starts`` that do not run from the first capsule to the last (the compiled pass
+            reads by them unchecked).
+    """
+    n = capsules.n_capsules
+    if n == 0 or len(starts) < 2 or starts[0] != 0 or starts[-1] != n or not all(map(operator.lt, starts, starts[1:])):
+        raise ValueError(f"frame_numbers: {n} capsules and starts {list(starts)[:8]}…; a person has a capsule")
     inside, longest_sq, r_max, extent = _frame_numbers(
         _kernel_array(capsules.h_a_world),
         _kernel_array(capsules.h_b_world),

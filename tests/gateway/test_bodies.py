@@ -85,3 +85,13 @@ def test_the_start_up_check_catches_a_compiled_pairs_test_that_disagrees(monkeyp
     monkeypatch.setattr(bodies, "bodies_near", lambda b, first, second, grow_m: np.ones(len(first), dtype=bool))
     with pytest.raises(ConfigError, match="pairs' body test differs"):
         check_within()
+
+
+@pytest.mark.parametrize(
+    ("first", "second", "grow"),
+    [([0], [2], [0.1]), ([-1], [0], [0.1]), ([0, 1], [1, 0], [0.1]), ([0, 1], [1], [0.1, 0.2])],
+)
+def test_pairs_outside_the_bodies_are_refused_not_read(first: list[int], second: list[int], grow: list[float]) -> None:
+    people = [random_capsules(np.random.default_rng(k), ("x",) * 3, 1.0) for k in range(2)]
+    with pytest.raises(ValueError, match=r"out of range|one per pair"):
+        bodies_near(people, np.array(first), np.array(second), np.array(grow))

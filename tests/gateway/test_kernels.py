@@ -511,3 +511,11 @@ def test_the_door_numbers_check_refuses_compiled_numbers_that_differ(monkeypatch
     monkeypatch.setattr(kernels, "frame_numbers", one_ulp_more)
     with pytest.raises(ConfigError, match="compiled frame numbers differ"):
         kernels.check_frame_numbers.__wrapped__()
+
+
+@pytest.mark.parametrize("starts", [[0], [0, 3], [0, 2, 2, 4], [1, 4], [0, 5]])
+def test_the_doors_compiled_numbers_refuse_starts_they_would_read_past(starts: list[int]) -> None:
+    capsules = HumanCapsules(np.zeros((4, 3)), np.ones((4, 3)), np.full(4, 0.1), ("a",) * 4, ("p",) * 4)
+    assert kernels.frame_numbers(capsules, [0, 2, 4], PlausibilityConfig()).extent_m.shape == (2,)
+    with pytest.raises(ValueError, match="a person has a capsule"):
+        kernels.frame_numbers(capsules, starts, PlausibilityConfig())

@@ -263,7 +263,8 @@ def stalls_by_cause(events: list[dict[str, Any]]) -> tuple[dict[str, int], dict[
 
 
 def resources(pid: int) -> dict[str, int] | None:
-    """RSS [kB], open descriptors, threads and age [s] of a process (None if it is gone)."""
+    """RSS [kB], open descriptors, threads and age [s] of a process (None if it is gone, or exited and not yet
+    reaped)."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
         fds = len(os.listdir(f"/proc/{pid}/fd"))
@@ -272,6 +273,8 @@ def resources(pid: int) -> dict[str, int] | None:
     except (OSError, ValueError, IndexError):
         return None
     fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
+    if not {"VmRSS", "RssAnon", "RssFile", "Threads"} <= fields.keys():
+        return None  # a zombie (exited, not yet reaped: a fault just killed it) has no memory: gone
     age_s = int(uptime_s - started_ticks / os.sysconf("SC_CLK_TCK"))
     return {
         "rss_kb": int(fields["VmRSS"].split()[0]),

@@ -232,3 +232,15 @@ def test_a_short_soak_runs_the_cell_under_faults_and_reports(tmp_path: Path) -> 
     assert report["resources_end"]["zenoh-bystander"].get("rss_kb"), "the bystander did not run to the end"
     assert all(c["differing_seqs"] == [] for c in report["events"]["api_vs_file"] if c["checked"])
     assert code == 0
+
+
+def test_a_process_that_exited_but_is_not_yet_reaped_is_gone_not_an_error() -> None:
+    """A fault kills a program; sampled before its parent reaps it, it is a zombie with no memory lines (the soak
+    raised KeyError 'VmRSS' in a fresh-clone CI run)."""
+    assert soak.resources(os.getpid()) is not None
+    with subprocess.Popen([sys.executable, "-c", "pass"]) as proc:
+        deadline_s = time.monotonic() + 30.0
+        while Path(f"/proc/{proc.pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z":
+            assert time.monotonic() < deadline_s, "the child never exited"
+            time.sleep(0.01)
+        assert soak.resources(proc.pid) is None

@@ -30,6 +30,7 @@ from typing import Any
 import zenoh
 
 from gateway.bridge_view import BridgeView
+from gateway.capsules_json import check_capsules_json, human_capsules_json
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
@@ -46,7 +47,6 @@ from gateway.status import (
     cycle_status,
     effective_config,
     human_capsules,
-    human_capsules_json,
     loop_status,
 )
 from hrc_contract import keys
@@ -213,10 +213,10 @@ class DecisionIntervals:
 
 
 def status_json(doc: GatewayStatus, capsules_json: bytes | None = None) -> bytes:
-    """``doc.model_dump_json()``; with ``capsules_json`` (:func:`gateway.status.human_capsules_json`), a ``doc`` built
-    without its capsules gets them in their place: the same bytes as the whole document's, without a model per
-    capsule (the status thread's way: for a crowd, validating and dumping the models held the interpreter lock the
-    loop needs for tens of ms per document).
+    """``doc.model_dump_json()``; with ``capsules_json`` (:func:`gateway.capsules_json.human_capsules_json`), a
+    ``doc`` built without its capsules gets them in their place: the same bytes as the whole document's, without a
+    model per capsule (the status thread's way: for a crowd, validating and dumping the models held the interpreter
+    lock the loop needs for tens of ms per document).
 
     Raises:
         ValueError: ``capsules_json`` for a document that has capsules of its own.
@@ -238,7 +238,7 @@ class StatusThread(LatestJobThread[StatusJob]):
     being descheduled cannot hold the loop up. What it cannot avoid is Python's interpreter lock: it builds the
     document under :func:`collections_paused` (a full collection while a document of thousands of capsules is alive
     held the lock 5–10 ms) and serialises the crowd's capsules apart, a chunk at a time
-    (:func:`gateway.status.human_capsules_json`), and it runs under SCHED_FIFO at ``realtime_priority``
+    (:func:`gateway.capsules_json.human_capsules_json`), and it runs under SCHED_FIFO at ``realtime_priority``
     (``gateway.io_realtime_priority``) like the other threads that take the lock: at normal
     scheduling another program could deschedule it while it held the lock, and the loop waited for the lock until
     it ran again (a priority inversion; measured on the default cell: each ``blocked`` stall at normal scheduling had
@@ -617,6 +617,7 @@ def _open_gateway(
     if bridges.interfaces:  # display only: the bridges' read-back figures (gateway/bridge_view.py)
         declared.append(session.declare_subscriber(bridges.key, bridges.on_sample))
     status_pub = session.declare_publisher(keys.gateway_status(config.cell))
+    check_capsules_json()  # the status's compiled capsule text, held to its reference and compiled before a document
     sink = _StatusSink(config, node.robots, status_pub, http, bridges if bridges.interfaces else None, ros2)
     events = EventLog()
     http.offer_events(events.started(time.time_ns(), config.cell, effective.config_sha256))

@@ -14,11 +14,11 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
-import msgspec
 import numpy as np
 import numpy.typing as npt
 from pydantic import TypeAdapter
 
+from gateway.capsules_json import DIGITS, capsule_table
 from gateway.core import RobotDecision
 from gateway.inputs import InputSnapshot
 from gateway.node import GatewayCycle
@@ -42,8 +42,6 @@ from hrc_contract.status_models import (
 from hrc_devices.robots.model import RobotModel
 from hrc_runtime.rate_loop import RateLoop
 
-DIGITS = 4
-"""Distances, times and δ are rounded to this many decimals (0.1 mm, 0.1 ms)."""
 LOOP_DIGITS = 6
 """The loop's timing (lateness, compute time) is rounded to this many decimals (1 µs)."""
 
@@ -84,13 +82,8 @@ _HUMAN_CAPSULES: TypeAdapter[list[HumanCapsuleStatus]] = TypeAdapter(list[HumanC
 def _capsule_rows(
     a_m: npt.NDArray[np.float64], b_m: npt.NDArray[np.float64], radius_m: npt.NDArray[np.float64]
 ) -> list[list[float]]:
-    """Capsules as rows ``[a_x, a_y, a_z, b_x, b_y, b_z, radius]`` rounded to 0.1 mm; a value that is not finite
-    becomes 0 (the drawing only). One table, so one rounding and one ``tolist`` for all capsules (numpy's cost is
-    its calls, ~1–2 µs each, not the numbers)."""
-    table = np.concatenate((a_m, b_m, radius_m[:, None]), axis=1).round(DIGITS)
-    if not np.isfinite(table).all():  # never with plausible input; nan_to_num costs ~25 µs
-        table = np.nan_to_num(table, nan=0.0, posinf=0.0, neginf=0.0)
-    return table.tolist()  # type: ignore[no-any-return]
+    """:func:`gateway.capsules_json.capsule_table` as lists, one ``tolist`` for all capsules."""
+    return capsule_table(a_m, b_m, radius_m).tolist()  # type: ignore[no-any-return]
 
 
 def _link_entries(
@@ -141,22 +134,6 @@ def human_capsules(capsules: HumanCapsules) -> list[HumanCapsuleStatus]:
     for start in range(0, len(entries), VALIDATE_CHUNK):
         out += _HUMAN_CAPSULES.validate_python(entries[start : start + VALIDATE_CHUNK])
     return out
-
-
-_CAPSULE_ENCODER = msgspec.json.Encoder()
-
-
-def human_capsules_json(capsules: HumanCapsules) -> bytes:
-    """:func:`human_capsules` serialised as a JSON array, the same bytes as the models' ``model_dump_json`` (a test
-    holds them to it), without a model per capsule: the values are the gateway's own (finite numbers rounded by
-    numpy, ids and names the door admitted), so there is nothing to validate. For a crowd of 4000 capsules, about a
-    third of the models' time (validation and serialisation), which the loop needs the interpreter lock for
-    (docs/benchmarks.md). Encoded :data:`VALIDATE_CHUNK` at a time (each call holds the lock)."""
-    entries = _human_capsule_entries(capsules)
-    chunks = [
-        _CAPSULE_ENCODER.encode(entries[k : k + VALIDATE_CHUNK])[1:-1] for k in range(0, len(entries), VALIDATE_CHUNK)
-    ]
-    return b"[" + b",".join(chunks) + b"]"
 
 
 def track_entries(
@@ -377,7 +354,7 @@ def cycle_status(
         stamp_ns: when the document is built [ns since the epoch].
         bridges: the bridged robots' controller bridges (:meth:`gateway.bridge_view.BridgeView.snapshot`).
         with_capsules: False: ``human_capsules`` left empty (the status thread serialises them on their own,
-            :func:`human_capsules_json`).
+            :func:`gateway.capsules_json.human_capsules_json`).
     """
     rejected, received = counters
     bridges = bridges or {}

@@ -34,7 +34,11 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     On a fresh clone every gateway process would otherwise compile them at the same time (~7 s each on
     this 2-core machine), against the end-to-end tests' readiness timeouts.
     """
+    from gateway.capsules_json import check_capsules_json
     from gateway.core import SafetyCore
+    from gateway.kernels import check_frame_numbers
 
     config = load_cell_config(None)
     SafetyCore(config, {name: load_robot_model(name, robot) for name, robot in config.robots.items()})
+    check_frame_numbers()  # the door's
+    check_capsules_json()  # the status's

@@ -22,10 +22,11 @@ from pydantic import ValidationError
 from support.paths import DEFAULT_CELL_PATH
 
 from gateway import main as gateway_main
+from gateway.capsules_json import human_capsules_json
 from gateway.handoff import LatestJobThread
 from gateway.http.server import NICENESS_INCREMENT, HttpServerProcess
 from gateway.node import GatewayCycle, GatewayNode
-from gateway.status import VALIDATE_CHUNK, effective_config, human_capsules, human_capsules_json
+from gateway.status import VALIDATE_CHUNK, effective_config, human_capsules
 from hrc_contract import keys
 from hrc_contract.config import CellConfig, GatewayConfig
 from hrc_contract.humans import HumanCapsules
@@ -279,7 +280,8 @@ def awkward_capsules(count: int) -> HumanCapsules:
     b = rng.uniform(-20.0, 20.0, size=(count, 3))
     radius = rng.choice(np.array([0.0, 0.06, 0.1234567, 2.5]), size=count)
     ids = tuple(f"front/h{k // 15}" if k % 7 else f'säde/"ß\\{k // 15}' for k in range(count))
-    names = tuple(f"part{k % 15}" if k % 5 else f"käsi \u2603 \t{k % 15}" for k in range(count))
+    odd = ("käsi \u2603 \t", '","', '"', "\\", '\\"', "],[", "\x00")  # quotes, commas, brackets, escapes
+    names = tuple(f"part{k % 15}" if k % 5 else f"{odd[k % len(odd)]}{k % 15}" for k in range(count))
     return HumanCapsules(a, b, radius, ids, names)
 
 

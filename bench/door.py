@@ -82,9 +82,9 @@ def crowd_payload() -> bytes:
 
 def admitted(payload: bytes, plausibility: PlausibilityConfig = PlausibilityConfig()) -> object:  # noqa: B008
     """What the gateway does to admit a frame (``gateway.inputs``): decode, then judge it plausible with the compiled
-    numbers (it must be)."""
-    _, capsules = humans_from_payload(payload)
-    problem = implausible_detail(capsules, plausibility, frame_numbers)
+    numbers and the decoder's person starts (it must be)."""
+    header, capsules = humans_from_payload(payload)
+    problem = implausible_detail(capsules, plausibility, frame_numbers, header.human_starts)
     if problem is not None:
         raise AssertionError(f"the benchmark's frame is not plausible: {problem}")
     return capsules

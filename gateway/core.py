@@ -320,7 +320,9 @@ class SafetyCore:
         frames: list[HumanCapsules] = []
         events = self.tracks.update(
             {
-                tracker: None if frame is None else (frame, frame.capsules, frame.received_mono_ns - frame.transit_ns)
+                tracker: None
+                if frame is None
+                else (frame, frame.capsules, frame.received_mono_ns - frame.transit_ns, frame.human_starts)
                 for tracker, frame in inputs.humans.items()
             },
             now_mono_ns,

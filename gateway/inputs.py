@@ -198,6 +198,9 @@ class HumanFrame(NamedTuple):
     human_count: int
     transit_ns: int
     received_mono_ns: int
+    human_starts: tuple[int, ...] | None = None
+    """Where each person's capsules start (:attr:`hrc_contract.humans.HumansHeader.human_starts`), or None: the
+    tracks compute them."""
 
 
 def age_s(sample: JointSample | HumanFrame | None, now_mono_ns: int) -> float | None:
@@ -427,7 +430,11 @@ class InputStore:
             self._on_tracker_change()
             return
         mismatch = header.tracker != tracker
-        problem = None if mismatch else implausible_detail(capsules, self._plausibility[tracker], frame_numbers)
+        problem = (
+            None
+            if mismatch
+            else implausible_detail(capsules, self._plausibility[tracker], frame_numbers, header.human_starts)
+        )
         if mismatch or problem is not None:
             reason = "name_mismatch" if problem is None else problem[0]
             detail = f"tracker {header.tracker!r}" if problem is None else problem[1]
@@ -435,7 +442,15 @@ class InputStore:
             self._on_tracker_change()
             return
         transit_ns = max(0, received.wall_ns - header.stamp_ns)
-        frame = HumanFrame(header.stamp_ns, header.seq, capsules, header.human_count, transit_ns, received.mono_ns)
+        frame = HumanFrame(
+            header.stamp_ns,
+            header.seq,
+            capsules,
+            header.human_count,
+            transit_ns,
+            received.mono_ns,
+            header.human_starts,
+        )
         with self._lock:
             if not self._in_order(topic, header.seq, header.stamp_ns, received):
                 changed = self._streams[topic].fault is not None

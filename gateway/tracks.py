@@ -307,13 +307,14 @@ class TrackSet:
     # -- updates ------------------------------------------------------------------------------------------
 
     def update(
-        self, frames: Mapping[str, tuple[object, HumanCapsules, int] | None], now_mono_ns: int
+        self, frames: Mapping[str, tuple[object, HumanCapsules, int, Sequence[int] | None] | None], now_mono_ns: int
     ) -> list[TrackEvent]:
         """Take every tracker frame that is new since the last call.
 
         Args:
-            frames: per tracker, ``(identity, capsules, captured_mono_ns)`` of its newest valid frame (the identity
-                tells a new frame from the one already taken), or None without one.
+            frames: per tracker, ``(identity, capsules, captured_mono_ns, starts)`` of its newest valid frame (the
+                identity tells a new frame from the one already taken; ``starts``: :func:`human_starts` of the
+                capsules where the door has them, else None), or None without one.
             now_mono_ns: the decision time [ns].
 
         Returns:
@@ -325,7 +326,7 @@ class TrackSet:
             if frame is None or self._frames.get(tracker) is frame[0]:
                 continue
             self._frames[tracker] = frame[0]
-            taken, tracks = self._take_frame(tracker, frame[1], frame[2])
+            taken, tracks = self._take_frame(tracker, frame[1], frame[2], frame[3])
             events += taken
             observed += tracks
         if observed:
@@ -353,7 +354,7 @@ class TrackSet:
         return events
 
     def _take_frame(
-        self, tracker: str, capsules: HumanCapsules, captured_ns: int
+        self, tracker: str, capsules: HumanCapsules, captured_ns: int, known_starts: Sequence[int] | None = None
     ) -> tuple[list[TrackEvent], list[Track]]:
         """Continue this tracker's seen tracks with the frame's detections; lose the rest; start new tracks.
 
@@ -365,7 +366,7 @@ class TrackSet:
         """
         margin_m = self._margin_m(tracker, tracker)
         previous = self._previous.get(tracker)
-        starts = human_starts(capsules)
+        starts = human_starts(capsules) if known_starts is None else list(known_starts)
         starts_array = np.array(starts, dtype=np.int64)
         prefix = len(tracker) + 1
         continued: list[Track | None] = (

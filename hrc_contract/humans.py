@@ -88,12 +88,31 @@ def _from_rows(rows: FloatArray, human_ids: list[str], names: list[str]) -> Huma
 
 
 class HumansHeader(NamedTuple):
-    """What a tracker frame says besides its capsules."""
+    """What a tracker frame says besides its capsules, and where each person's capsules start."""
 
     tracker: str
     seq: int
     stamp_ns: int
     human_count: int
+    human_starts: tuple[int, ...]
+    """:func:`human_starts` of the frame's capsules, known to the decoder without a step per capsule: the index of
+    each person's first capsule, and the end (a person listed twice in a row is one run of capsules, as there)."""
+
+
+def _starts_of_runs(ids: Sequence[str], counts: Sequence[int]) -> tuple[int, ...]:
+    """:func:`human_starts` of capsules listed person by person (``ids[k]`` with ``counts[k]`` capsules, each at
+    least one): where the id changes, and the end."""
+    starts = [0]
+    total = 0
+    previous = None
+    for human_id, count in zip(ids, counts, strict=True):
+        if total and human_id != previous:
+            starts.append(total)
+        total += count
+        previous = human_id
+    if total:
+        starts.append(total)
+    return tuple(starts)
 
 
 _NAME = re.compile(r"[a-z0-9_-]{1,64}")
@@ -151,8 +170,9 @@ def humans_from_payload(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     if fast is not None:
         return fast
     message = parse_message_reference(payload, Humans)
-    header = HumansHeader(message.tracker, message.seq, message.stamp_ns, len(message.humans))
-    return header, capsules_from_message(message.tracker, message)
+    capsules = capsules_from_message(message.tracker, message)
+    starts = tuple(human_starts(capsules))
+    return HumansHeader(message.tracker, message.seq, message.stamp_ns, len(message.humans), starts), capsules
 
 
 def _humans_fast(payload: bytes) -> tuple[HumansHeader, HumanCapsules] | None:
@@ -179,7 +199,8 @@ def _humans_fast(payload: bytes) -> tuple[HumansHeader, HumanCapsules] | None:
     rows = np.array(values, dtype=np.float64).reshape(-1, 7)
     if not np.isfinite(rows).all():
         return None
-    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
+    starts = _starts_of_runs([h.id for h in wire.humans], [len(h.capsules) for h in wire.humans])
+    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans), starts)
     return header, _from_rows(rows, human_ids, names)
 
 
@@ -277,7 +298,8 @@ def humans_from_packed(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     radius = rows[:, 6]
     if radius.size and not ((radius >= 0.0) & (radius <= 2.0)).all():
         raise MessageError("invalid", "a capsule radius outside 0 to 2 m")
-    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans))
+    starts = _starts_of_runs([h.id for h in wire.humans], [len(h.names) for h in wire.humans])
+    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans), starts)
     return header, _from_rows(rows, human_ids, names)
 
 
@@ -312,11 +334,13 @@ def implausible_detail(
     capsules: HumanCapsules,
     plausibility: PlausibilityConfig,
     numbers: Callable[[HumanCapsules, Sequence[int], PlausibilityConfig], FrameNumbers] | None = None,
+    starts: Sequence[int] | None = None,
 ) -> tuple[str, str] | None:
     """Why a tracker's capsules cannot be real, with what was found, or None if they can.
 
     ``numbers``: how the frame's :class:`FrameNumbers` are computed (default :func:`frame_numbers`, numpy; the
-    gateway passes its compiled ones).
+    gateway passes its compiled ones). ``starts``: :func:`human_starts` of ``capsules`` where the caller has them
+    (the decoder's :attr:`HumansHeader.human_starts`); computed when None.
 
     Returns:
         The reason and a detail: ``outside_world`` (an end point outside ``world_min_m``..``world_max_m``),
@@ -329,7 +353,7 @@ def implausible_detail(
     """
     if capsules.n_capsules == 0:
         return None
-    starts = human_starts(capsules)
+    starts = human_starts(capsules) if starts is None else list(starts)
     found = (numbers or frame_numbers)(capsules, starts, plausibility)
     if not found.inside_world:
         return "outside_world", "a capsule end point outside the cell's world volume"

@@ -12,7 +12,7 @@ import pytest
 
 from bench import crowded
 from bench.crowded import Decision, StatusSample
-from hrc_contract.humans import HumansHeader, humans_from_payload
+from hrc_contract.humans import HumansHeader, human_starts, humans_from_payload
 from hrc_contract.messages import Humans, parse_message
 
 MS = 1_000_000
@@ -26,7 +26,7 @@ def test_the_crowd_fills_a_frame_to_the_limit_and_the_frame_is_a_valid_message()
     frame = parse_message(crowded.FrameTemplate.of("front", people).payload(7, 123), Humans)
     assert (frame.tracker, frame.seq, frame.stamp_ns, len(frame.humans)) == ("front", 7, 123, len(people))
     header, capsules = humans_from_payload(crowded.FrameTemplate.of("front", people, "packed").payload(7, 123))
-    assert header == HumansHeader("front", 7, 123, len(people))
+    assert header == HumansHeader("front", 7, 123, len(people), tuple(human_starts(capsules)))
     assert capsules.n_capsules == crowded.CAPSULES_PER_FRAME
 
 

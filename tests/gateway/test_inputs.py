@@ -22,7 +22,7 @@ from gateway.inputs import (
 )
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
-from hrc_contract.humans import capsules_from_message, packed_payload
+from hrc_contract.humans import capsules_from_message, human_starts, packed_payload
 from hrc_contract.messages import Humans, parse_message
 from hrc_devices.robots.model import RobotModel
 from hrc_runtime.clocks import Clocks
@@ -1079,6 +1079,8 @@ def test_a_packed_frame_is_stored_as_its_json_would_be_and_judged_alike(
     assert frames["packed"].capsules.human_ids == frames["json"].capsules.human_ids
     np.testing.assert_array_equal(frames["packed"].capsules.h_a_world, frames["json"].capsules.h_a_world)
     np.testing.assert_array_equal(frames["packed"].capsules.radius_m, frames["json"].capsules.radius_m)
+    starts = tuple(human_starts(frames["json"].capsules))  # carried from the door to the tracks
+    assert frames["packed"].human_starts == frames["json"].human_starts == starts
 
     far = hm(seq=4)
     far["humans"][0]["capsules"][0]["a"] = [2.0, 0.0, 90.0]

@@ -17,6 +17,7 @@ from hrc_contract.humans import (
     HumanCapsules,
     HumansHeader,
     capsules_from_message,
+    human_starts,
     humans_from_packed,
     humans_from_payload,
     is_packed,
@@ -40,8 +41,9 @@ def _frame(rng: np.random.Generator, people: int, parts: int) -> dict:
 
 def _reference(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     message = parse_message_reference(payload, Humans)
-    header = HumansHeader(message.tracker, message.seq, message.stamp_ns, len(message.humans))
-    return header, capsules_from_message(message.tracker, message)
+    capsules = capsules_from_message(message.tracker, message)
+    starts = tuple(human_starts(capsules))  # the door's are the decoder's: held to these on every seeded frame
+    return HumansHeader(message.tracker, message.seq, message.stamp_ns, len(message.humans), starts), capsules
 
 
 def _outcome(parse, payload: bytes) -> tuple[str, object]:
@@ -80,7 +82,7 @@ def test_a_valid_frame_gives_the_references_header_and_capsules() -> None:
     assert outcome == _outcome(_reference, payload)
     assert _outcome(door._humans_fast, payload) == outcome, "a valid frame takes the fast path"
     header, capsules = humans_from_payload(payload)
-    assert header == HumansHeader("front", 88, STAMP, 3)
+    assert header == HumansHeader("front", 88, STAMP, 3, (0, 15, 30, 45))
     assert capsules.n_capsules == 45
     assert capsules.human_ids[:2] == ("front/p0", "front/p0")
     assert capsules.human_ids[-1] == "front/p2"
@@ -174,6 +176,30 @@ def test_a_packed_frame_gives_the_same_header_and_capsules_as_its_json_to_the_bi
         assert not is_packed(b" " + payload)
         assert _outcome(humans_from_payload, packed) == _outcome(_reference, payload)
         assert len(packed) < len(payload)
+
+
+def test_where_each_person_starts_is_known_to_every_decoder_even_for_an_id_listed_twice() -> None:
+    """The header's starts are :func:`human_starts` of the capsules on the JSON fast path, the reference path and the
+    packed path, also where one id is listed twice in a row (one run of capsules there; the plausibility check then
+    refuses it) or apart."""
+    raw = _frame(np.random.default_rng(9), 5, 3)
+    for k, human_id in enumerate(("a", "a", "b", "a", "c")):
+        raw["humans"][k]["id"] = human_id
+    raw["humans"][4]["capsules"] = raw["humans"][4]["capsules"][:1]
+    payload = json.dumps(raw).encode()
+    reference = parse_message_reference(payload, Humans)
+    capsules = capsules_from_message(reference.tracker, reference)
+    want = (0, 6, 9, 12, 13)
+    assert tuple(human_starts(capsules)) == want
+    lax = payload.replace(b'"seq": 88', b'"seq": 88.0')  # not for the fast path (an integer): the reference's
+    assert lax != payload
+    assert door._humans_fast(lax) is None
+    for header, _ in (
+        door._humans_fast(payload),
+        humans_from_payload(lax),
+        humans_from_payload(packed_payload(reference)),
+    ):
+        assert header.human_starts == want
 
 
 @pytest.mark.parametrize(

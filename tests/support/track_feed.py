@@ -16,11 +16,11 @@ class Feed:
 
     def __init__(self, config: CellConfig, *, by_id: bool = False) -> None:
         self.tracks = TrackSet(config, release_by_id_unsafe=by_id)
-        self.frames: dict[str, tuple[object, HumanCapsules, int] | None] = dict.fromkeys(config.trackers)
+        self.frames: dict[str, tuple[object, HumanCapsules, int, None] | None] = dict.fromkeys(config.trackers)
 
     def see(self, t_ns: int, tracker: str, *people: HumanCapsules, stamp_late_ns: int = 0) -> list[str]:
         """The tracker's frame with these people (none: it sees nobody); the changes as ``kind:track:cause``."""
-        self.frames[tracker] = (object(), merge_humans(list(people)), t_ns - stamp_late_ns)
+        self.frames[tracker] = (object(), merge_humans(list(people)), t_ns - stamp_late_ns, None)
         return [f"{e.kind}:{e.track}:{e.cause}" for e in self.tracks.update(self.frames, t_ns)]
 
     def state(self, label: str) -> TrackState | None:

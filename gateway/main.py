@@ -30,7 +30,7 @@ from typing import Any
 import zenoh
 
 from gateway.bridge_view import BridgeView
-from gateway.capsules_json import check_capsules_json, human_capsules_json
+from gateway.capsules_json import check_capsules_json
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
@@ -46,8 +46,8 @@ from gateway.status import (
     StatusJob,
     cycle_status,
     effective_config,
-    human_capsules,
     loop_status,
+    people_lists_json,
 )
 from hrc_contract import keys
 from hrc_contract.config import CellConfig
@@ -212,22 +212,30 @@ class DecisionIntervals:
         self._moving = moving
 
 
-def status_json(doc: GatewayStatus, capsules_json: bytes | None = None) -> bytes:
-    """``doc.model_dump_json()``; with ``capsules_json`` (:func:`gateway.capsules_json.human_capsules_json`), a
-    ``doc`` built without its capsules gets them in their place: the same bytes as the whole document's, without a
-    model per capsule (the status thread's way: for a crowd, validating and dumping the models held the interpreter
-    lock the loop needs for tens of ms per document).
+def status_json(doc: GatewayStatus, lists_json: Mapping[str, bytes] | None = None) -> bytes:
+    """``doc.model_dump_json()``; with ``lists_json`` (:func:`gateway.status.people_lists_json`: top-level lists of
+    the document as JSON arrays), a ``doc`` built without those lists gets them in their place: the same bytes as the
+    whole document's, without a model per entry (the status thread's way: for a crowd, validating and dumping the
+    models held the interpreter lock the loop needs for tens of ms per document).
 
     Raises:
-        ValueError: ``capsules_json`` for a document that has capsules of its own.
+        ValueError: a list given for a document that has entries of its own in it.
     """
     line = doc.model_dump_json().encode()
-    if capsules_json is None:
+    if not lists_json:
         return line
-    empty = b'"human_capsules":[]'
-    if doc.human_capsules or line.count(empty) != 1:  # the key is unique in the contract's models
-        raise ValueError("status_json: capsules given for a document that has its own")
-    return line.replace(empty, b'"human_capsules":' + capsules_json)
+    where: list[tuple[int, int, bytes]] = []
+    for key, array in lists_json.items():
+        empty = b'"' + key.encode() + b'":[]'
+        if getattr(doc, key) or line.count(empty) != 1:  # the keys are unique in the contract's models
+            raise ValueError(f"status_json: {key} given for a document that has its own")
+        at = line.index(empty)
+        where.append((at, at + len(empty), b'"' + key.encode() + b'":' + array))
+    pieces, done = [], 0
+    for start, end, text in sorted(where):  # by place in the line, each cut from the document as it was
+        pieces += [line[done:start], text]
+        done = end
+    return b"".join([*pieces, line[done:]])
 
 
 class StatusThread(LatestJobThread[StatusJob]):
@@ -285,14 +293,10 @@ class _StatusSink:
         collections paused (see :class:`StatusThread`)."""
         with collections_paused():
             bridges = None if self.bridges is None else self.bridges.snapshot()
-            doc = cycle_status(
-                self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges, with_capsules=False
-            )
-            line = status_json(doc, human_capsules_json(job.cycle.capsules))
-            if self.ros2 is not None:
-                self.ros2.offer(
-                    job, lambda: doc.model_copy(update={"human_capsules": human_capsules(job.cycle.capsules)})
-                )
+            arguments = (self.config, job.cycle, self.robots, job.counters, job.loop, job.stamp_ns, bridges)
+            line = status_json(cycle_status(*arguments, with_lists=False), people_lists_json(self.config, job.cycle))
+            if self.ros2 is not None:  # the whole document with its models, built only if the face wants it
+                self.ros2.offer(job, lambda: cycle_status(*arguments))
             return line
 
 

@@ -14,11 +14,12 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 from pydantic import TypeAdapter
 
-from gateway.capsules_json import DIGITS, capsule_table
+from gateway.capsules_json import DIGITS, capsule_table, human_capsules_json
 from gateway.core import RobotDecision
 from gateway.inputs import InputSnapshot
 from gateway.node import GatewayCycle
@@ -342,7 +343,7 @@ def cycle_status(
     loop: LoopStatus,
     stamp_ns: int,
     bridges: Mapping[str, BridgeStatus] | None = None,
-    with_capsules: bool = True,
+    with_lists: bool = True,
 ) -> GatewayStatus:
     """The status document of one cycle (what the loop publishes at ``gateway.status_rate_hz``).
 
@@ -353,11 +354,12 @@ def cycle_status(
         loop: the loop's own timing (:func:`loop_status`).
         stamp_ns: when the document is built [ns since the epoch].
         bridges: the bridged robots' controller bridges (:meth:`gateway.bridge_view.BridgeView.snapshot`).
-        with_capsules: False: ``human_capsules`` left empty (the status thread serialises them on their own,
-            :func:`gateway.capsules_json.human_capsules_json`).
+        with_lists: False: the lists that grow with the people (:data:`PEOPLE_LISTS`) left empty: the status thread
+            serialises them on their own (:func:`people_lists_json`).
     """
     rejected, received = counters
     bridges = bridges or {}
+    lists = people_lists(config, cycle) if with_lists else {}
     return status_document(
         config.cell,
         stamp_ns,
@@ -365,19 +367,41 @@ def cycle_status(
             name: robot_status(d, cycle.seq, robots[name].link_names, robots[name].link_radius_m, bridges.get(name))
             for name, d in cycle.decisions.items()
         },
-        humans_summary(cycle.inputs),
+        lists.get("humans", ()),
         rejected,
         received,
         loop,
-        human_capsules(cycle.capsules) if with_capsules else (),
-        track_entries(
-            cycle.tracks,
-            cycle.decisions,
-            cycle.now.mono_ns if cycle.now is not None else 0,
-            reach_speed_mps(config),
-            cycle.inputs,
-        ),
+        human_capsules(cycle.capsules) if with_lists else (),
+        lists.get("tracks", ()),
     )
+
+
+PEOPLE_LISTS = ("humans", "tracks", "human_capsules", "persons")
+"""The status's lists that grow with the people in the cell: in a crowd, thousands of entries 25 times a second."""
+
+
+def people_lists(config: CellConfig, cycle: GatewayCycle) -> dict[str, list[dict[str, Any]]]:
+    """The status's ``humans``, ``tracks`` and ``persons`` of one cycle as plain values, their keys in the models'
+    order (``human_capsules``: :func:`human_capsules`)."""
+    tracks = track_entries(
+        cycle.tracks,
+        cycle.decisions,
+        cycle.now.mono_ns if cycle.now is not None else 0,
+        reach_speed_mps(config),
+        cycle.inputs,
+    )
+    return {"humans": humans_summary(cycle.inputs), "tracks": tracks, "persons": person_entries(tracks)}
+
+
+def people_lists_json(config: CellConfig, cycle: GatewayCycle) -> dict[str, bytes]:
+    """:data:`PEOPLE_LISTS` of one cycle serialised without a model per entry (the values are the gateway's own:
+    nothing to validate), for :func:`gateway.main.status_json`: the bytes the models would give (a test holds them to
+    it). A crowd's tracks and people as models held the interpreter lock ~2 ms a document."""
+    encoded = {key: _LIST_ENCODER.encode(entries) for key, entries in people_lists(config, cycle).items()}
+    return {**encoded, "human_capsules": human_capsules_json(cycle.capsules)}
+
+
+_LIST_ENCODER = msgspec.json.Encoder()
 
 
 def humans_summary(inputs: InputSnapshot) -> list[dict[str, Any]]:

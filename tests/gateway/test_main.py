@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 import support.status_examples as ex
@@ -31,7 +32,7 @@ from hrc_contract import keys
 from hrc_contract.config import CellConfig, GatewayConfig
 from hrc_contract.humans import HumanCapsules
 from hrc_contract.messages import Override, parse_message
-from hrc_contract.status_models import GatewayStatus
+from hrc_contract.status_models import GatewayStatus, HumanSeen
 from hrc_runtime.clocks import Clocks, read_clocks
 from hrc_runtime.config import load_cell_config
 from hrc_runtime.signals import StopEvent
@@ -292,13 +293,24 @@ def test_the_status_line_with_capsules_serialised_apart_is_the_documents_json(co
     capsules = awkward_capsules(count)
     doc = ex.gateway_status(ur5=ex.near_robot_status())
     whole = doc.model_copy(update={"human_capsules": human_capsules(capsules)})
-    line = gateway_main.status_json(doc, human_capsules_json(capsules))
+    line = gateway_main.status_json(doc, {"human_capsules": human_capsules_json(capsules)})
     assert line == whole.model_dump_json().encode()
     assert len(GatewayStatus.model_validate_json(line).human_capsules) == count
     assert gateway_main.status_json(whole) == whole.model_dump_json().encode()
     if count:
         with pytest.raises(ValueError, match="has its own"):
-            gateway_main.status_json(whole, human_capsules_json(capsules))
+            gateway_main.status_json(whole, {"human_capsules": human_capsules_json(capsules)})
+
+
+def test_lists_serialised_apart_go_in_their_places_in_order_and_never_over_entries_of_the_document() -> None:
+    capsules = awkward_capsules(3)
+    doc = ex.gateway_status(ur5=ex.near_robot_status())
+    humans = [{"id": 'front/"a"', "tracker": "front", "capsules": 3}]
+    whole = doc.model_copy(update={"human_capsules": human_capsules(capsules), "humans": [HumanSeen(**humans[0])]})
+    parts = {"human_capsules": human_capsules_json(capsules), "humans": msgspec.json.encode(humans)}
+    assert gateway_main.status_json(doc, parts) == whole.model_dump_json().encode()
+    with pytest.raises(ValueError, match="humans given for a document that has its own"):
+        gateway_main.status_json(whole.model_copy(update={"human_capsules": []}), parts)
 
 
 STALL_S = 0.05

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections.abc import Callable
 from typing import Any, cast
 
 import numpy as np
@@ -522,17 +523,28 @@ def test_a_crowds_pairs_of_bodies_are_judged_as_one_pair_at_a_time_would(feed: F
     assert 0 < pairs < len(observed) * (len(observed) - 1)  # the case is not trivial either way
 
 
-def test_the_status_thread_shows_the_lost_persons_capsules_on_its_line_and_to_the_ros2_face(
-    cell_config: CellConfig, ur5: RobotModel
+def the_hand_seen_by_both_trackers(cell_config: CellConfig, ur5: RobotModel) -> tuple[GatewayNode, GatewayCycle]:
+    """A node whose trackers both see a hand at the tool; its cycle then."""
+    cell = Cell(cell_config, ur5)
+    node = GatewayNode(cell_config, {"ur5": ur5})
+    node.inputs, node.core = cell.store, cell.core
+    cell.feed(NOW, [hand_at_tool(ur5)])
+    return node, node.cycle(at(NOW), 0.004)
+
+
+@pytest.mark.parametrize("moment", [a_second_after_the_hand_was_lost, the_hand_seen_by_both_trackers])
+def test_the_status_thread_shows_the_people_on_its_line_and_to_the_ros2_face(
+    cell_config: CellConfig, ur5: RobotModel, moment: Callable[..., tuple[GatewayNode, GatewayCycle]]
 ) -> None:
-    """The status thread serialises the capsules apart from the document (gateway.main._StatusSink): its line and the
-    document the ROS 2 face is handed show the capsules the document of :func:`cycle_status` shows."""
+    """The status thread serialises the lists of people apart from the document (gateway.main._StatusSink): its line
+    and the document the ROS 2 face is handed are the document of :func:`cycle_status`, byte for byte (the seen hand:
+    humans, seen tracks and a person; lost: lost tracks that hold the robot, with what to do, and grown capsules)."""
     from gateway import main as gateway_main
     from gateway.status import StatusJob, cycle_status, loop_status
     from hrc_contract.status_models import GatewayStatus
     from hrc_runtime.rate_loop import RateLoop
 
-    node, cycle = a_second_after_the_hand_was_lost(cell_config, ur5)
+    node, cycle = moment(cell_config, ur5)
     job = StatusJob(cycle, node.counters(), loop_status(RateLoop(0.004), 0, True, []), 0)
     offered: list[GatewayStatus] = []
 
@@ -543,6 +555,13 @@ def test_the_status_thread_shows_the_lost_persons_capsules_on_its_line_and_to_th
     sink = gateway_main._StatusSink(cell_config, node.robots, cast(Any, None), cast(Any, None), ros2=cast(Any, Face()))
     line = sink.line(job)
     doc = cycle_status(cell_config, cycle, node.robots, job.counters, job.loop, job.stamp_ns)
-    assert {c.human for c in doc.human_capsules} == {"front/h1 (lost)", "side/h1 (lost)"}
+    if moment is a_second_after_the_hand_was_lost:
+        assert {c.human for c in doc.human_capsules} == {"front/h1 (lost)", "side/h1 (lost)"}
+        assert ["ur5"] in [t.holds for t in doc.tracks]  # the closest of the two lost views holds the robot
+    else:
+        assert [h.id for h in doc.humans] == ["front/h1", "side/h1"]
+        assert [t.state for t in doc.tracks] == ["seen", "seen"]
+        assert len(doc.persons) == 1
+    assert doc.tracks
     assert line == doc.model_dump_json().encode()
-    assert [d.human_capsules for d in offered] == [doc.human_capsules]
+    assert offered == [doc]

@@ -3,6 +3,7 @@
 __all__ = [
     "bodies",
     "bridge_view",
+    "capsules_json",
     "contact",
     "core",
     "delay",

@@ -245,13 +245,13 @@ class StatusThread(LatestJobThread[StatusJob]):
     is replaced) and a counter (an eventfd) wakes the thread; no lock is shared with the loop, so the status thread
     being descheduled cannot hold the loop up. What it cannot avoid is Python's interpreter lock: it builds the
     document under :func:`collections_paused` (a full collection while a document of thousands of capsules is alive
-    held the lock 5–10 ms) and serialises the crowd's capsules apart, a chunk at a time
-    (:func:`gateway.capsules_json.human_capsules_json`), and it runs under SCHED_FIFO at ``realtime_priority``
-    (``gateway.io_realtime_priority``) like the other threads that take the lock: at normal
-    scheduling another program could deschedule it while it held the lock, and the loop waited for the lock until
-    it ran again (a priority inversion; measured on the default cell: each ``blocked`` stall at normal scheduling had
-    this thread waiting 8–18 ms on a run queue meanwhile, none under SCHED_FIFO). An exception while publishing is
-    logged and counted; the thread goes on.
+    held the lock 5–10 ms) and serialises the lists that grow with the people apart, without a model per entry
+    (:func:`gateway.status.people_lists_json`; the capsules' text by a compiled pass that does not hold the lock), and
+    it runs under SCHED_FIFO at ``realtime_priority`` (``gateway.io_realtime_priority``) like the other threads that
+    take the lock: at normal scheduling another program could deschedule it while it held the lock, and the loop
+    waited for the lock until it ran again (a priority inversion; measured on the default cell: each ``blocked`` stall
+    at normal scheduling had this thread waiting 8–18 ms on a run queue meanwhile, none under SCHED_FIFO). An
+    exception while publishing is logged and counted; the thread goes on.
 
     Args:
         publish: builds and publishes one job's document (called on the status thread).

@@ -381,8 +381,8 @@ PEOPLE_LISTS = ("humans", "tracks", "human_capsules", "persons")
 
 
 def people_lists(config: CellConfig, cycle: GatewayCycle) -> dict[str, list[dict[str, Any]]]:
-    """The status's ``humans``, ``tracks`` and ``persons`` of one cycle as plain values, their keys in the models'
-    order (``human_capsules``: :func:`human_capsules`)."""
+    """The status's ``humans`` and ``tracks`` of one cycle as plain values, their keys in the models' order
+    (``persons``: :func:`person_entries` of the tracks; ``human_capsules``: :func:`human_capsules`)."""
     tracks = track_entries(
         cycle.tracks,
         cycle.decisions,
@@ -390,14 +390,16 @@ def people_lists(config: CellConfig, cycle: GatewayCycle) -> dict[str, list[dict
         reach_speed_mps(config),
         cycle.inputs,
     )
-    return {"humans": humans_summary(cycle.inputs), "tracks": tracks, "persons": person_entries(tracks)}
+    return {"humans": humans_summary(cycle.inputs), "tracks": tracks}
 
 
 def people_lists_json(config: CellConfig, cycle: GatewayCycle) -> dict[str, bytes]:
     """:data:`PEOPLE_LISTS` of one cycle serialised without a model per entry (the values are the gateway's own:
     nothing to validate), for :func:`gateway.main.status_json`: the bytes the models would give (a test holds them to
     it). A crowd's tracks and people as models held the interpreter lock ~2 ms a document."""
-    encoded = {key: _LIST_ENCODER.encode(entries) for key, entries in people_lists(config, cycle).items()}
+    lists = people_lists(config, cycle)
+    lists["persons"] = person_entries(lists["tracks"])
+    encoded = {key: _LIST_ENCODER.encode(entries) for key, entries in lists.items()}
     return {**encoded, "human_capsules": human_capsules_json(cycle.capsules)}
 
 

@@ -12,7 +12,15 @@ from typing import Any
 import pytest
 from support.cell_files import zed_cell
 
-from hrc_tools.cell.procs import collapse, free_endpoint, is_subsequence, record, refused_tracker_frames, running_cell
+from hrc_tools.cell.procs import (
+    collapse,
+    free_endpoint,
+    is_subsequence,
+    load_scale,
+    record,
+    refused_tracker_frames,
+    running_cell,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -32,7 +40,12 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(tmp_path: Path,
     with running_cell(tmp_path, config=config, trackers=trackers) as cell:
         # Generous: three programs and a ROS 2 session start on a loaded 2-core machine.
         cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 120.0, "a fault-free autonomous cell")
-        trace: list[dict[str, Any]] = record(cell, SCENARIO_S + 4.0)
+        # Up to two loops of the scenario, stretched by the load: recording may begin after the first approach started.
+        trace: list[dict[str, Any]] = record(
+            cell,
+            2 * SCENARIO_S * load_scale(),
+            until=lambda t: is_subsequence(ZONES, collapse([s["zone"] for s in t])) and t[-1]["t_s"] > SCENARIO_S,
+        )
         status = cell.get("/api/v1/status").json()
         for name, proc in (("gateway", cell.gateway), ("controller", cell.controller), ("tracker", cell.tracker)):
             assert proc.poll() is None, f"{name} died during the run\n{cell.tail()}"

@@ -117,18 +117,6 @@ def _time_both(
     return answers, first, least
 
 
-def _count_rounds(
-    lp: OpenLp, args: tuple[Any, ...], link_names: tuple[str, ...], in_box: list[int], solved: dict[str, list[int]]
-) -> None:
-    """The compiled decision once more, untimed: the rows in its box, the rows and rounds each LP solved with."""
-    decide: Callable[..., Solution] = lp.decide
-    decide(*args, open_control.fixed_cap(1.0), link_names, 1.0, 0.0)
-    in_box.append(lp.rows_in_box)
-    for name, (of9, of13) in (("rows", lp.rows_solved), ("rounds", lp.rounds)):
-        solved[f"lp9 {name}"].append(of9)
-        solved[f"lp13 {name}"].append(of13)
-
-
 def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
     config = load_cell_config(CONFIG)
     robot = load_robot_model("panda", config.robots["panda"])
@@ -139,8 +127,6 @@ def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
     lp = OpenLp()
     same = 0
     rows_kept: list[int] = []
-    in_box: list[int] = []
-    solved: dict[str, list[int]] = {"lp9 rows": [], "lp13 rows": [], "lp9 rounds": [], "lp13 rounds": []}
     deltas: list[float] = []
     hows: dict[str, int] = {}
     for _ in range(samples):
@@ -187,7 +173,6 @@ def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
         open_control.solve_lp9(safety, task, lower, upper)
         t1 = time.perf_counter_ns()
         answers, first, least = _time_both(lp, args, robot.link_names, repeat, len(rows_kept) % 2 == 1)
-        _count_rounds(lp, args, robot.link_names, in_box, solved)
         for name in first:
             times[name].append(first[name])
             if repeat > 1:
@@ -212,8 +197,6 @@ def run(samples: int, seed: int, repeat: int = 1) -> dict[str, object]:
         "same_answers": f"{same} of {samples}",
         "rows_in_lp": summary(rows_kept, 1.0, 0),
         "rows_of_all_pairs": int(len(robot.link_names) * humans.n_capsules * 4),
-        "rows_in_box": summary(in_box, 1.0, 0),
-        "rounds": {k: summary(v, 1.0, 0) for k, v in solved.items()},
         "delta": summary(deltas, 1.0, 3),
         "how": hows,
         "variables": int(active.size + 1),
@@ -254,17 +237,6 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"\nrows in the LP: {results['rows_in_lp']} of {results['rows_of_all_pairs']} (rows no velocity within the "
         f"limits can reach are left out); variables {results['variables']}; δ {results['delta']}; {results['how']}"
-    )
-    print(
-        f"rows within the velocity box (LP (9)'s rows): {results['rows_in_box']}; solved by rounds (the first on the "
-        "rows tightest at the previous velocity, each next adding the rows its answer breaks most):"
-    )
-    rounds = results["rounds"]
-    assert isinstance(rounds, dict)
-    print(
-        table(
-            ["", "p50", "p99", "max", "mean"], [[k, v["p50"], v["p99"], v["max"], v["mean"]] for k, v in rounds.items()]
-        )
     )
     print("\n" + targets_table(report.targets))
     report.finish(args.json)

@@ -55,13 +55,6 @@ joints no range (the rows that bind fix every direction), so the self-motion cou
 rows that slow it. Half a percent of δ is about what one cycle's acceleration window (9d) lets δ change (q̈max Δt /
 q̇ ≈ 1 %), so LP (13) stays feasible; it also leaves the binding rows that much slack for the next cycle's tightening.
 Measured (docs/benchmarks.md, "Guarded distance, elbow out"): 0.001 too little, 0.003–0.01 alike."""
-FIRST_ROUND_ROWS = 4
-"""How many rows the second solve of an LP takes (the first takes none): the rows the first answer breaks most; each
-further round doubles it (:func:`solve_lp9_by_rounds`)."""
-BROKEN_TOLERANCE = 1e-9
-"""A row joins the next round when the answer exceeds it by more than this, relative to its scale plus 1 m² (as
-:data:`ROW_TOLERANCE`, a thousandth of it): the last round's answer keeps every row left out to that, far inside what
-the check before sending allows."""
 _SENSE_EQUALITY = 5
 _EXIT_OPTIMAL = (1, 2)  # DAQP: 1 optimal, 2 soft-optimal
 
@@ -278,86 +271,6 @@ def solve_lp13(
     return np.asarray(z[:n], dtype=float), float(z[n])
 
 
-def subset(rows: SafetyRows, index: IntArray) -> SafetyRows:
-    """The rows ``index`` of ``rows``, in that order."""
-    return SafetyRows(rows.a_s[index], rows.f_m2[index], rows.link[index], rows.capsule[index], rows.dropped)
-
-
-def rows_broken(
-    rows: SafetyRows,
-    qd_radps: FloatArray,
-    taken: npt.NDArray[np.bool_],
-    count: int,
-    tolerance: float = BROKEN_TOLERANCE,
-) -> IntArray:
-    """At most ``count`` rows not ``taken`` that ``qd_radps`` exceeds by more than ``tolerance`` relative to the row's
-    scale (−inf: the tightest rows, broken or not), the most exceeded first (ties: the first row first)."""
-    lhs = rows.a_s @ qd_radps
-    scale = np.abs(rows.a_s) @ np.abs(qd_radps) + np.abs(rows.f_m2) + 1.0
-    over = (lhs - rows.f_m2) / scale
-    candidates = np.flatnonzero(~taken & (over > tolerance))
-    order = np.argsort(-over[candidates], kind="stable")
-    return np.asarray(candidates[order[:count]], dtype=np.intp)
-
-
-def solve_lp9_by_rounds(
-    rows: SafetyRows, task: Task, lower: FloatArray, upper: FloatArray, qd_prev_radps: FloatArray
-) -> tuple[tuple[FloatArray, float] | None, IntArray]:
-    """LP (9) on the rows its answers break: first on the :data:`FIRST_ROUND_ROWS` rows tightest at the previous
-    velocity (those that bound the last cycle, mostly), then adding the rows the answer breaks most (beyond
-    :data:`BROKEN_TOLERANCE`), as many as the first round took and twice as many each round after, until an answer
-    breaks none. Each round solves a
-    relaxation of LP (9) (fewer rows), so its δ is at least LP (9)'s; an answer that keeps every row is therefore
-    optimal for LP (9) itself, and an infeasible round means LP (9) is infeasible. Of a cycle's 50–600 rows the last
-    round carries a few (docs/benchmarks.md, "LP time per cycle"), so the solver works on those, not all. The same
-    answer as :func:`solve_lp9` on every row (the same δ to the solver's tolerance; where LP (9) has several optimal
-    q̇, maybe another of them). Returns the answer (None: infeasible, not finite, or the solver failed) and the rows
-    the last round solved with (indices into ``rows``, in the order they were added)."""
-    if not (np.isfinite(rows.a_s).all() and np.isfinite(rows.f_m2).all() and np.isfinite(qd_prev_radps).all()):
-        return None, np.zeros(0, dtype=np.intp)
-    taken = np.zeros(rows.f_m2.size, dtype=bool)
-    work = rows_broken(rows, qd_prev_radps, taken, FIRST_ROUND_ROWS, -math.inf)
-    taken[work] = True
-    count = FIRST_ROUND_ROWS
-    while True:
-        best = solve_lp9(subset(rows, work), task, lower, upper)
-        if best is None:
-            return None, work
-        more = rows_broken(rows, best[0], taken, count)
-        if not more.size:
-            return best, work
-        work = np.concatenate((work, more))
-        taken[more] = True
-        count *= 2
-
-
-def solve_lp13_by_rounds(
-    rows: SafetyRows,
-    task: Task,
-    delta: float,
-    lower: FloatArray,
-    upper: FloatArray,
-    qd_self_radps: FloatArray,
-    start: IntArray,
-) -> tuple[FloatArray, float] | None:
-    """LP (13) as :func:`solve_lp9_by_rounds` solves LP (9), its first round on the rows ``start`` (LP (9)'s last).
-    A relaxation's objective is at most LP (13)'s, so an answer that keeps every row is optimal."""
-    work = np.asarray(start, dtype=np.intp)
-    taken = np.zeros(rows.f_m2.size, dtype=bool)
-    taken[work] = True
-    count = FIRST_ROUND_ROWS
-    while True:
-        second = solve_lp13(subset(rows, work), task, delta, lower, upper, qd_self_radps)
-        if second is None:
-            return None
-        more = rows_broken(rows, second[0], taken, count)
-        if not more.size:
-            return second
-        work = np.concatenate((work, more))
-        taken[more] = True
-        count *= 2
-
-
 def violated_rows(rows: SafetyRows, qd_radps: FloatArray) -> IntArray:
     """The rows that ``qd_radps`` breaks beyond :data:`ROW_TOLERANCE` (relative to the row's scale)."""
     lhs = rows.a_s @ qd_radps
@@ -426,7 +339,7 @@ def decide(
     lower, upper = velocity_bounds(qd_prev_radps, q_ref_rad, limits, dt_s)
     every_row = rows  # every answer is checked against all of them
     rows = rows_within(rows, lower, upper)
-    best, work = solve_lp9_by_rounds(rows, task, lower, upper, qd_prev_radps)
+    best = solve_lp9(rows, task, lower, upper)
 
     def stop(why: str) -> Solution:
         qd, ratio = ramp_stop_ratio(qd_prev_radps, limits, dt_s)
@@ -445,7 +358,7 @@ def decide(
     delta = min(delta_star, allowed)
     why = bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
     room = with_self_motion_room(delta, delta_star, task)
-    second = solve_lp13_by_rounds(rows, task, room, lower, upper, qd_self_radps, work)
+    second = solve_lp13(rows, task, room, lower, upper, qd_self_radps)
     if second is not None and not violated_rows(every_row, second[0]).size:
         return Solution(second[0], room, "lp13", why, second[1])
     if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap

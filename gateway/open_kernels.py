@@ -5,9 +5,7 @@ assembled by numba kernels into buffers kept between cycles.
 rows some q̇ in the box could break, ``np.zeros``/``np.concatenate`` of the constraint matrices, finiteness checks,
 each answer checked against every row), and those calls cost 1–3 µs each, more than DAQP itself on most cycles. Here
 a compiled call per step does the same arithmetic in the same order into preallocated buffers (grown when a cycle
-has more rows than any before), and DAQP is called as the reference calls it, on the same rows in the same order: each
-LP is solved in rounds (:func:`gateway.open_control.solve_lp9_by_rounds`), the solver seeing the few rows that bind
-and not the hundreds that could.
+has more rows than any before), and DAQP is called as the reference calls it.
 
 ``daqp.solve`` is already the cheapest entry that keeps the answer: it wraps the arrays without copying them (C-ordered
 float64 and int32 senses, as the buffers are) and calls DAQP's C solver cold; DAQP's own setup and solve are all but
@@ -23,8 +21,7 @@ seeded random problems, infeasible and non-finite ones included: the same q̇, �
 What can differ is the summation order of the row products (a loop here, BLAS there): when several rows are active
 at the optimum their slacks tie to ~1e-16 and ``bounded_by`` may name another of them; a row whose largest left side
 over the box equals its right-hand side to the last bit may be kept by one and dropped by the other (such a row
-cannot bind); a check at exactly :data:`ROW_TOLERANCE` may round the other way; two rows a round's answer breaks by
-amounts equal to the last bit may join the next round in the other order (the same optimum, maybe another vertex).
+cannot bind); a check at exactly :data:`ROW_TOLERANCE` may round the other way.
 """
 
 from __future__ import annotations
@@ -40,8 +37,6 @@ from gateway.kernels import _compiled
 from gateway.open_control import (
     _EXIT_OPTIMAL,
     _SENSE_EQUALITY,
-    BROKEN_TOLERANCE,
-    FIRST_ROUND_ROWS,
     NO_BOUND,
     ROW_TOLERANCE,
     FloatArray,
@@ -124,7 +119,7 @@ def _rows_in_box(a_s: Any, f_m2: Any, bounds: Any, kept: Any) -> int:
 
 
 @_compiled
-def _lp9_rows(
+def _lp9(
     a_s: Any,
     f_m2: Any,
     jac: Any,
@@ -139,24 +134,49 @@ def _lp9_rows(
     dt_s: float,
     bounds: Any,
     kept: Any,
+    a9: Any,
+    bu9: Any,
+    bl9: Any,
+    sense9: Any,
 ) -> Any:
-    """The velocity box (:func:`_velocity_box`), the rows within it (:func:`_rows_in_box`) and whether all of them,
-    the task and the box are finite. Returns (rows kept, :data:`_OK` / :data:`_NOT_FINITE` / :data:`_EMPTY_BOX`)."""
+    """LP (9) into the buffers: the velocity box (:func:`_velocity_box`), the rows within it (:func:`_rows_in_box`),
+    then A, the bounds and the senses of :func:`gateway.open_control.solve_lp9`. Returns (rows kept, :data:`_OK` /
+    :data:`_NOT_FINITE` / :data:`_EMPTY_BOX`)."""
     n = qd_prev.size
+    k = x_rate.size
     empty = _velocity_box(qd_prev, q_ref, qd_max, qdd_max, q_min, q_max, dt_s, bounds)
     m = _rows_in_box(a_s, f_m2, bounds, kept)
     finite = True
     for r in range(m):
         i = kept[r]
         for j in range(n):
-            finite &= math.isfinite(a_s[i, j])
+            v = a_s[i, j]
+            a9[r, j] = v
+            finite &= math.isfinite(v)
+        a9[r, n] = 0.0
+        bu9[n + 1 + r] = f_m2[i]
+        bl9[n + 1 + r] = -NO_BOUND
+        sense9[n + 1 + r] = 0
         finite &= math.isfinite(f_m2[i])
-    for r in range(x_rate.size):
+    for r in range(k):
         for j in range(n):
-            finite &= math.isfinite(jac[r, j])
-        finite &= math.isfinite(x_rate[r]) and math.isfinite(correction[r])
+            v = jac[r, j]
+            a9[m + r, j] = v
+            finite &= math.isfinite(v)
+        a9[m + r, n] = -x_rate[r]
+        c = correction[r]
+        bu9[n + 1 + m + r] = c
+        bl9[n + 1 + m + r] = c
+        sense9[n + 1 + m + r] = _SENSE_EQUALITY
+        finite &= math.isfinite(x_rate[r]) and math.isfinite(c)
     for j in range(n):
+        bu9[j] = bounds[1, j]
+        bl9[j] = bounds[0, j]
+        sense9[j] = 0
         finite &= math.isfinite(bounds[0, j]) and math.isfinite(bounds[1, j])
+    bu9[n] = 1.0
+    bl9[n] = 0.0
+    sense9[n] = 0
     if not finite:
         return m, _NOT_FINITE
     if empty:
@@ -165,138 +185,53 @@ def _lp9_rows(
 
 
 @_compiled
-def _assemble9(
-    work: Any,
-    w: int,
-    kept: Any,
-    a_s: Any,
-    f_m2: Any,
-    jac: Any,
-    x_rate: Any,
-    correction: Any,
-    bounds: Any,
-    a9: Any,
-    bu9: Any,
-    bl9: Any,
-    sense9: Any,
-) -> int:
-    """LP (9) on the ``w`` rows ``work`` (positions among the ``kept``) into the buffers: A, the bounds and the senses
-    of :func:`gateway.open_control.solve_lp9`. Returns the length of the bounds."""
-    n = bounds.shape[1]
-    k = x_rate.size
-    for r in range(w):
-        i = kept[work[r]]
-        for j in range(n):
-            a9[r, j] = a_s[i, j]
-        a9[r, n] = 0.0
-        bu9[n + 1 + r] = f_m2[i]
-        bl9[n + 1 + r] = -NO_BOUND
-        sense9[n + 1 + r] = 0
-    for r in range(k):
-        for j in range(n):
-            a9[w + r, j] = jac[r, j]
-        a9[w + r, n] = -x_rate[r]
-        c = correction[r]
-        bu9[n + 1 + w + r] = c
-        bl9[n + 1 + w + r] = c
-        sense9[n + 1 + w + r] = _SENSE_EQUALITY
-    for j in range(n):
-        bu9[j] = bounds[1, j]
-        bl9[j] = bounds[0, j]
-        sense9[j] = 0
-    bu9[n] = 1.0
-    bl9[n] = 0.0
-    sense9[n] = 0
-    return int(n + 1 + w + k)
-
-
-@_compiled
-def _add_broken(
-    a_s: Any, f_m2: Any, kept: Any, m: int, qd: Any, count: int, tolerance: float, taken: Any, work: Any, w: int
-) -> int:
-    """:func:`gateway.open_control.rows_broken` appended to ``work`` (and marked in ``taken``): at most ``count`` of the
-    ``m`` kept rows not taken that ``qd`` exceeds by more than ``tolerance``, the most exceeded first. Returns the new
-    length of ``work``."""
-    n = a_s.shape[1]  # ``qd`` may carry the LP's last variable after the joints
-    over = np.empty(m)
-    candidates = np.empty(m, dtype=np.intp)
-    c = 0
-    for r in range(m):
-        if taken[r]:
-            continue
-        i = kept[r]
-        lhs = 0.0
-        scale = 0.0
-        for j in range(n):
-            a = a_s[i, j]
-            lhs += a * qd[j]
-            scale += abs(a) * abs(qd[j])
-        scale += abs(f_m2[i]) + 1.0
-        v = (lhs - f_m2[i]) / scale
-        if v > tolerance:
-            over[c] = -v
-            candidates[c] = r
-            c += 1
-    order = np.argsort(over[:c], kind="mergesort")
-    for t in range(min(c, count)):
-        r = candidates[order[t]]
-        work[w] = r
-        taken[r] = True
-        w += 1
-    return w
-
-
-@_compiled
-def _assemble13(
-    work: Any,
-    w: int,
-    kept: Any,
-    a_s: Any,
-    f_m2: Any,
+def _lp13(
+    m: int,
     jac: Any,
     x_rate: Any,
     correction: Any,
     delta: float,
     qd_self: Any,
     bounds: Any,
+    a9: Any,
+    bu9: Any,
     a13: Any,
     bu13: Any,
     bl13: Any,
     sense13: Any,
-) -> int:
-    """LP (13) at δ on the ``w`` rows ``work`` into the buffers (A, bounds, senses of
-    :func:`gateway.open_control.solve_lp13`). Returns the length of the bounds, or -1 when some of it is not finite."""
+) -> bool:
+    """LP (13) at δ into the buffers (A, bounds, senses of :func:`gateway.open_control.solve_lp13`), its safety rows
+    the ``m`` LP (9) kept (``a9``, ``bu9``). False when some of it is not finite."""
     n = qd_self.size
     k = x_rate.size
     finite = True
-    for r in range(w):
-        i = kept[work[r]]
+    for r in range(m):
         for j in range(n):
-            a13[r, j] = a_s[i, j]
+            a13[r, j] = a9[r, j]
         a13[r, n] = 0.0
-        bu13[n + 1 + r] = f_m2[i]
+        bu13[n + 1 + r] = bu9[n + 1 + r]
         bl13[n + 1 + r] = -NO_BOUND
         sense13[n + 1 + r] = 0
     for r in range(k):
         for j in range(n):
             v = jac[r, j]
-            a13[w + r, j] = v
+            a13[m + r, j] = v
             finite &= math.isfinite(v)
-        a13[w + r, n] = 0.0
+        a13[m + r, n] = 0.0
         target = delta * x_rate[r] + correction[r]
-        bu13[n + 1 + w + r] = target
-        bl13[n + 1 + w + r] = target
-        sense13[n + 1 + w + r] = _SENSE_EQUALITY
+        bu13[n + 1 + m + r] = target
+        bl13[n + 1 + m + r] = target
+        sense13[n + 1 + m + r] = _SENSE_EQUALITY
         finite &= math.isfinite(target)
     gap = 0.0
     first = True
     for j in range(n):
         for v in (bounds[0, j], bounds[1, j], qd_self[j]):
-            g = abs(v)
-            gap = g if first else _nan_max(gap, g)
+            w = abs(v)
+            gap = w if first else _nan_max(gap, w)
             first = False
     gap_max = gap * 2.0 + 1.0
-    base = w + k
+    base = m + k
     for r in range(n):
         for j in range(n):
             a13[base + r, j] = 1.0 if j == r else 0.0  # q̇ − t ≤ q̇⁰
@@ -320,7 +255,7 @@ def _assemble13(
     bl13[n] = 0.0
     sense13[n] = 0
     finite &= math.isfinite(gap_max)
-    return n + 1 + base + 2 * n if finite else -1
+    return finite
 
 
 @_compiled
@@ -342,23 +277,22 @@ def _breaks_a_row(a_s: Any, f_m2: Any, qd: Any) -> bool:
 
 
 @_compiled
-def _tightest(m: int, kept: Any, a_s: Any, f_m2: Any, qd: Any) -> int:
-    """The kept row closest to active (:func:`gateway.open_control.bounded_by`): its position among the ``m`` kept
-    rows, -1 when none is active."""
+def _tightest(m: int, a9: Any, bu9: Any, qd: Any) -> int:
+    """The kept row closest to active (:func:`gateway.open_control.bounded_by`): its position among the kept rows,
+    -1 when none is active."""
     n = qd.size
     best = -1
     best_ratio = 0.0
     best_slack = 0.0
     best_scale = 0.0
     for r in range(m):
-        i = kept[r]
         lhs = 0.0
         scale = 0.0
         for j in range(n):
-            a = a_s[i, j]
+            a = a9[r, j]
             lhs += a * qd[j]
             scale += abs(a) * abs(qd[j])
-        f = f_m2[i]
+        f = bu9[n + 1 + r]
         scale += abs(f) + 1e-12
         slack = f - lhs
         ratio = slack / scale
@@ -405,14 +339,8 @@ class OpenLp:
     def __init__(self) -> None:
         self._shape = (-1, -1, -1)  # (joints n, task rows k, row capacity)
         self._m = 0
-        self._w = 0
-        self._w_end = 0
         self._cost9 = np.zeros(0)
         self._cost13 = np.zeros(0)
-        self.rounds = (0, 0)
-        """How many solves the last :meth:`lp9` and :meth:`lp13` took."""
-        self.rows_solved = (0, 0)
-        """How many rows the last round of the last :meth:`lp9` and :meth:`lp13` carried; of :attr:`rows_in_box`."""
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -432,9 +360,7 @@ class OpenLp:
         rows = max(m_all, 2 * self._shape[2] if self._shape[:2] == (n, k) else 0, 64)
         self._shape = (n, k, rows)
         self._bounds = np.empty((4, n))  # lower, upper, the box's centre and half width
-        self._kept = np.empty(rows, dtype=np.intp)  # the rows within the box, indices into the cycle's rows
-        self._work = np.empty(rows, dtype=np.intp)  # the rows a round solves with, positions among the kept
-        self._taken = np.zeros(rows, dtype=np.bool_)  # per kept row: in ``_work``
+        self._kept = np.empty(rows, dtype=np.intp)
         self._a9 = np.empty((rows + k, n + 1))
         self._bu9 = np.empty(n + 1 + rows + k)
         self._bl9 = np.empty(n + 1 + rows + k)
@@ -457,14 +383,14 @@ class OpenLp:
         limits: Limits,
         dt_s: float,
     ) -> tuple[FloatArray, float] | None:
-        """The bounds, the rows within them and LP (9) by rounds (:func:`gateway.open_control.solve_lp9_by_rounds`
-        after :func:`~gateway.open_control.velocity_bounds` and :func:`~gateway.open_control.rows_within`): the
-        largest δ and a q̇ with it, or None when infeasible, not finite or the solver fails. Leaves the kept rows, the
-        last round's rows and the bounds in the buffers for :meth:`lp13`."""
+        """The bounds, the rows within them and LP (9) (:func:`gateway.open_control.solve_lp9` after
+        :func:`~gateway.open_control.velocity_bounds` and :func:`~gateway.open_control.rows_within`): the largest δ
+        and a q̇ with it, or None when infeasible, not finite or the solver fails. Leaves the kept rows and the bounds
+        in the buffers for :meth:`lp13`."""
         n = qd_prev_radps.size
         k = task.x_rate.size
         self._buffers(n, k, rows.f_m2.size)
-        m, status = _lp9_rows(
+        m, status = _lp9(
             rows.a_s,
             rows.f_m2,
             task.jacobian,
@@ -479,101 +405,56 @@ class OpenLp:
             dt_s,
             self._bounds,
             self._kept,
+            self._a9,
+            self._bu9,
+            self._bl9,
+            self._sense9,
         )
-        self._m, self._w, self._w_end, self.rounds, self.rows_solved = m, 0, 0, (0, 0), (0, 0)
+        self._m = m
         if status != _OK:
             return None
-        self._taken[:m] = False
-        count, rounds = FIRST_ROUND_ROWS, 0
-        w = _add_broken(rows.a_s, rows.f_m2, self._kept, m, qd_prev_radps, count, -math.inf, self._taken, self._work, 0)
-        while True:
-            end = _assemble9(
-                self._work,
-                w,
-                self._kept,
-                rows.a_s,
-                rows.f_m2,
-                task.jacobian,
-                task.x_rate,
-                task.correction,
-                self._bounds,
-                self._a9,
-                self._bu9,
-                self._bl9,
-                self._sense9,
-            )
-            z, _, exitflag, _ = daqp.solve(
-                None, self._cost9, self._a9[: w + k], self._bu9[:end], self._bl9[:end], self._sense9[:end]
-            )
-            rounds += 1
-            self.rounds = (rounds, 0)
-            if exitflag not in _EXIT_OPTIMAL:
-                return None
-            grown = _add_broken(
-                rows.a_s, rows.f_m2, self._kept, m, z, count, BROKEN_TOLERANCE, self._taken, self._work, w
-            )
-            self._w_end = grown
-            if grown == w:
-                self._w = w
-                self.rows_solved = (w, 0)
-                return z[:n], float(min(max(z[n], 0.0), 1.0))
-            w, count = grown, 2 * count
+        end = n + 1 + m + k
+        z, _, exitflag, _ = daqp.solve(
+            None, self._cost9, self._a9[: m + k], self._bu9[:end], self._bl9[:end], self._sense9[:end]
+        )
+        if exitflag not in _EXIT_OPTIMAL:
+            return None
+        return z[:n], float(min(max(z[n], 0.0), 1.0))
 
-    def lp13(
-        self, rows: SafetyRows, task: Task, delta: float, qd_self_radps: FloatArray
-    ) -> tuple[FloatArray, float] | None:
-        """LP (13) at δ by rounds (:func:`gateway.open_control.solve_lp13_by_rounds`) on the kept rows and bounds of
-        the last :meth:`lp9`, its first round on that LP's last rows."""
+    def lp13(self, task: Task, delta: float, qd_self_radps: FloatArray) -> tuple[FloatArray, float] | None:
+        """LP (13) at δ on the rows and bounds of the last :meth:`lp9` (:func:`gateway.open_control.solve_lp13`)."""
         n = qd_self_radps.size
         k = task.x_rate.size
-        m, w, count, rounds = self._m, self._w, FIRST_ROUND_ROWS, 0
-        self._taken[self._work[w : self._w_end]] = False  # an earlier LP (13) of this LP (9) may have added rows
-        while True:
-            end = _assemble13(
-                self._work,
-                w,
-                self._kept,
-                rows.a_s,
-                rows.f_m2,
-                task.jacobian,
-                task.x_rate,
-                task.correction,
-                delta,
-                qd_self_radps,
-                self._bounds,
-                self._a13,
-                self._bu13,
-                self._bl13,
-                self._sense13,
-            )
-            if end < 0:
-                return None
-            z, _, exitflag, _ = daqp.solve(
-                None, self._cost13, self._a13[: w + k + 2 * n], self._bu13[:end], self._bl13[:end], self._sense13[:end]
-            )
-            rounds += 1
-            self.rounds = (self.rounds[0], rounds)
-            if exitflag not in _EXIT_OPTIMAL:
-                return None
-            grown = _add_broken(
-                rows.a_s, rows.f_m2, self._kept, m, z, count, BROKEN_TOLERANCE, self._taken, self._work, w
-            )
-            self._w_end = grown
-            if grown == w:
-                self.rows_solved = (self.rows_solved[0], w)
-                return z[:n], float(z[n])
-            w, count = grown, 2 * count
-
-    @property
-    def rows_in_box(self) -> int:
-        """How many rows the last :meth:`lp9` kept (those some q̇ within its velocity box could break)."""
-        return self._m
+        m = self._m
+        if not _lp13(
+            m,
+            task.jacobian,
+            task.x_rate,
+            task.correction,
+            delta,
+            qd_self_radps,
+            self._bounds,
+            self._a9,
+            self._bu9,
+            self._a13,
+            self._bu13,
+            self._bl13,
+            self._sense13,
+        ):
+            return None
+        end = n + 1 + m + k + 2 * n
+        z, _, exitflag, _ = daqp.solve(
+            None, self._cost13, self._a13[: m + k + 2 * n], self._bu13[:end], self._bl13[:end], self._sense13[:end]
+        )
+        if exitflag not in _EXIT_OPTIMAL:
+            return None
+        return z[:n], float(z[n])
 
     def bounded_by(self, rows: SafetyRows, qd_radps: FloatArray, delta: float, link_names: tuple[str, ...]) -> str:
         """:func:`gateway.open_control.bounded_by` on the rows the last :meth:`lp9` kept."""
         if delta >= 1.0 - 1e-9:
             return "none"
-        r = _tightest(self._m, self._kept, rows.a_s, rows.f_m2, qd_radps)
+        r = _tightest(self._m, self._a9, self._bu9, qd_radps)
         if r < 0:
             return "limits"
         i = int(self._kept[r])
@@ -614,7 +495,7 @@ class OpenLp:
         delta = min(delta_star, allowed)
         why = self.bounded_by(rows, qd9, delta_star, link_names) if delta == delta_star else "zone"
         room = with_self_motion_room(delta, delta_star, task)
-        second = self.lp13(rows, task, room, qd_self_radps)
+        second = self.lp13(task, room, qd_self_radps)
         if second is not None and not _breaks_a_row(rows.a_s, rows.f_m2, second[0]):
             return Solution(second[0], room, "lp13", why, second[1])
         if delta < delta_star:  # LP (9)'s q̇ is for δ*, not for the cap

@@ -23,11 +23,10 @@ import functools
 from typing import Any
 
 import msgspec
-import numba
 import numpy as np
 import numpy.typing as npt
 
-import gateway.kernels  # noqa: F401 (numba's cache directory, where this file's is read-only)
+from gateway.kernels import compiled_with
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -57,7 +56,7 @@ def capsule_table(a_m: FloatArray, b_m: FloatArray, radius_m: FloatArray) -> Flo
     return table
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@compiled_with(nogil=True, inline=True)
 def _write_number(x: float, out: Any, at: int) -> int:
     """``x`` (rounded to 4 decimals) as Python writes it, at ``out[at:]``; the index after it, or -1 where the text
     could differ (see the module)."""
@@ -95,7 +94,7 @@ def _write_number(x: float, out: Any, at: int) -> int:
     return at + width
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@compiled_with(nogil=True, inline=True)
 def _copy(source: Any, out: Any, at: int) -> int:
     for byte in source:  # a loop: a slice assignment makes two array views, dearer than a few bytes
         out[at] = byte
@@ -103,7 +102,7 @@ def _copy(source: Any, out: Any, at: int) -> int:
     return at
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@compiled_with(nogil=True, inline=True)
 def _copy_string_item(array_json: Any, start: int, out: Any, at: int) -> tuple[int, int]:
     """Copy the escaped text of the JSON string item opening at ``array_json[start]`` (its quote), without the
     quotes; the index after its closing quote and after the copy, or (-1, -1) if no item opens or closes there."""
@@ -127,7 +126,7 @@ def _copy_string_item(array_json: Any, start: int, out: Any, at: int) -> tuple[i
     return -1, -1
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@compiled_with(nogil=True, inline=True)
 def _write_numbers(row: Any, keys: Any, out: Any, at: int) -> int:
     """``"a_m":[…],"b_m":[…],"radius_m":…`` of one capsule's row (with the keys around them); -1 as
     :func:`_write_number`."""
@@ -148,7 +147,7 @@ def _write_numbers(row: Any, keys: Any, out: Any, at: int) -> int:
     return at
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@compiled_with(nogil=True)
 def _capsules_text(table: Any, names_json: Any, ids_json: Any, keys: Any, out: Any) -> int:
     """The whole JSON array ``[{"name":…,"a_m":[…],"b_m":[…],"radius_m":…,"human":…},…]`` at ``out``, the names and
     ids copied from their encoded JSON arrays; the length written, or -1 (a number whose text could differ, or

@@ -84,6 +84,17 @@ def _compiled(function: _F) -> _F:
     return cast(_F, numba.njit(cache=True, error_model="numpy")(function))
 
 
+def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F], _F]:
+    """:func:`_compiled` with numba's ``nogil`` (the compiled function runs without the interpreter lock, as a
+    status thread's text beside the loop) and ``inline`` (:func:`_inlined`)."""
+
+    def decorate(function: _F) -> _F:
+        options = {"nogil": nogil, "inline": "always" if inline else "never"}
+        return cast(_F, numba.njit(cache=True, error_model="numpy", **options)(function))
+
+    return decorate
+
+
 def _inlined(function: _F) -> _F:
     """:func:`_compiled`, inlined into its callers (a called function costs twice the arithmetic of a pair)."""
     return cast(_F, numba.njit(cache=True, error_model="numpy", inline="always")(function))

@@ -89,8 +89,8 @@ def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F]
     status thread's text beside the loop) and ``inline`` (:func:`_inlined`)."""
 
     def decorate(function: _F) -> _F:
-        options = {"nogil": nogil, "inline": "always" if inline else "never"}
-        return cast(_F, numba.njit(cache=True, error_model="numpy", **options)(function))
+        jit = numba.njit(cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never")
+        return cast(_F, jit(function))
 
     return decorate
 

@@ -75,18 +75,13 @@ _use_writable_cache_dir()
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 
-def _compiled(function: _F) -> _F:
-    """``numba.njit(cache=True)``, typed for mypy (numba has no type hints).
+def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F], _F]:
+    """``numba.njit(cache=True)``, typed for mypy; ``nogil``: the compiled function runs without the interpreter lock
+    (a status thread's text beside the loop); ``inline``: inlined into its callers.
 
     ``error_model="numpy"``: a division by zero gives inf or nan as in numpy instead of raising, which also
     spares a test per division; no ``fastmath``: IEEE arithmetic, as the numpy reference.
     """
-    return cast(_F, numba.njit(cache=True, error_model="numpy")(function))
-
-
-def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F], _F]:
-    """:func:`_compiled` with numba's ``nogil`` (the compiled function runs without the interpreter lock, as a
-    status thread's text beside the loop) and ``inline`` (:func:`_inlined`)."""
 
     def decorate(function: _F) -> _F:
         jit = numba.njit(cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never")
@@ -95,9 +90,14 @@ def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F]
     return decorate
 
 
+def _compiled(function: _F) -> _F:
+    """:func:`compiled_with` its defaults."""
+    return compiled_with()(function)
+
+
 def _inlined(function: _F) -> _F:
     """:func:`_compiled`, inlined into its callers (a called function costs twice the arithmetic of a pair)."""
-    return cast(_F, numba.njit(cache=True, error_model="numpy", inline="always")(function))
+    return compiled_with(inline=True)(function)
 
 
 # -- forward kinematics ------------------------------------------------------------------------------

@@ -363,6 +363,13 @@ def load_scale(load_per_core: float | None = None) -> float:
     return min(MAX_LOAD_SCALE, max(1.0, load_per_core))
 
 
+def scenario_window_s(loop_s: float) -> float:
+    """How long to record a looping scenario for its whole sequence to show [s]: two loops, stretched by
+    :func:`load_scale`. On a loaded machine the cell may be ready only after the person's first approach began, so one
+    loop from then can miss the sequence's start; record with an ``until`` that ends as soon as it is seen."""
+    return 2.0 * loop_s * load_scale()
+
+
 def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, procs: Sequence[Program] = ()) -> float:
     """Evaluate ``predicate`` every :data:`POLL_S` until it holds; return how long that took [s].
 

@@ -37,10 +37,10 @@ from hrc_tools.cell.procs import (
     free_port,
     is_subsequence,
     late_data_only,
-    load_scale,
     record,
     recovered,
     running_cell,
+    scenario_window_s,
     write_cell_config,
 )
 
@@ -162,12 +162,9 @@ def test_the_default_scenario_through_the_bridge(kind: str, tmp_path: Path) -> N
         cell.wait_until(
             lambda s: s["zone"] == "autonomous" and not s["faults"], READY_S, "a fault-free autonomous cell"
         )
-        # Up to two loops of the scenario (the recording ends as soon as the sequence is seen): on a loaded machine the
-        # cell may be ready only after the person's first approach began, and the sequence starts at autonomous (a
-        # loaded run recorded one loop from guarded_distance on and failed).
         trace = record(
             cell,
-            2 * SCENARIO_S * load_scale(),
+            scenario_window_s(SCENARIO_S),
             until=lambda t: is_subsequence(ZONE_SEQUENCE, collapse([s["zone"] for s in t])),
         )
         _assert_alive(cell)

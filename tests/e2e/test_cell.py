@@ -26,6 +26,7 @@ from hrc_tools.cell.procs import (
     load_scale,
     record,
     running_cell,
+    scenario_window_s,
     stop_program,
     write_cell_config,
 )
@@ -76,7 +77,7 @@ def _back_to_autonomous_for(hold_s: float) -> Callable[[list[dict[str, Any]]], b
 def _run_scenario(tmp_path: Path, config: Path | None) -> list[dict[str, Any]]:
     with running_cell(tmp_path, config=config) as cell:
         cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 20.0, "a fault-free autonomous cell")
-        trace = record(cell, 2 * SCENARIO_S * load_scale(), until=_back_to_autonomous_for(2.0))
+        trace = record(cell, scenario_window_s(SCENARIO_S), until=_back_to_autonomous_for(2.0))
         for name, proc in (("gateway", cell.gateway), ("controller", cell.controller), ("tracker", cell.tracker)):
             assert proc.poll() is None, f"{name} died during the run\n{cell.tail()}"
     return trace

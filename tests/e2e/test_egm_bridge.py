@@ -36,6 +36,7 @@ from hrc_tools.cell.procs import (
     load_scale,
     record,
     running_cell,
+    scenario_window_s,
 )
 
 pytestmark = pytest.mark.e2e
@@ -98,7 +99,7 @@ def test_the_default_scenario_through_egm(egm_cell: Path, tmp_path: Path) -> Non
         ):
             gateway_session.declare_subscriber(keys.robot_joint_command(cell.name, ROBOT), commands.on_sample)
             controller_session.declare_subscriber(keys.truth_robot_state(cell.name, ROBOT), truth.on_sample)
-            trace = record(cell, 2 * SCENARIO_S * load_scale(), ROBOT, until=until_back_to_autonomous)
+            trace = record(cell, scenario_window_s(SCENARIO_S), ROBOT, until=until_back_to_autonomous)
         _assert_alive(cell)
     zones = collapse(["autonomous"] + [s["zone"] for s in trace])  # autonomous: waited for above
     assert is_subsequence(ZONE_SEQUENCE, zones), zones

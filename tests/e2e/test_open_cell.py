@@ -20,7 +20,7 @@ from support.paths import REPO_ROOT
 from hrc_contract import keys
 from hrc_contract.messages import JointCommand, JointState, parse_message
 from hrc_runtime.zenoh_session import session_config
-from hrc_tools.cell.procs import collapse, is_subsequence, load_scale, record, running_cell
+from hrc_tools.cell.procs import collapse, is_subsequence, record, running_cell, scenario_window_s
 
 pytestmark = pytest.mark.e2e
 
@@ -50,7 +50,7 @@ def open_trace(tmp_path_factory: pytest.TempPathFactory) -> tuple[list[dict[str,
                 keys.robot_joint_command(cell.name, ROBOT),
                 lambda sample: commands.append(parse_message(sample.payload.to_bytes(), JointCommand)),
             )
-            trace = record(cell, 2 * SCENARIO_S * load_scale(), ROBOT, until=_until_back_to_autonomous)
+            trace = record(cell, scenario_window_s(SCENARIO_S), ROBOT, until=_until_back_to_autonomous)
         for name in ("gateway", "controller", "tracker"):
             assert cell.procs[name].poll() is None, f"{name} died during the run\n{cell.tail()}"
     return trace, commands

@@ -16,10 +16,10 @@ from hrc_tools.cell.procs import (
     collapse,
     free_endpoint,
     is_subsequence,
-    load_scale,
     record,
     refused_tracker_frames,
     running_cell,
+    scenario_window_s,
 )
 
 pytestmark = pytest.mark.e2e
@@ -40,10 +40,9 @@ def test_the_cell_runs_end_to_end_with_the_trackers_speaking_zed(tmp_path: Path,
     with running_cell(tmp_path, config=config, trackers=trackers) as cell:
         # Generous: three programs and a ROS 2 session start on a loaded 2-core machine.
         cell.wait_until(lambda s: s["zone"] == "autonomous" and not s["faults"], 120.0, "a fault-free autonomous cell")
-        # Up to two loops of the scenario, stretched by the load: recording may begin after the first approach started.
         trace: list[dict[str, Any]] = record(
             cell,
-            2 * SCENARIO_S * load_scale(),
+            scenario_window_s(SCENARIO_S),
             until=lambda t: is_subsequence(ZONES, collapse([s["zone"] for s in t])) and t[-1]["t_s"] > SCENARIO_S,
         )
         status = cell.get("/api/v1/status").json()

@@ -17,7 +17,9 @@ Two compiled calls per robot and cycle instead of ~100 numpy calls and ~20 Pinoc
   numba's on-disk cache (``cache=True``), so the first cycle is not slow.
 
 The compiled code specialises on the argument types: the wrappers pass C-contiguous float64 arrays, the types
-the kernels are compiled for at start-up.
+the kernels are compiled for at start-up. The kernels a tracker frame's capsules go through (the door's numbers, the
+tracks' bodies and moves, the capsule columns) are compiled for one type instead, any layout and read only
+(:data:`_POINTS`), and read the frame's views of one (H, 7) array without copying them.
 """
 
 from __future__ import annotations
@@ -75,16 +77,19 @@ _use_writable_cache_dir()
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 
-def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F], _F]:
+def compiled_with(*, nogil: bool = False, inline: bool = False, signature: Any = None) -> Callable[[_F], _F]:
     """``numba.njit(cache=True)``, typed for mypy; ``nogil``: the compiled function runs without the interpreter lock
-    (a status thread's text beside the loop); ``inline``: inlined into its callers.
+    (a status thread's text beside the loop); ``inline``: inlined into its callers; ``signature``: the one type it is
+    compiled for, at import (from the cache), and every call converted to, never compiled anew (:data:`_POINTS`).
 
     ``error_model="numpy"``: a division by zero gives inf or nan as in numpy instead of raising, which also
     spares a test per division; no ``fastmath``: IEEE arithmetic, as the numpy reference.
     """
 
     def decorate(function: _F) -> _F:
-        jit = numba.njit(cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never")
+        jit = numba.njit(
+            signature, cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never"
+        )
         return cast(_F, jit(function))
 
     return decorate
@@ -98,6 +103,21 @@ def _compiled(function: _F) -> _F:
 def _inlined(function: _F) -> _F:
     """:func:`_compiled`, inlined into its callers (a called function costs twice the arithmetic of a pair)."""
     return compiled_with(inline=True)(function)
+
+
+_POINTS = numba.types.Array(numba.types.float64, 2, "A", readonly=True)
+"""A frame's capsule end points as the frame kernels take them: any layout, read only. A tracker frame's capsules are
+views of one (H, 7) array (``hrc_contract.humans``): a kernel typed for them reads the views where one typed for
+C-contiguous arrays needs three copies (~30 µs for 2000 capsules here, more than its arithmetic), and a C-contiguous
+or read-only array converts to this type instead of compiling another version in the loop."""
+_VALUES = numba.types.Array(numba.types.float64, 1, "A", readonly=True)
+"""A frame's radii (the column of the (H, 7) array), or another float64 vector: any layout, read only."""
+_INDICES = numba.types.Array(numba.types.int64, 1, "A", readonly=True)
+"""Where each person's capsules start (int64), any layout, read only."""
+_ARRAY_1D = numba.types.float64[::1]
+_tuple: Any = numba.types.Tuple  # untyped in numba's stubs
+_ARRAY_2D = numba.types.float64[:, ::1]
+_FLAGS = numba.types.boolean[::1]
 
 
 # -- forward kinematics ------------------------------------------------------------------------------
@@ -269,7 +289,7 @@ def _segment_pair(
     return np.sqrt(gx * gx + gy * gy + gz * gz), s, t
 
 
-@_compiled
+@compiled_with(signature=_ARRAY_2D(_POINTS, _POINTS))
 def _columns(p_a: Any, p_b: Any) -> Any:
     """Segments as columns, shape (11, N): a (x, y, z), b (x, y, z), d = b − a (x, y, z), ‖d‖², and a row for
     the radii (left unset)."""
@@ -317,10 +337,16 @@ def _kernel_array(x: FloatArray) -> FloatArray:
     return x if x.flags.writeable else x.copy()
 
 
+def _float64(x: FloatArray) -> FloatArray:
+    """``x`` as a kernel typed with :data:`_POINTS` or :data:`_VALUES` takes it: itself if float64 (any layout, read
+    only or not: no copy), else converted."""
+    return x if x.dtype == np.float64 else np.asarray(x, dtype=np.float64)
+
+
 def capsule_columns(humans: HumanCapsules) -> FloatArray:
     """The capsules as the compiled rows take them, shape (11, H): h_a, h_b, h_b − h_a (x, y, z each),
     ‖h_b − h_a‖² and the radius [m]. Computed once per tracker frame, not once per robot and cycle."""
-    columns: FloatArray = _columns(_kernel_array(humans.h_a_world), _kernel_array(humans.h_b_world))
+    columns: FloatArray = _columns(_float64(humans.h_a_world), _float64(humans.h_b_world))
     columns[10] = humans.radius_m
     return columns
 
@@ -723,7 +749,11 @@ def bodies_near(
 # -- the door: a tracker frame's numbers for the plausibility rules (hrc_contract.humans) --------------------------
 
 
-@_compiled
+@compiled_with(
+    signature=_tuple((numba.types.boolean, numba.types.float64, numba.types.float64, _ARRAY_1D))(
+        _POINTS, _POINTS, _VALUES, _INDICES, _VALUES, _VALUES
+    )
+)
 def _frame_numbers(h_a: Any, h_b: Any, radius: Any, starts: Any, low: Any, high: Any) -> Any:
     n_people = starts.shape[0] - 1
     inside = True
@@ -767,9 +797,9 @@ def frame_numbers(capsules: HumanCapsules, starts: Sequence[int], plausibility: 
     if n == 0 or len(starts) < 2 or starts[0] != 0 or starts[-1] != n or not all(map(operator.lt, starts, starts[1:])):
         raise ValueError(f"frame_numbers: {n} capsules and starts {list(starts)[:8]}…; a person has a capsule")
     inside, longest_sq, r_max, extent = _frame_numbers(
-        _kernel_array(capsules.h_a_world),
-        _kernel_array(capsules.h_b_world),
-        _kernel_array(capsules.radius_m),
+        _float64(capsules.h_a_world),
+        _float64(capsules.h_b_world),
+        _float64(capsules.radius_m),
         np.array(starts, dtype=np.int64),
         np.array(plausibility.world_min_m, dtype=np.float64),
         np.array(plausibility.world_max_m, dtype=np.float64),
@@ -804,7 +834,7 @@ def check_frame_numbers(seed: int = CHECK_SEED) -> None:
 # -- the tracks' frame path (gateway/tracks.py): one compiled call where numpy took a dozen --------------
 
 
-@_compiled
+@compiled_with(signature=_tuple((_ARRAY_2D, _ARRAY_2D, _ARRAY_2D, _ARRAY_1D))(_POINTS, _POINTS, _VALUES, _INDICES))
 def _frame_bodies(h_a: Any, h_b: Any, radius: Any, starts: Any) -> Any:
     n_people = starts.shape[0] - 1
     centres = np.empty((n_people, 3))
@@ -842,11 +872,11 @@ def frame_bodies(
     if starts.shape[0] < 2:
         return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
     return _frame_bodies(  # type: ignore[no-any-return]
-        _kernel_array(capsules.h_a_world), _kernel_array(capsules.h_b_world), _kernel_array(capsules.radius_m), starts
+        _float64(capsules.h_a_world), _float64(capsules.h_b_world), _float64(capsules.radius_m), starts
     )
 
 
-@_compiled
+@compiled_with(signature=_FLAGS(_POINTS, _POINTS, _VALUES, _POINTS, _POINTS, _VALUES, _INDICES, numba.types.float64))
 def _moved_within(b_a: Any, b_b: Any, b_r: Any, a_a: Any, a_b: Any, a_r: Any, starts: Any, reach_m: float) -> Any:
     n_people = starts.shape[0] - 1
     out = np.empty(n_people, dtype=np.bool_)
@@ -873,12 +903,12 @@ def moved_within(
     if starts.shape[0] < 2:
         return np.zeros(0, dtype=bool)
     return _moved_within(  # type: ignore[no-any-return]
-        _kernel_array(before.h_a_world),
-        _kernel_array(before.h_b_world),
-        _kernel_array(before.radius_m),
-        _kernel_array(after.h_a_world),
-        _kernel_array(after.h_b_world),
-        _kernel_array(after.radius_m),
+        _float64(before.h_a_world),
+        _float64(before.h_b_world),
+        _float64(before.radius_m),
+        _float64(after.h_a_world),
+        _float64(after.h_b_world),
+        _float64(after.radius_m),
         starts,
         float(reach_m),
     )

@@ -279,6 +279,8 @@ def humans_from_packed(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
     human_ids: list[str] = []
     names: list[str] = []
     blocks: list[bytes] = []
+    starts = [0]  # _starts_of_runs, in the same pass
+    previous = None
     for k, human in enumerate(wire.humans):
         count = len(human.names)
         if len(human.capsules) != count * PACKED_ROW_BYTES:
@@ -287,19 +289,24 @@ def humans_from_packed(payload: bytes) -> tuple[HumansHeader, HumanCapsules]:
                 f"humans[{k}]: {len(human.capsules)} bytes of capsules for {count} names "
                 f"({PACKED_ROW_BYTES} bytes each expected)",
             )
-        human_ids.extend([f"{tracker}/{human.id}"] * count)
+        if human.id != previous and names:
+            starts.append(len(names))
+        previous = human.id
+        human_ids.extend([f"{tracker}/{previous}"] * count)
         names.extend(human.names)
         blocks.append(human.capsules)
-        if len(names) > MAX_CAPSULES_PER_MESSAGE:
-            raise MessageError("invalid", f"more than {MAX_CAPSULES_PER_MESSAGE} capsules in one message")
-    rows = np.frombuffer(b"".join(blocks), dtype=_PACKED_ROW).astype(np.float64).reshape(-1, 7)
+    if len(names) > MAX_CAPSULES_PER_MESSAGE:  # the work above is bounded by the payload's size
+        raise MessageError("invalid", f"more than {MAX_CAPSULES_PER_MESSAGE} capsules in one message")
+    if names:
+        starts.append(len(names))
+    # joined into a bytearray: the array is writable without a second copy (bytes would give a read-only one)
+    rows = np.frombuffer(bytearray().join(blocks), dtype=_PACKED_ROW).astype(np.float64, copy=False).reshape(-1, 7)
     if not np.isfinite(rows).all():
         raise MessageError("non_finite", "a capsule coordinate or radius is not a finite number")
     radius = rows[:, 6]
     if radius.size and not ((radius >= 0.0) & (radius <= 2.0)).all():
         raise MessageError("invalid", "a capsule radius outside 0 to 2 m")
-    starts = _starts_of_runs([h.id for h in wire.humans], [len(h.names) for h in wire.humans])
-    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans), starts)
+    header = HumansHeader(tracker, wire.seq, wire.stamp_ns, len(wire.humans), tuple(starts))
     return header, _from_rows(rows, human_ids, names)
 
 
@@ -424,9 +431,9 @@ def _implausible_person(
     :class:`FrameNumbers`). Every person judged in a few array operations; the first person found wanting is
     described as a check person by person would (too many parts, then a part name twice, then too large)."""
     ids = capsules.human_ids
-    if len(set(ids)) != len(starts) - 1:
-        return "duplicate_human_id", "a human id listed twice in one frame"
     firsts = starts[:-1]
+    if len(set(map(ids.__getitem__, firsts))) != len(firsts):  # one id per run of capsules: its first names it
+        return "duplicate_human_id", "a human id listed twice in one frame"
     counts = np.diff(starts)
     names = capsules.capsule_names
     distinct = np.fromiter(map(len, map(set, map(names.__getitem__, map(slice, firsts, starts[1:])))), np.intp)

@@ -432,6 +432,47 @@ def test_the_compiled_frame_bodies_equal_numpy() -> None:
     np.testing.assert_array_equal(compiled[2][1], [2.0, 0.2, 1.7])  # upper corner
 
 
+def _layouts(frame: HumanCapsules) -> dict[str, HumanCapsules]:
+    """``frame`` as the door gives it (views of one (H, 7) array), read only, and as separate C- and F-ordered ones."""
+    rows = np.concatenate((frame.h_a_world, frame.h_b_world, frame.radius_m[:, None]), axis=1)
+    frozen = rows.copy()
+    frozen.flags.writeable = False
+    ids, names = frame.human_ids, frame.capsule_names
+    return {
+        "views of the rows": HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], ids, names),
+        "read only": HumanCapsules(frozen[:, 0:3], frozen[:, 3:6], frozen[:, 6], ids, names),
+        "C": HumanCapsules(*(np.ascontiguousarray(x) for x in frame[:3]), ids, names),
+        "Fortran": HumanCapsules(*(np.asfortranarray(x) for x in frame[:3]), ids, names),
+    }
+
+
+def test_the_frame_kernels_read_any_layout_without_copying_or_compiling() -> None:
+    """A frame's capsules are views of one array: the frame kernels are typed for any layout, read only or not, so they
+    read the views (no copy) and every layout converts to that one type (no compile in the loop), with the same
+    numbers as numpy."""
+    from hrc_contract.humans import frame_numbers
+
+    names = ("_frame_numbers", "_frame_bodies", "_moved_within", "_columns")
+    compiled = {name: getattr(kernels, name).signatures for name in names}
+    plausibility = PlausibilityConfig()
+    frame, starts = _two_people()
+    moved, _ = _two_people(shift_m=0.25)
+    for layout, capsules in _layouts(frame).items():
+        got = kernels.frame_numbers(capsules, list(starts), plausibility)
+        want = frame_numbers(frame, list(starts), plausibility)
+        assert got[:3] == want[:3], layout
+        np.testing.assert_array_equal(got.extent_m, want.extent_m)
+        for got_bodies, want_bodies in zip(
+            kernels.frame_bodies(capsules, starts), tracks.frame_bodies_reference(frame, list(starts)), strict=True
+        ):
+            np.testing.assert_array_equal(got_bodies, want_bodies)
+        assert kernels.moved_within(capsules, moved, starts, 0.25).tolist() == [True, True], layout
+        assert kernels.moved_within(moved, capsules, starts, 0.2).tolist() == [False, False], layout
+        np.testing.assert_array_equal(kernels.capsule_columns(capsules)[3:6], frame.h_b_world.T)
+    assert {name: getattr(kernels, name).signatures for name in names} == compiled
+    assert all(len(signatures) == 1 for signatures in compiled.values())
+
+
 def test_others_maybe_near_skips_the_same_person_and_every_track_not_seen() -> None:
     """Three rows at one body's box: another person's seen track (a candidate), the same person's, another person's
     lost one: only the first is a candidate, compiled and numpy alike."""

@@ -7,11 +7,12 @@ each answer checked against every row), and those calls cost 1–3 µs each, mor
 a compiled call per step does the same arithmetic in the same order into preallocated buffers (grown when a cycle
 has more rows than any before), and DAQP is called as the reference calls it.
 
-``daqp.solve`` is already the cheapest entry that keeps the answer: it wraps the arrays without copying them (C-ordered
-float64 and int32 senses, as the buffers are) and calls DAQP's C solver cold; DAQP's own setup and solve are all but
-~2 µs of it (~10 µs at 240 rows). A reused ``daqp.Model`` does not fit: its ``update`` keeps the dimensions of its
-``setup`` (the rows kept change every cycle) and starts from the previous active set, which may end on another vertex
-of a degenerate LP (13) — another answer.
+DAQP is called directly (:mod:`gateway.daqp_direct`: ``daqp_quadprog`` through ctypes on these buffers, the
+structures bound when the buffers are made), where ``daqp.solve``, the reference's entry, spends ~3.5 µs per call in
+its wrapper; where the installed DAQP is not the one declared there, ``daqp.solve`` as the reference. Both run DAQP's C
+solver cold on the same data with the same settings: the same answers. A reused ``daqp.Model`` does not fit: its
+``update`` keeps the dimensions of its ``setup`` (the rows kept change every cycle) and starts from the previous
+active set, which may end on another vertex of a degenerate LP (13) — another answer.
 
 The control flow of :meth:`OpenLp.decide` is the reference's, line by line, with the same fail-closed exits:
 non-finite data or an empty velocity box → LP (9) infeasible → ramp stop; an answer that breaks a row → ramp stop;
@@ -26,6 +27,8 @@ cannot bind); a check at exactly :data:`ROW_TOLERANCE` may round the other way.
 
 from __future__ import annotations
 
+import functools
+import logging
 import math
 from collections.abc import Callable
 from typing import Any
@@ -33,6 +36,7 @@ from typing import Any
 import daqp
 import numpy as np
 
+from gateway.daqp_direct import DirectLp, direct_lp_or_none
 from gateway.kernels import _compiled
 from gateway.open_control import (
     _EXIT_OPTIMAL,
@@ -47,9 +51,21 @@ from gateway.open_control import (
     with_self_motion_room,
 )
 
+log = logging.getLogger(__name__)
+
 _OK = 0
 _NOT_FINITE = 1
 _EMPTY_BOX = 2
+
+
+@functools.cache
+def _direct_lp_usable() -> bool:
+    """Whether DAQP is called directly (:mod:`gateway.daqp_direct`); said once in the log when it is not."""
+    why_not = direct_lp_or_none()
+    if why_not is not None:
+        log.warning("DAQP called through daqp.solve, not directly: %s", why_not)
+    return why_not is None
+
 
 # -- kernels ---------------------------------------------------------------------------------------------------
 
@@ -341,6 +357,8 @@ class OpenLp:
         self._m = 0
         self._cost9 = np.zeros(0)
         self._cost13 = np.zeros(0)
+        self._direct9: DirectLp | None = None
+        self._direct13: DirectLp | None = None
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -373,6 +391,10 @@ class OpenLp:
         self._cost9[n] = -1.0
         self._cost13 = np.zeros(n + 1)
         self._cost13[n] = 1.0
+        self._direct9 = self._direct13 = None
+        if _direct_lp_usable():
+            self._direct9 = DirectLp(self._cost9, self._a9, self._bu9, self._bl9, self._sense9)
+            self._direct13 = DirectLp(self._cost13, self._a13, self._bu13, self._bl13, self._sense13)
 
     def lp9(
         self,
@@ -413,13 +435,16 @@ class OpenLp:
         self._m = m
         if status != _OK:
             return None
-        end = n + 1 + m + k
-        z, _, exitflag, _ = daqp.solve(
-            None, self._cost9, self._a9[: m + k], self._bu9[:end], self._bl9[:end], self._sense9[:end]
-        )
+        if self._direct9 is not None:
+            exitflag, z = self._direct9.solve(m + k), self._direct9.z
+        else:
+            end = n + 1 + m + k
+            z, _, exitflag, _ = daqp.solve(
+                None, self._cost9, self._a9[: m + k], self._bu9[:end], self._bl9[:end], self._sense9[:end]
+            )
         if exitflag not in _EXIT_OPTIMAL:
             return None
-        return z[:n], float(min(max(z[n], 0.0), 1.0))
+        return z[:n].copy(), float(min(max(z[n], 0.0), 1.0))
 
     def lp13(self, task: Task, delta: float, qd_self_radps: FloatArray) -> tuple[FloatArray, float] | None:
         """LP (13) at δ on the rows and bounds of the last :meth:`lp9` (:func:`gateway.open_control.solve_lp13`)."""
@@ -442,13 +467,16 @@ class OpenLp:
             self._sense13,
         ):
             return None
-        end = n + 1 + m + k + 2 * n
-        z, _, exitflag, _ = daqp.solve(
-            None, self._cost13, self._a13[: m + k + 2 * n], self._bu13[:end], self._bl13[:end], self._sense13[:end]
-        )
+        if self._direct13 is not None:
+            exitflag, z = self._direct13.solve(m + k + 2 * n), self._direct13.z
+        else:
+            end = n + 1 + m + k + 2 * n
+            z, _, exitflag, _ = daqp.solve(
+                None, self._cost13, self._a13[: m + k + 2 * n], self._bu13[:end], self._bl13[:end], self._sense13[:end]
+            )
         if exitflag not in _EXIT_OPTIMAL:
             return None
-        return z[:n], float(z[n])
+        return z[:n].copy(), float(z[n])
 
     def bounded_by(self, rows: SafetyRows, qd_radps: FloatArray, delta: float, link_names: tuple[str, ...]) -> str:
         """:func:`gateway.open_control.bounded_by` on the rows the last :meth:`lp9` kept."""

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from gateway import open_control
+from gateway.daqp_direct import DirectLp
 from gateway.open_control import Limits, SafetyRows, Solution, Task
 from gateway.open_kernels import OpenLp
 
@@ -266,10 +267,30 @@ def test_a_solver_answer_that_breaks_a_row_or_fails_is_never_sent(
     answers: dict[str, Solution] = {}
     for name, decide in (("ours", OpenLp().decide), ("theirs", open_control.decide)):
         monkeypatch.setattr("daqp.solve", _lying_solve(lies))
+        monkeypatch.setattr(DirectLp, "solve", _lying_direct_solve(lies))
         answers[name] = _decide(decide, problem)[0]
         monkeypatch.undo()
     assert answers["ours"].how == how
     _same(answers["ours"], answers["theirs"], problem)
+
+
+def _lying_direct_solve(lies: tuple[int, ...]) -> Any:
+    """:meth:`DirectLp.solve` that lies or fails as :func:`_lying_solve` does (the path the loop takes where DAQP is
+    called directly)."""
+    real_solve = DirectLp.solve
+    calls = [0]
+
+    def solve(self: DirectLp, rows: int) -> int:
+        calls[0] += 1
+        if not lies:
+            self.z[:] = 0.0
+            return -1
+        if calls[0] - 1 in lies:
+            self.z[:] = 50.0
+            return 1
+        return real_solve(self, rows)
+
+    return solve
 
 
 def _lying_solve(lies: tuple[int, ...]) -> Any:

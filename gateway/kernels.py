@@ -19,7 +19,7 @@ Two compiled calls per robot and cycle instead of ~100 numpy calls and ~20 Pinoc
 The compiled code specialises on the argument types: the wrappers pass C-contiguous float64 arrays, the types
 the kernels are compiled for at start-up. The kernels a tracker frame's capsules go through (the door's numbers, the
 tracks' bodies and moves, the capsule columns) are compiled for one type instead, any layout and read only
-(:data:`_POINTS`), and read the frame's views of one (H, 7) array without copying them.
+(:data:`_POINTS`, :class:`_OneType`), and read the frame's views of one (H, 7) array without copying them.
 """
 
 from __future__ import annotations
@@ -77,19 +77,16 @@ _use_writable_cache_dir()
 _F = TypeVar("_F", bound=Callable[..., Any])
 
 
-def compiled_with(*, nogil: bool = False, inline: bool = False, signature: Any = None) -> Callable[[_F], _F]:
+def compiled_with(*, nogil: bool = False, inline: bool = False) -> Callable[[_F], _F]:
     """``numba.njit(cache=True)``, typed for mypy; ``nogil``: the compiled function runs without the interpreter lock
-    (a status thread's text beside the loop); ``inline``: inlined into its callers; ``signature``: the one type it is
-    compiled for, at import (from the cache), and every call converted to, never compiled anew (:data:`_POINTS`).
+    (a status thread's text beside the loop); ``inline``: inlined into its callers.
 
     ``error_model="numpy"``: a division by zero gives inf or nan as in numpy instead of raising, which also
     spares a test per division; no ``fastmath``: IEEE arithmetic, as the numpy reference.
     """
 
     def decorate(function: _F) -> _F:
-        jit = numba.njit(
-            signature, cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never"
-        )
+        jit = numba.njit(cache=True, error_model="numpy", nogil=nogil, inline="always" if inline else "never")
         return cast(_F, jit(function))
 
     return decorate
@@ -114,6 +111,35 @@ _VALUES = numba.types.Array(numba.types.float64, 1, "A", readonly=True)
 """A frame's radii (the column of the (H, 7) array), or another float64 vector: any layout, read only."""
 _INDICES = numba.types.Array(numba.types.int64, 1, "A", readonly=True)
 """Where each person's capsules start (int64), any layout, read only."""
+
+
+class _OneType:
+    """A kernel compiled for one signature, at its first call (from numba's cache; a process that imports the kernels
+    without calling this one, the HTTP child, pays nothing), after which it compiles nothing more: a call of another
+    layout converts to that signature instead of compiling a version of its own in the loop."""
+
+    def __init__(self, function: Callable[..., Any], signature: Any) -> None:
+        self._dispatcher: Any = numba.njit(cache=True, error_model="numpy")(function)
+        self._signature = signature
+        self._ready = False
+
+    def __call__(self, *args: Any) -> Any:
+        if not self._ready:  # compile, then refuse to compile more, before the first call (any thread; idempotent)
+            self._dispatcher.compile(self._signature)
+            self._dispatcher.disable_compile()
+            self._ready = True
+        return self._dispatcher(*args)
+
+    @property
+    def signatures(self) -> list[Any]:
+        return list(self._dispatcher.signatures)
+
+
+def _for_one_type(signature: Any) -> Callable[[Callable[..., Any]], _OneType]:
+    """:class:`_OneType` as a decorator."""
+    return functools.partial(_OneType, signature=signature)
+
+
 _ARRAY_1D = numba.types.float64[::1]
 _tuple: Any = numba.types.Tuple  # untyped in numba's stubs
 _ARRAY_2D = numba.types.float64[:, ::1]
@@ -289,7 +315,7 @@ def _segment_pair(
     return np.sqrt(gx * gx + gy * gy + gz * gz), s, t
 
 
-@compiled_with(signature=_ARRAY_2D(_POINTS, _POINTS))
+@_compiled
 def _columns(p_a: Any, p_b: Any) -> Any:
     """Segments as columns, shape (11, N): a (x, y, z), b (x, y, z), d = b − a (x, y, z), ‖d‖², and a row for
     the radii (left unset)."""
@@ -337,6 +363,12 @@ def _kernel_array(x: FloatArray) -> FloatArray:
     return x if x.flags.writeable else x.copy()
 
 
+@_for_one_type(_ARRAY_2D(_POINTS, _POINTS))
+def _capsule_columns(h_a: Any, h_b: Any) -> Any:
+    """:func:`_columns` of a frame's capsules, read where they are (:data:`_POINTS`)."""
+    return _columns(h_a, h_b)
+
+
 def _float64(x: FloatArray) -> FloatArray:
     """``x`` as a kernel typed with :data:`_POINTS` or :data:`_VALUES` takes it: itself if float64 (any layout, read
     only or not: no copy), else converted."""
@@ -346,7 +378,7 @@ def _float64(x: FloatArray) -> FloatArray:
 def capsule_columns(humans: HumanCapsules) -> FloatArray:
     """The capsules as the compiled rows take them, shape (11, H): h_a, h_b, h_b − h_a (x, y, z each),
     ‖h_b − h_a‖² and the radius [m]. Computed once per tracker frame, not once per robot and cycle."""
-    columns: FloatArray = _columns(_float64(humans.h_a_world), _float64(humans.h_b_world))
+    columns: FloatArray = _capsule_columns(_float64(humans.h_a_world), _float64(humans.h_b_world))
     columns[10] = humans.radius_m
     return columns
 
@@ -749,8 +781,8 @@ def bodies_near(
 # -- the door: a tracker frame's numbers for the plausibility rules (hrc_contract.humans) --------------------------
 
 
-@compiled_with(
-    signature=_tuple((numba.types.boolean, numba.types.float64, numba.types.float64, _ARRAY_1D))(
+@_for_one_type(
+    _tuple((numba.types.boolean, numba.types.float64, numba.types.float64, _ARRAY_1D))(
         _POINTS, _POINTS, _VALUES, _INDICES, _VALUES, _VALUES
     )
 )
@@ -834,7 +866,7 @@ def check_frame_numbers(seed: int = CHECK_SEED) -> None:
 # -- the tracks' frame path (gateway/tracks.py): one compiled call where numpy took a dozen --------------
 
 
-@compiled_with(signature=_tuple((_ARRAY_2D, _ARRAY_2D, _ARRAY_2D, _ARRAY_1D))(_POINTS, _POINTS, _VALUES, _INDICES))
+@_for_one_type(_tuple((_ARRAY_2D, _ARRAY_2D, _ARRAY_2D, _ARRAY_1D))(_POINTS, _POINTS, _VALUES, _INDICES))
 def _frame_bodies(h_a: Any, h_b: Any, radius: Any, starts: Any) -> Any:
     n_people = starts.shape[0] - 1
     centres = np.empty((n_people, 3))
@@ -876,7 +908,7 @@ def frame_bodies(
     )
 
 
-@compiled_with(signature=_FLAGS(_POINTS, _POINTS, _VALUES, _POINTS, _POINTS, _VALUES, _INDICES, numba.types.float64))
+@_for_one_type(_FLAGS(_POINTS, _POINTS, _VALUES, _POINTS, _POINTS, _VALUES, _INDICES, numba.types.float64))
 def _moved_within(b_a: Any, b_b: Any, b_r: Any, a_a: Any, a_b: Any, a_r: Any, starts: Any, reach_m: float) -> Any:
     n_people = starts.shape[0] - 1
     out = np.empty(n_people, dtype=np.bool_)

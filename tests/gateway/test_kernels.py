@@ -350,7 +350,7 @@ def test_rows_of_degenerate_links_and_no_capsules(ur5: RobotModel) -> None:
 def test_the_loop_never_compiles(cell_config: CellConfig, ur5: RobotModel) -> None:
     """Building the core compiles every kernel the loop calls; stepping it with real input adds no signature."""
     cell = Cell(cell_config, ur5)
-    compiled = {name: len(getattr(kernels, name).signatures) for name in ("_cycle", "_columns")}
+    compiled = {name: len(getattr(kernels, name).signatures) for name in ("_cycle", "_capsule_columns")}
     assert all(compiled.values())
     for k, capsules in enumerate(([], [FAR_TORSO], [NEAR_HAND, FAR_TORSO])):
         now = NOW + k * 4_000_000
@@ -362,7 +362,7 @@ def test_the_loop_never_compiles(cell_config: CellConfig, ur5: RobotModel) -> No
 def test_capsules_of_any_layout_use_the_compiled_columns(ur5: RobotModel) -> None:
     """Read-only or strided capsule arrays are converted, not compiled for (a compile in the loop takes seconds)."""
     RobotKernels(ur5, SafetyConfig())
-    compiled = len(kernels._columns.signatures)
+    compiled = len(kernels._capsule_columns.signatures)
     points = np.arange(18.0).reshape(6, 3)
     points.flags.writeable = False
     strided = np.asfortranarray(points[::2])
@@ -371,7 +371,7 @@ def test_capsules_of_any_layout_use_the_compiled_columns(ur5: RobotModel) -> Non
         columns = kernels.capsule_columns(humans)
         np.testing.assert_array_equal(columns[0:3], h.T)
         np.testing.assert_array_equal(columns[10], 0.1)
-    assert len(kernels._columns.signatures) == compiled
+    assert len(kernels._capsule_columns.signatures) == compiled
 
 
 def test_a_read_only_source_tree_caches_in_the_temp_dir(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -452,8 +452,7 @@ def test_the_frame_kernels_read_any_layout_without_copying_or_compiling() -> Non
     numbers as numpy."""
     from hrc_contract.humans import frame_numbers
 
-    names = ("_frame_numbers", "_frame_bodies", "_moved_within", "_columns")
-    compiled = {name: getattr(kernels, name).signatures for name in names}
+    names = ("_frame_numbers", "_frame_bodies", "_moved_within", "_capsule_columns")
     plausibility = PlausibilityConfig()
     frame, starts = _two_people()
     moved, _ = _two_people(shift_m=0.25)
@@ -469,8 +468,7 @@ def test_the_frame_kernels_read_any_layout_without_copying_or_compiling() -> Non
         assert kernels.moved_within(capsules, moved, starts, 0.25).tolist() == [True, True], layout
         assert kernels.moved_within(moved, capsules, starts, 0.2).tolist() == [False, False], layout
         np.testing.assert_array_equal(kernels.capsule_columns(capsules)[3:6], frame.h_b_world.T)
-    assert {name: getattr(kernels, name).signatures for name in names} == compiled
-    assert all(len(signatures) == 1 for signatures in compiled.values())
+    assert {name: len(getattr(kernels, name).signatures) for name in names} == dict.fromkeys(names, 1)
 
 
 def test_others_maybe_near_skips_the_same_person_and_every_track_not_seen() -> None:

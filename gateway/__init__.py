@@ -6,6 +6,7 @@ __all__ = [
     "capsules_json",
     "contact",
     "core",
+    "daqp_direct",
     "delay",
     "events",
     "handoff",

@@ -31,7 +31,16 @@ STEP_IN_S = 25.0
 OMPL and TOPP-RA; seconds on a loaded machine). A person already there when the robot starts can meet it before its
 planner answers: the robot crept on, then stood in a protective stop that no plan can lift (seen on a loaded
 host) [s]."""
-IN_THE_SWING_TOML = f"""
+STEP_IN_WITHOUT_PLANNER_S = 8.0
+"""Without a planner there is none to wait for: the person steps in this long after the start. If the robot is not
+running yet then, it stands from its start, which is the evidence asked of it too [s]."""
+
+
+def _in_the_swing_toml(step_in_s: float) -> str:
+    """The scenario, the person stepping in ``step_in_s`` after the start. Paper 2's set-up
+    (tests/hrc_tools/sim/test_planner_cell.py): the straight swing passes within the protective band (the robot slows
+    to δ < 0.2 there), a tucked one does not. The walk in is at 1.1 m/s (within K)."""
+    return f"""
 description = "a person walks in from 5 m and stands 1.8 m in front of the robot, in its wide swing, from then on"
 duration_s = 600.0
 loop = false
@@ -45,12 +54,12 @@ xy_m = [5.0, 3.5]
 heading_rad = 3.8
 
 [[humans.keyframes]]
-t_s = {STEP_IN_S}
+t_s = {step_in_s}
 xy_m = [5.0, 3.5]
 heading_rad = 3.8
 
 [[humans.keyframes]]
-t_s = {STEP_IN_S + 4.0}
+t_s = {step_in_s + 4.0}
 xy_m = [1.8, 0.0]
 heading_rad = 3.141592653589793
 
@@ -59,8 +68,8 @@ t_s = 600.0
 xy_m = [1.8, 0.0]
 heading_rad = 3.141592653589793
 """
-"""Paper 2's set-up (tests/hrc_tools/sim/test_planner_cell.py): the straight swing passes within the protective band
-(the robot slows to δ < 0.2 there), a tucked one does not. The walk in is at 1.1 m/s (within K)."""
+
+
 ARRIVED_M = 2.0
 """The person counts as arrived once this near the robot (the recording starts then) [m]."""
 
@@ -86,13 +95,15 @@ def _waited(trace: list[dict[str, Any]]) -> bool:
     return all(s["delta"] == 0.0 for s in last) and nearest_m is not None and nearest_m < ARRIVED_M
 
 
-def _planner_cell(tmp_path: Path, replan_delta_below: float | None = None, **planner: Any) -> Path:
+def _planner_cell(
+    tmp_path: Path, replan_delta_below: float | None = None, step_in_s: float = STEP_IN_S, **planner: Any
+) -> Path:
     """The planner cell with ``[planner]`` (and the request (16)'s threshold, ``safety.replan_delta_below``) changed
     so."""
     config = load_cell_config(CONFIG)
     scenarios = tmp_path / "scenarios"
     scenarios.mkdir(parents=True, exist_ok=True)
-    (scenarios / f"{IN_THE_SWING}.toml").write_text(IN_THE_SWING_TOML)
+    (scenarios / f"{IN_THE_SWING}.toml").write_text(_in_the_swing_toml(step_in_s))
     update: dict[str, Any] = {
         "planner": config.planner.model_copy(update=planner),
         "scenarios_dir": str(scenarios),
@@ -103,7 +114,11 @@ def _planner_cell(tmp_path: Path, replan_delta_below: float | None = None, **pla
 
 
 def _run_for(
-    tmp_path: Path, config: Path, duration_s: float, until: Callable[[list[dict[str, Any]]], bool]
+    tmp_path: Path,
+    config: Path,
+    duration_s: float,
+    until: Callable[[list[dict[str, Any]]], bool],
+    step_in_s: float = STEP_IN_S,
 ) -> list[dict[str, Any]]:
     """Run the cell in ``config`` until the person has walked in, then record ``duration_s`` or until ``until``."""
     with running_cell(tmp_path, config=config, scenario=IN_THE_SWING) as cell:
@@ -115,7 +130,7 @@ def _run_for(
         )
         cell.wait_until(
             lambda s: s["min_distance_m"] is not None and s["min_distance_m"] < ARRIVED_M,
-            (STEP_IN_S + 10.0) * load_scale(),
+            (step_in_s + 10.0) * load_scale(),
             "the person in the swing",
             ROBOT,
         )
@@ -155,7 +170,8 @@ def test_with_the_planner_off_the_robot_waits(tmp_path: Path) -> None:
     productivity figure, measured by ``bench.planner`` (docs/planner.md), not asserted here: on a loaded 2-core host
     the planner's answer time and so the figure vary (CI's runs: 0.061 vs 0.075 with the person there from the start;
     0.36 vs 0.39 beside ``bench.cpu_hog``; 0.88 vs 0.38 at load 2–5)."""
-    off = _run_for(tmp_path, _planner_cell(tmp_path, enabled=False), COMPARE_S, _waited)
+    config = _planner_cell(tmp_path, step_in_s=STEP_IN_WITHOUT_PLANNER_S, enabled=False)
+    off = _run_for(tmp_path, config, COMPARE_S, _waited, STEP_IN_WITHOUT_PLANNER_S)
     assert all(s["plan"] is None for s in off), "no planner layer when it is off"
     end_s = off[-1]["t_s"]
     last = [s for s in off if s["t_s"] >= end_s - WAITING_S]

@@ -21,6 +21,8 @@ from hrc_tools.cell.procs import load_scale, with_retries
 
 RATE_HZ = 20.0
 SAMPLES = 60
+MATCHED_SHARE = 0.5
+"""Samples reflected in time: at least this share with event cycles, fewer with the ticks only."""
 
 
 @pytest.mark.e2e
@@ -47,9 +49,13 @@ def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_drive
         # this process lost on its way (its own receiving, on a loaded host) says nothing of the gateway.
         judged = SAMPLES - run["excluded"].get(SEQ_GAP, 0)
         assert judged >= SAMPLES // 2, f"this process lost too many overrides to judge: {detail}"
-        # A loaded host delays the gateway's event cycle past the next samples (excluded as ambiguous or late): the
-        # share matched falls with the load; what only event cycles do (the teeth below: 0) holds at any load.
-        assert matched >= 0.8 / load_scale() * judged, detail
+        # Ticks alone reflect at most one sample per tick: 60 samples ~15 ms apart span ~18 ticks of 50 ms, so more
+        # than half the samples matched is beyond any run at the ticks only (the teeth below, measured 7-11 of 60 on
+        # the slower AMD machine, idle). Event cycles matched 46-48 there: a cycle held past the next-but-one sample
+        # (every ~10th on that machine, more on a loaded host) is excluded as late, and its successor as ambiguous,
+        # so a share as high as 0.8 failed CI twice on 2026-12-07, the parent commit's code 2 runs of 4 alone. What
+        # only event cycles do (the teeth below: 0) holds at any load.
+        assert matched >= MATCHED_SHARE / load_scale() * judged, detail
         assert by["event_cycle"] >= 0.8 * matched, detail
         assert run["gateway_event_cycles_during_run"] > 0
     else:
@@ -57,7 +63,7 @@ def test_tracker_samples_are_decided_by_event_cycles(tmp_path: Path, event_drive
         # before the next-but-one was sent (excluded by the matching).
         assert by["event_cycle"] == 0, detail
         assert run["gateway_event_cycles_during_run"] == 0
-        assert matched < 0.8 * SAMPLES, detail
+        assert matched < MATCHED_SHARE * SAMPLES, detail
 
 
 def test_loop_block_counts_ticks_and_event_cycles_apart() -> None:

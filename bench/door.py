@@ -13,6 +13,10 @@ the door's whole work, is timed on a third frame: the crowd of ``bench.crowded``
 decoded and judged plausible (:func:`hrc_contract.humans.implausible_detail` with the compiled
 :func:`gateway.kernels.frame_numbers`, as ``gateway.inputs`` admits a frame):
 ``door + plausible`` and ``packed + plausible``. The target of issue 36 is admission p99 ≤ 0.5 ms for 2000 capsules.
+
+What the loop does next with an admitted frame, the tracks' update (:meth:`gateway.tracks.TrackSet.update`: the
+frame's people continued, their boxes, the persons regrouped), is timed on the same crowd seen by the default cell's
+two trackers, their frames taken alternately 16.5 ms apart (people standing still, 2 × 134 tracks): ``tracks``.
 """
 
 from __future__ import annotations
@@ -29,9 +33,11 @@ import numpy as np
 from bench._report import Report, Target, default_json_path, print_header, summary, table, targets_table
 from bench.crowded import crowd
 from gateway.kernels import frame_numbers
+from gateway.tracks import TrackSet
 from hrc_contract.config import PlausibilityConfig
 from hrc_contract.humans import capsules_from_message, humans_from_payload, implausible_detail, packed_payload
 from hrc_contract.messages import Humans, parse_message, parse_message_reference
+from hrc_runtime.config import load_cell_config
 
 NAME = "door"
 TARGET_P99_MS = 0.5
@@ -39,6 +45,12 @@ STAMP_NS = 1_790_000_000_000_000_000
 SIZES = {"1 × 15": (1, 15), "2 × 1000": (2, 1000)}
 CROWD = "crowd of 2000"
 CROWD_CAPSULES = 2000
+TRACKS = "tracks"
+TRACKERS = ("front", "side")
+"""The default cell's trackers (``configs/cell.toml``), each seeing the whole crowd."""
+TRACKS_WARMUP_FRAMES = 20
+FRAME_GAP_NS = 16_500_000
+"""Between one tracker's frame and the other's [ns]: two trackers at 30 Hz, out of step."""
 
 
 def random_frame(rng: np.random.Generator, people: int, parts: int, seq: int = 1) -> dict[str, Any]:
@@ -73,10 +85,10 @@ def _time_ms(parse: Callable[[bytes], object], payload: bytes, repeats: int) -> 
     return times
 
 
-def crowd_payload() -> bytes:
-    """The crowd of ``bench.crowded`` as one valid, plausible frame of tracker ``front`` (:data:`CROWD_CAPSULES`)."""
+def crowd_payload(tracker: str = "front") -> bytes:
+    """The crowd of ``bench.crowded`` as one valid, plausible frame of ``tracker`` (:data:`CROWD_CAPSULES`)."""
     humans = crowd((0.0, 0.0), 1.2, CROWD_CAPSULES)
-    frame = {"schema": "hrc.humans/1", "tracker": "front", "seq": 1, "stamp_ns": STAMP_NS, "humans": humans}
+    frame = {"schema": "hrc.humans/1", "tracker": tracker, "seq": 1, "stamp_ns": STAMP_NS, "humans": humans}
     return json.dumps(frame).encode()
 
 
@@ -88,6 +100,29 @@ def admitted(payload: bytes, plausibility: PlausibilityConfig = PlausibilityConf
     if problem is not None:
         raise AssertionError(f"the benchmark's frame is not plausible: {problem}")
     return capsules
+
+
+def tracks_update_ms(frames: int) -> list[float]:
+    """Per frame [ms]: :meth:`TrackSet.update` of the default cell taking the crowd's frame of one tracker, then the
+    other's, after :data:`TRACKS_WARMUP_FRAMES` frames (the tracks set up, the kernels compiled)."""
+    track_set = TrackSet(load_cell_config(None))
+    decoded = {}
+    for tracker in TRACKERS:
+        header, capsules = humans_from_payload(crowd_payload(tracker))
+        decoded[tracker] = (capsules, header.human_starts)
+    times = []
+    stamp_ns = STAMP_NS
+    for k in range(TRACKS_WARMUP_FRAMES + frames):
+        stamp_ns += FRAME_GAP_NS
+        tracker = TRACKERS[k % len(TRACKERS)]
+        capsules, starts = decoded[tracker]
+        t0 = time.perf_counter_ns()
+        track_set.update({tracker: (object(), capsules, stamp_ns, starts)}, stamp_ns)
+        if k >= TRACKS_WARMUP_FRAMES:
+            times.append((time.perf_counter_ns() - t0) / 1e6)
+    if len(track_set.live) != len(TRACKERS) * len(crowd((0.0, 0.0), 1.2, CROWD_CAPSULES)):
+        raise AssertionError(f"the crowd made {len(track_set.live)} tracks: not every person of both trackers")
+    return times
 
 
 def run(repeats: int, seed: int) -> dict[str, object]:
@@ -110,6 +145,7 @@ def run(repeats: int, seed: int) -> dict[str, object]:
                 times[name] += _time_ms(parse, data, 10)
         figures = {k: summary(v, 1.0, 3) for k, v in times.items()}
         results[label] = {"bytes": len(payload), "packed_bytes": len(packed), **figures}
+    results[TRACKS] = summary(tracks_update_ms(repeats), 1.0, 3)
     return results
 
 
@@ -126,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for label, figures in results.items():
         assert isinstance(figures, dict)
+        if label == TRACKS:
+            continue
         for name, f in figures.items():
             if not isinstance(f, dict):
                 continue
@@ -135,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
             ratio = figures[slow]["p50"] / max(figures[fast]["p50"], 1e-9)
             rows.append([label, "", f"{slow} / {fast} (p50)", round(ratio, 2), "", ""])
     print(table(["frame", "bytes", "parsed by", "p50 [ms]", "p99", "max"], rows))
+    tracks = results[TRACKS]
+    assert isinstance(tracks, dict)
+    print(
+        f"\nthe tracks' update per frame, the crowd seen by {len(TRACKERS)} trackers: p50 {tracks['p50']} ms, "
+        f"p99 {tracks['p99']}, max {tracks['max']} ({tracks['n']} frames)"
+    )
     largest = results[CROWD]
     assert isinstance(largest, dict)
     report.targets = [

@@ -734,48 +734,84 @@ def capsules_within(small: HumanCapsules, big: HumanCapsules, grow_m: float) -> 
     )
 
 
-@_compiled
-def _pairs_near(h_a: Any, h_b: Any, radius: Any, starts: Any, first: Any, second: Any, grow_m: Any, out: Any) -> None:
+@_for_one_type(numba.types.void(_POINTS, _POINTS, _VALUES, _INDICES, _INDICES, _INDICES, _INDICES, _VALUES, _FLAGS))
+def _slices_near(
+    h_a: Any, h_b: Any, radius: Any, starts: Any, ends: Any, first: Any, second: Any, grow_m: Any, out: Any
+) -> None:
     for p in range(first.shape[0]):
         i, k = first[p], second[p]
-        si, ei, sk, ek = starts[i], starts[i + 1], starts[k], starts[k + 1]
+        si, ei, sk, ek = starts[i], ends[i], starts[k], ends[k]
         g = grow_m[p]
         out[p] = (ei > si and ek > sk and np.isfinite(g)) and _near(
             h_a[si:ei], h_b[si:ei], radius[si:ei], h_a[sk:ek], h_b[sk:ek], radius[sk:ek], g
         )
 
 
-def bodies_near(
-    bodies: Sequence[HumanCapsules], first: npt.NDArray[np.intp], second: npt.NDArray[np.intp], grow_m: FloatArray
+def slices_near(
+    capsules: HumanCapsules,
+    starts: npt.NDArray[np.int64],
+    ends: npt.NDArray[np.int64],
+    first: npt.NDArray[np.intp],
+    second: npt.NDArray[np.intp],
+    grow_m: FloatArray,
 ) -> npt.NDArray[np.bool_]:
-    """Per pair p: :func:`capsules_near` of ``bodies[first[p]]`` and ``bodies[second[p]]`` grown by ``grow_m[p]``
-    [m], all pairs in one compiled call (the tracks ask it for every pair of people whose boxes may nest in a
-    frame: a crowd of 200 people made ~1400 pairs a frame, ~8 µs of Python each one call at a time).
+    """Per pair p: :func:`capsules_near` of the bodies ``capsules[starts[first[p]]:ends[first[p]]]`` and
+    ``capsules[starts[second[p]]:ends[second[p]]]`` grown by ``grow_m[p]`` [m], all pairs in one compiled call that
+    reads the capsules where they are (any layout: a tracker frame's views; the tracks ask it for every pair of
+    people whose boxes may nest in a frame, their bodies slices of one or two frames).
 
     Raises:
-        ValueError: a pair's index outside ``bodies``, or ``first``, ``second`` and ``grow_m`` of different lengths.
+        ValueError: a pair's body outside ``starts``/``ends``, a body's slice outside ``capsules``, or ``first``,
+            ``second`` and ``grow_m`` (``starts`` and ``ends``) of different lengths.
     """
     out = np.zeros(len(first), dtype=np.bool_)
     if not len(first):
         return out
-    if len(second) != len(first) or len(grow_m) != len(first):
-        raise ValueError(f"bodies_near: {len(first)} first, {len(second)} second, {len(grow_m)} grow; one per pair")
-    if min(first.min(), second.min()) < 0 or max(first.max(), second.max()) >= len(bodies):
-        raise ValueError(f"bodies_near: a pair's body out of range (of {len(bodies)})")  # read unchecked when compiled
-    counts = np.fromiter((b.n_capsules for b in bodies), np.int64, len(bodies))
-    starts = np.zeros(len(bodies) + 1, dtype=np.int64)
-    np.cumsum(counts, out=starts[1:])
-    _pairs_near(
-        np.concatenate([b.h_a_world for b in bodies], dtype=np.float64),
-        np.concatenate([b.h_b_world for b in bodies], dtype=np.float64),
-        np.concatenate([b.radius_m for b in bodies], dtype=np.float64),
-        starts,
-        np.ascontiguousarray(first, dtype=np.int64),
-        np.ascontiguousarray(second, dtype=np.int64),
-        _kernel_array(grow_m),
+    if len(second) != len(first) or len(grow_m) != len(first) or len(ends) != len(starts):
+        raise ValueError(
+            f"slices_near: {len(first)} first, {len(second)} second, {len(grow_m)} grow (one per pair); "
+            f"{len(starts)} starts, {len(ends)} ends (one per body)"
+        )
+    if min(first.min(), second.min()) < 0 or max(first.max(), second.max()) >= len(starts):
+        raise ValueError(f"slices_near: a pair's body out of range (of {len(starts)})")  # read unchecked when compiled
+    if len(starts) and (starts.min() < 0 or ends.max() > capsules.n_capsules or (ends < starts).any()):
+        raise ValueError(f"slices_near: a body's capsules outside the {capsules.n_capsules} given")
+    _slices_near(
+        _float64(capsules.h_a_world),
+        _float64(capsules.h_b_world),
+        _float64(capsules.radius_m),
+        np.asarray(starts, dtype=np.int64),
+        np.asarray(ends, dtype=np.int64),
+        np.asarray(first, dtype=np.int64),
+        np.asarray(second, dtype=np.int64),
+        _float64(grow_m),
         out,
     )
     return out
+
+
+def bodies_near(
+    bodies: Sequence[HumanCapsules], first: npt.NDArray[np.intp], second: npt.NDArray[np.intp], grow_m: FloatArray
+) -> npt.NDArray[np.bool_]:
+    """Per pair p: :func:`capsules_near` of ``bodies[first[p]]`` and ``bodies[second[p]]`` grown by ``grow_m[p]``
+    [m], all pairs in one compiled call (:func:`slices_near` of the bodies joined).
+
+    Raises:
+        ValueError: a pair's index outside ``bodies``, or ``first``, ``second`` and ``grow_m`` of different lengths.
+    """
+    if not len(first):
+        return np.zeros(0, dtype=np.bool_)
+    counts = np.fromiter((b.n_capsules for b in bodies), np.int64, len(bodies))
+    starts = np.zeros(len(bodies) + 1, dtype=np.int64)
+    np.cumsum(counts, out=starts[1:])
+    joined = HumanCapsules(
+        np.concatenate([b.h_a_world for b in bodies], dtype=np.float64),
+        np.concatenate([b.h_b_world for b in bodies], dtype=np.float64),
+        np.concatenate([b.radius_m for b in bodies], dtype=np.float64),
+        (),
+        (),
+    )
+    return slices_near(joined, starts[:-1], starts[1:], first, second, grow_m)
 
 
 # -- the door: a tracker frame's numbers for the plausibility rules (hrc_contract.humans) --------------------------
@@ -973,6 +1009,8 @@ def _others_maybe_near(
             grow = reach_speed_mps * abs(rows_stamp_ns[k] - stamp_ns[i]) / 1e9 + margin_m + noise_m[i] + rows_noise_m[k]
             below, above = lo[i, 0] - rows_lo[k, 0], rows_hi[k, 0] - hi[i, 0]
             low_gap, high_gap = min(below, above), max(below, above)
+            if low_gap + rows_r[k] + grow < 0.0 and r_max[i] + grow - high_gap < 0.0:
+                continue  # apart along x already (most pairs): more axes only lower low_gap and raise high_gap
             for axis in range(1, 3):
                 below, above = lo[i, axis] - rows_lo[k, axis], rows_hi[k, axis] - hi[i, axis]
                 low_gap = min(low_gap, min(below, above))

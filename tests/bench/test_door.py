@@ -16,8 +16,9 @@ def test_the_door_benchmark_runs_and_reports(tmp_path: Path) -> None:
     out = tmp_path / "door.json"
     assert door.main(["--repeats", "10", "--json", str(out)]) == 0
     doc = json.loads(out.read_text())
-    assert set(doc["results"]) == {*door.SIZES, door.CROWD}
+    assert set(doc["results"]) == {*door.SIZES, door.CROWD, door.TRACKS}
     assert {"door + plausible", "packed + plausible"} <= set(doc["results"][door.CROWD])
+    assert doc["results"].pop(door.TRACKS)["n"] == 10
     for figures in doc["results"].values():
         assert {"json.loads", "reference", "door", "packed"} <= set(figures)
         assert figures["packed_bytes"] < figures["bytes"]

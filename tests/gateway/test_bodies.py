@@ -10,7 +10,7 @@ import pytest
 
 from gateway import bodies
 from gateway.bodies import check_within, near, near_reference, random_capsules, within, within_reference
-from gateway.kernels import bodies_near
+from gateway.kernels import bodies_near, slices_near
 from hrc_contract.config import ConfigError
 from hrc_contract.humans import HumanCapsules
 
@@ -95,3 +95,39 @@ def test_pairs_outside_the_bodies_are_refused_not_read(first: list[int], second:
     people = [random_capsules(np.random.default_rng(k), ("x",) * 3, 1.0) for k in range(2)]
     with pytest.raises(ValueError, match=r"out of range|one per pair"):
         bodies_near(people, np.array(first), np.array(second), np.array(grow))
+
+
+def _frame(rng: np.random.Generator, n: int) -> HumanCapsules:
+    """A tracker frame as the door makes it: three views of one (n, 7) array (no column contiguous)."""
+    rows = rng.uniform(-1.0, 1.0, (n, 7))
+    rows[:, 6] = rng.uniform(0.0, 0.3, n)
+    return HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], ("x",) * n, ("p",) * n)
+
+
+def test_slices_of_a_frame_read_in_place_answer_as_the_reference_pair_by_pair() -> None:
+    rng = np.random.default_rng(11)
+    frame = _frame(rng, 60)
+    assert not frame.h_a_world.flags.c_contiguous
+    starts = rng.integers(0, 60, 20)
+    ends = np.minimum(starts + rng.integers(0, 12, 20), 60)  # overlapping slices, some empty
+    first, second = rng.integers(0, 20, 300), rng.integers(0, 20, 300)
+    grow_m = rng.uniform(0.0, 1.0, 300)
+    got = slices_near(frame, starts, ends, first, second, grow_m)
+
+    def body(j: int) -> HumanCapsules:
+        s, e = int(starts[j]), int(ends[j])
+        return HumanCapsules(frame.h_a_world[s:e], frame.h_b_world[s:e], frame.radius_m[s:e], (), ())
+
+    want = [
+        bool(ends[i] > starts[i] and ends[k] > starts[k]) and near_reference(body(i), body(k), g)
+        for i, k, g in zip(first, second, grow_m, strict=True)
+    ]
+    assert got.tolist() == want
+    assert 0 < sum(want) < len(want)
+
+
+@pytest.mark.parametrize(("starts", "ends"), [([0, 4], [3, 9]), ([-1, 0], [2, 3]), ([2, 0], [1, 3])])
+def test_slices_outside_the_capsules_are_refused_not_read(starts: list[int], ends: list[int]) -> None:
+    frame = _frame(np.random.default_rng(2), 8)
+    with pytest.raises(ValueError, match="outside the 8 given"):
+        slices_near(frame, np.array(starts), np.array(ends), np.array([0]), np.array([1]), np.array([0.1]))

@@ -565,3 +565,32 @@ def test_the_status_thread_shows_the_people_on_its_line_and_to_the_ros2_face(
     assert doc.tracks
     assert line == doc.model_dump_json().encode()
     assert offered == [doc]
+
+
+def test_bodies_of_tracks_in_several_frames_are_their_capsules(cell_config: CellConfig) -> None:
+    """The tracks' bodies as slices of their frames joined once are each track's own capsules (the regrouping's
+    pairs read them there instead of copying each body)."""
+    from gateway import tracks as tracks_module
+
+    rng = np.random.default_rng(4)
+    frames = {}
+    for tracker in ("front", "side"):
+        n = 9
+        rows = rng.uniform(-1.0, 1.0, (n, 7))
+        rows[:, 6] = rng.uniform(0.05, 0.2, n)
+        ids = tuple(f"{tracker}/{'a' if k < 4 else 'b'}" for k in range(n))
+        frames[tracker] = HumanCapsules(rows[:, 0:3], rows[:, 3:6], rows[:, 6], ids, ("p",) * n)
+    track_set = tracks_module.TrackSet(cell_config)
+    track_set.update({t: (object(), f, NOW, None) for t, f in frames.items()}, NOW)
+    live = sorted(track_set.live, key=lambda t: t.serial)
+    assert len(live) == 4
+    assert {t.tracker for t in live} == {"front", "side"}
+    chosen = [live[3], live[0], live[2], live[0]]
+    joined, starts, ends = tracks_module._bodies_in_frames(chosen)
+    for t, s, e in zip(chosen, starts.tolist(), ends.tolist(), strict=True):
+        assert np.array_equal(joined.h_a_world[s:e], t.capsules.h_a_world)
+        assert np.array_equal(joined.h_b_world[s:e], t.capsules.h_b_world)
+        assert np.array_equal(joined.radius_m[s:e], t.capsules.radius_m)
+    one_frame = [t for t in live if t.tracker == "side"]
+    joined, _, _ = tracks_module._bodies_in_frames(one_frame)
+    assert joined is one_frame[0].frame  # one frame: read where it is

@@ -40,7 +40,7 @@ from gateway.kinematics import PRISMATIC, REVOLUTE, KinematicChain, LinkKinemati
 from gateway.reference.kinematics import link_kinematics as pinocchio_link_kinematics
 from gateway.separation import ConstraintRows
 from hrc_contract.config import ConfigError, PlausibilityConfig, SafetyConfig
-from hrc_contract.humans import FrameNumbers, HumanCapsules
+from hrc_contract.humans import FrameNumbers, HumanCapsules, merge_humans
 from hrc_contract.humans import frame_numbers as reference_frame_numbers
 from hrc_devices.robots.model import RobotModel
 from hrc_devices.robots.segments import SegmentDistances
@@ -804,14 +804,7 @@ def bodies_near(
     counts = np.fromiter((b.n_capsules for b in bodies), np.int64, len(bodies))
     starts = np.zeros(len(bodies) + 1, dtype=np.int64)
     np.cumsum(counts, out=starts[1:])
-    joined = HumanCapsules(
-        np.concatenate([b.h_a_world for b in bodies], dtype=np.float64),
-        np.concatenate([b.h_b_world for b in bodies], dtype=np.float64),
-        np.concatenate([b.radius_m for b in bodies], dtype=np.float64),
-        (),
-        (),
-    )
-    return slices_near(joined, starts[:-1], starts[1:], first, second, grow_m)
+    return slices_near(merge_humans(list(bodies)), starts[:-1], starts[1:], first, second, grow_m)
 
 
 # -- the door: a tracker frame's numbers for the plausibility rules (hrc_contract.humans) --------------------------

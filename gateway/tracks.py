@@ -218,8 +218,8 @@ def _bodies_in_frames(
     tracks: Sequence[Track],
 ) -> tuple[HumanCapsules, npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """The tracks' last bodies as slices ``starts[j]:ends[j]`` of their frames' capsules joined once: the seen tracks
-    of a tracker share its newest frame, so a frame's people need no copy each (only the arrays are joined, and only
-    when the tracks come from several frames)."""
+    of a tracker share its newest frame, so a frame's people need no copy each (the frames are joined only when the
+    tracks come from several; a track's frame holds its capsules, so none is empty)."""
     at: dict[int, int] = {}
     frames: list[HumanCapsules] = []
     offsets: list[int] = []
@@ -233,16 +233,7 @@ def _bodies_in_frames(
         offsets.append(offset)
     starts = np.array([o + t.start for o, t in zip(offsets, tracks, strict=True)], dtype=np.int64)
     ends = np.array([o + t.end for o, t in zip(offsets, tracks, strict=True)], dtype=np.int64)
-    if len(frames) == 1:
-        return frames[0], starts, ends
-    joined = HumanCapsules(
-        np.concatenate([f.h_a_world for f in frames], dtype=np.float64),
-        np.concatenate([f.h_b_world for f in frames], dtype=np.float64),
-        np.concatenate([f.radius_m for f in frames], dtype=np.float64),
-        (),
-        (),
-    )
-    return joined, starts, ends
+    return merge_humans(frames), starts, ends  # one frame: itself, read where it is
 
 
 def reach_speed_mps(config: CellConfig) -> float:
@@ -430,15 +421,11 @@ class TrackSet:
         in_table = 0  # the frame's tracks before this one are in the table (a new track's neighbours are read there)
         for k, (start, end) in enumerate(itertools.pairwise(starts)):
             track = continued[k]
-            box = (box_lo[k], box_hi[k], float(box_r[k]))
             if track is None:
                 self._table.set_seen(order[in_table:], box_lo[in_table:k], box_hi[in_table:k], box_r[in_table:k])
+                in_table = k
                 track = self._new_track(tracker, capsules.human_ids[start][prefix:], capsules, start, end, captured_ns)
-                track.observe(capsules, start, end, captured_ns, centres[k], box)
-                self._table.set(track)
-                in_table = k + 1
-            else:
-                track.observe(capsules, start, end, captured_ns, centres[k], box)
+            track.observe(capsules, start, end, captured_ns, centres[k], (box_lo[k], box_hi[k], float(box_r[k])))
             order.append(track)
         self._table.set_seen(order[in_table:], box_lo[in_table:], box_hi[in_table:], box_r[in_table:])
         self._previous[tracker] = _Previous(capsules, captured_ns, tuple(order))

@@ -594,3 +594,33 @@ def test_bodies_of_tracks_in_several_frames_are_their_capsules(cell_config: Cell
     one_frame = [t for t in live if t.tracker == "side"]
     joined, _, _ = tracks_module._bodies_in_frames(one_frame)
     assert joined is one_frame[0].frame  # one frame: read where it is
+
+
+def test_a_new_track_finds_this_frames_boxes_of_the_people_listed_before_it(
+    feed: Feed, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A frame's continued tracks enter the box table together, but before each new track of the frame looks for its
+    neighbours there: it must see where they are now, not where they were a frame ago."""
+    feed.see(0, "front", body("front", "a", 1.0, 0.0), body("front", "c", 3.0, 0.0))
+    tracks = feed.tracks
+    table = tracks._table
+    new_track = tracks._new_track
+    read: list[tuple[str, bool]] = []
+
+    def spy(tracker: str, human_id: str, frame: HumanCapsules, start: int, end: int, captured_ns: int) -> Any:
+        for t in tracks.live:
+            if t.last_seen_mono_ns == captured_ns:  # observed earlier in this frame
+                k = table.row_of(t)
+                now = table.stamp_ns[k] == captured_ns and np.array_equal(table.lo_m[k], t.box_lo_m)
+                read.append((t.human_id, bool(now and np.array_equal(table.hi_m[k], t.box_hi_m))))
+        return new_track(tracker, human_id, frame, start, end, captured_ns)
+
+    monkeypatch.setattr(tracks, "_new_track", spy)
+    feed.see(
+        FRAME_NS, "front", body("front", "a", 1.02, 0.0), body("front", "b", 5.0, 0.0), body("front", "c", 3.01, 0.0)
+    )
+    assert read == [("a", True)]  # c comes after b in the frame: not yet observed when b looks
+    for t in tracks.live:
+        k = table.row_of(t)
+        assert table.stamp_ns[k] == t.last_seen_mono_ns
+        assert np.array_equal(table.lo_m[k], t.box_lo_m)

@@ -15,7 +15,9 @@ step "ruff" .venv/bin/ruff check .
 step "ruff format" .venv/bin/ruff format --check .
 step "mypy" .venv/bin/mypy
 step "import contracts" .venv/bin/lint-imports
-step "pytest" .venv/bin/pytest "$@"
+# Two workers (pytest-xdist): the end-to-end tests one after another on one, every other module on the other
+# (tests/conftest.py groups them); "-n 0" among the arguments runs everything in this process.
+step "pytest" .venv/bin/pytest -n 2 --dist loadgroup "$@"
 if ((${#failed[@]})); then
     printf '\n== FAILED: %s\n' "${failed[*]}"  # a new line first: an extension's exit message may lack its own
     exit 1

@@ -42,3 +42,22 @@ def pytest_sessionstart(session: pytest.Session) -> None:
     SafetyCore(config, {name: load_robot_model(name, robot) for name, robot in config.robots.items()})
     check_frame_numbers()  # the door's
     check_capsules_json()  # the status's
+
+
+CELLS_GROUP = "cells"
+"""The xdist group of every end-to-end test: they start real cells (fixed loopback faces among them) and judge timing,
+so they run one after another on one worker."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Group the tests for pytest-xdist's ``--dist loadgroup`` (run-tests.sh: ``-n 2``).
+
+    The end-to-end tests (marker ``e2e``) form one group: one worker runs them in order, as without xdist, and no two
+    cells run at once. Every other test is grouped with its module: a module's fixtures, loopback addresses and ports
+    (RTDE's fixed 30004 on an address per module) are used by one worker at a time, beside the cells of the other.
+    """
+    if not config.pluginmanager.hasplugin("xdist"):
+        return
+    for item in items:
+        group = CELLS_GROUP if item.get_closest_marker("e2e") else item.nodeid.split("::", 1)[0]
+        item.add_marker(pytest.mark.xdist_group(group))

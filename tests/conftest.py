@@ -49,15 +49,15 @@ CELLS_GROUP = "cells"
 so they run one after another on one worker."""
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Group the tests for pytest-xdist's ``--dist loadgroup`` (run-tests.sh: ``-n 2``).
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """Group the tests for pytest-xdist's ``--dist loadgroup`` (run-tests.sh: ``-n 2``), as they are collected (xdist
+    reads the groups in its ``pytest_collection_modifyitems``).
 
     The end-to-end tests (marker ``e2e``) form one group: one worker runs them in order, as without xdist, and no two
     cells run at once. Every other test is grouped with its module: a module's fixtures, loopback addresses and ports
     (RTDE's fixed 30004 on an address per module) are used by one worker at a time, beside the cells of the other.
     """
-    if not config.pluginmanager.hasplugin("xdist"):
+    if not item.config.pluginmanager.hasplugin("xdist"):
         return
-    for item in items:
-        group = CELLS_GROUP if item.get_closest_marker("e2e") else item.nodeid.split("::", 1)[0]
-        item.add_marker(pytest.mark.xdist_group(group))
+    group = CELLS_GROUP if item.get_closest_marker("e2e") else item.nodeid.split("::", 1)[0]
+    item.add_marker(pytest.mark.xdist_group(group))

@@ -46,18 +46,22 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 CELLS_GROUP = "cells"
 """The xdist group of every end-to-end test: they start real cells (fixed loopback faces among them) and judge timing,
-so they run one after another on one worker."""
+so they run one after another on one worker; and of the tests marked ``serial``, which judge real processes, sockets
+or Zenoh sessions in real time and held only beside the other worker's unit tests, not beside a cell as well."""
+
+CELLS_MARKERS = ("e2e", "serial")
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
     """Group the tests for pytest-xdist's ``--dist loadgroup`` (run-tests.sh: ``-n 2``), as they are collected (xdist
     reads the groups in its ``pytest_collection_modifyitems``).
 
-    The end-to-end tests (marker ``e2e``) form one group: one worker runs them in order, as without xdist, and no two
-    cells run at once. Every other test is grouped with its module: a module's fixtures, loopback addresses and ports
-    (RTDE's fixed 30004 on an address per module) are used by one worker at a time, beside the cells of the other.
+    The end-to-end tests and those marked ``serial`` form one group: one worker runs them in order, as without xdist,
+    and no two cells run at once. Every other test is grouped with its module: a module's fixtures, loopback addresses
+    and ports (RTDE's fixed 30004 on an address per module) are used by one worker at a time, beside the other's cells.
     """
     if not item.config.pluginmanager.hasplugin("xdist"):
         return
-    group = CELLS_GROUP if item.get_closest_marker("e2e") else item.nodeid.split("::", 1)[0]
+    cells = any(item.get_closest_marker(marker) for marker in CELLS_MARKERS)
+    group = CELLS_GROUP if cells else item.nodeid.split("::", 1)[0]
     item.add_marker(pytest.mark.xdist_group(group))

@@ -19,6 +19,8 @@ from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_endpoint, log_tail, start_program, stop_program, wait_for
 from tracker_emu.scenario import load_scenario, scenario_path
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 
 def test_eight_robots_and_four_people_fit_the_cell(tmp_path: Path) -> None:
     config = load_cell_config(write_cell(4, tmp_path))

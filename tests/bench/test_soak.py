@@ -17,6 +17,8 @@ import pytest
 
 from bench import soak
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 
 def _event(seq: int, kind: str = "zone_changed", **fields: str) -> dict[str, object]:
     return {"seq": seq, "kind": kind, "message": "m", **fields}

@@ -26,6 +26,8 @@ from hrc_runtime.config import load_cell_config
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_endpoint, start_program, stop_all, wait_or_fail
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 CELL, ROBOT = "demo", "ur5"
 RTDE_HOST = "127.0.41.19"
 ROBOT_TABLE = "[robots.ur5]\n"

@@ -34,6 +34,8 @@ from hrc_devices.robots.program import load_trajectory
 from hrc_runtime.clocks import Clocks
 from hrc_tools.cell.procs import load_scale
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 OUTPUTS = [
     "timestamp",
     "actual_q",

@@ -39,6 +39,8 @@ from hrc_runtime.signals import StopEvent
 from hrc_runtime.zenoh_session import PLAIN_TCP_LOOPBACK, session_config
 from hrc_tools.cell.procs import free_port, load_scale, running_cell
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 
 def _may_use_fifo() -> bool:
     try:

@@ -31,6 +31,8 @@ from hrc_tools.cell.procs import free_port, wait_or_fail
 from tracker_emu.body import BodyPose, body_capsules
 from tracker_emu.ros2_zed import ZedPublishers, zed_sources
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 GENUINE_X_M = 4.0
 FORGED_X_M = 1.0
 """The forged person stands at the robot; the genuine one 4 m away: each frame at the door says whose it is."""

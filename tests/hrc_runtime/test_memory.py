@@ -13,6 +13,8 @@ import pytest
 
 from hrc_runtime.memory import heap_figures, limit_malloc_arenas
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 # A child process: optionally limit the arenas, then eight threads allocate at the same time and hold their memory
 # until all have allocated (so that glibc gives them arenas of their own), then print how many arenas the heap has
 # (``<heap nr=`` elements of malloc_info's XML).

@@ -14,6 +14,8 @@ from hrc_runtime.newest_wins import RING_CAPACITY, declare_newest_wins
 from hrc_runtime.zenoh_session import session_config
 from hrc_tools.cell.procs import free_port
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 KEY = "test/newest_wins"
 
 

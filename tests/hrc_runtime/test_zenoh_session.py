@@ -35,6 +35,8 @@ from hrc_tools.cell.launcher import program_commands
 from hrc_tools.cell.procs import free_port, wait_or_fail
 from hrc_tools.cert.main import cli as cert_cli
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 POLICY = CellPolicy("demo", ("ur5",), ("front", "side"))
 OVERRIDE = "hrc/demo/robot/ur5/override"
 

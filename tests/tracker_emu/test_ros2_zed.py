@@ -38,6 +38,8 @@ from tracker_emu.ros2_zed import (
     zed_sources,
 )
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 NOW = 1_790_000_000_000_000_000
 
 

@@ -13,6 +13,8 @@ from hrc_contract.config import ConfigError
 from hrc_devices.ros2 import rmw_zenoh as rz
 from hrc_runtime.zenoh_session import session_config
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 CHATTER_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"  # design.md's example
 GID = bytes(range(16))
 

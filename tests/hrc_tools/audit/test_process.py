@@ -33,6 +33,8 @@ from hrc_tools.audit.main import (
 )
 from hrc_tools.cell.procs import Program, free_endpoint, start_program, stop_all, stop_program, wait_or_fail
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 START_NS = 1_790_000_000_000_000_000
 CYCLE_NS = 4_000_000
 Q_PICK_ABOVE = [-0.854, -1.353, 1.668, -1.886, -1.571, -0.853]  # tool0 at (0.45, -0.35, 1.10) m

@@ -26,6 +26,8 @@ from hrc_tools.cell.procs import free_endpoint, start_program, stop_all, stop_pr
 from hrc_tools.faultinject.delay_line import DelayLine
 from hrc_tools.faultinject.rules import FaultRule, RuleError, draw_fate, first_match, parse_rule
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 # -- rules and fates (pure) --------------------------------------------------------------------------
 
 

@@ -25,6 +25,8 @@ from hrc_runtime.zenoh_session import SessionOptions, mutual_tls, session_config
 from hrc_tools.cell.procs import free_port, wait_for
 from hrc_tools.cert.main import provision_cell
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 FORGED_SEQ = 10**9
 
 

@@ -26,6 +26,8 @@ from hrc_tools.cell.procs import free_endpoint, start_program, stop_all, stop_pr
 from tracker_emu.emulator import TRUTH_TRACKER, TrackerEmulator, TruthSampler
 from tracker_emu.scenario import humans_at, load_scenario, scenario_path
 
+pytestmark = pytest.mark.serial  # real processes, sockets or Zenoh sessions, judged in real time (tests/conftest.py)
+
 SCENARIOS_DIR = REPO_ROOT / "configs" / "scenarios"
 START_S = 500.0
 WALL_AT_START_NS = 1_790_000_000_000_000_000

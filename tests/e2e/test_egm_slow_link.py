@@ -40,6 +40,21 @@ DELAY_S = 0.04
 """One way, each direction of the gateway–bridge link [s]: 80 ms more round trip, within ``max_data_age_s`` (0.2 s)."""
 
 
+AUTONOMOUS_SAMPLES = 10
+"""Fault-free autonomous status samples the test judges "nobody near: the program at full speed" on."""
+
+
+def _fault_free_autonomous(trace: list[dict[str, Any]]) -> list[float]:
+    return [s["delta"] for s in trace if s["zone"] == "autonomous" and not s["faults"]]
+
+
+def _until_back_with_enough_samples(trace: list[dict[str, Any]]) -> bool:
+    """Back to autonomous after the approach, with :data:`AUTONOMOUS_SAMPLES` fault-free autonomous samples: on a
+    loaded host the slow link shows late data in more samples (faults are right then), so the recording goes on
+    until there are enough of the others, within its time limit."""
+    return until_back_to_autonomous(trace) and len(_fault_free_autonomous(trace)) >= AUTONOMOUS_SAMPLES
+
+
 def _restarts(status: dict[str, Any]) -> int | None:
     command = status.get("open_command")
     return None if command is None else int(command["reference_restarts"])
@@ -95,7 +110,7 @@ def test_a_slow_link_to_the_egm_bridge_is_measured_followed_and_safe(tmp_path: P
                 [audit_log],
                 [audit],
             )
-            trace = record(cell, 2 * SCENARIO_S * load_scale(), ROBOT, until=until_back_to_autonomous)
+            trace = record(cell, 2 * SCENARIO_S * load_scale(), ROBOT, until=_until_back_with_enough_samples)
         finally:
             audit_code = stop_program(audit)
         for name, proc in cell.procs.items():
@@ -116,8 +131,8 @@ def test_a_slow_link_to_the_egm_bridge_is_measured_followed_and_safe(tmp_path: P
     assert any(_restarts(s) is not None for s in trace)
     unexplained = _unexplained_restarts(ready, trace)
     assert not unexplained, f"restarts with no late data near: {unexplained}"
-    autonomous = [s["delta"] for s in trace if s["zone"] == "autonomous" and not s["faults"]]
-    assert len(autonomous) >= 10
+    autonomous = _fault_free_autonomous(trace)
+    assert len(autonomous) >= AUTONOMOUS_SAMPLES
     assert sum(autonomous) / len(autonomous) > 0.9, "the program slowed with nobody near"
     # the auditor saw the person come close to the running robot and no violation
     assert report["min_distance_m"] is not None

@@ -60,8 +60,12 @@ def pytest_itemcollected(item: pytest.Item) -> None:
     and no two cells run at once. Every other test is grouped with its module: a module's fixtures, loopback addresses
     and ports (RTDE's fixed 30004 on an address per module) are used by one worker at a time, beside the other's cells.
     """
-    if not item.config.pluginmanager.hasplugin("xdist"):
-        return
-    cells = any(item.get_closest_marker(marker) for marker in CELLS_MARKERS)
-    group = CELLS_GROUP if cells else item.nodeid.split("::", 1)[0]
-    item.add_marker(pytest.mark.xdist_group(group))
+    if item.config.pluginmanager.hasplugin("xdist"):
+        item.add_marker(pytest.mark.xdist_group(xdist_group(item)))
+
+
+def xdist_group(item: pytest.Item) -> str:
+    """The test's group: :data:`CELLS_GROUP` for the end-to-end and ``serial`` tests, else its module's path."""
+    if any(item.get_closest_marker(marker) for marker in CELLS_MARKERS):
+        return CELLS_GROUP
+    return item.nodeid.split("::", 1)[0]

@@ -7,7 +7,7 @@ import os
 import re
 
 import pytest
-from conftest import CELLS_GROUP, CELLS_MARKERS
+from conftest import CELLS_MARKERS, xdist_group
 from support.paths import REPO_ROOT
 
 REAL_TIME = re.compile(r"zenoh\.open\(|start_program\(|subprocess\.Popen\(")
@@ -42,8 +42,7 @@ def test_every_test_is_scheduled_with_its_group(request: pytest.FixtureRequest) 
         pytest.skip("on an xdist worker without --dist loadgroup")
     wrong = []
     for item in request.session.items:
-        module = item.nodeid.split("::", 1)[0]
-        group = CELLS_GROUP if any(item.get_closest_marker(m) for m in CELLS_MARKERS) else module
+        group = xdist_group(item)  # the module's path is read before the suffix
         if not item.nodeid.endswith(f"@{group}"):
             wrong.append(f"{item.nodeid} (expected its group {group!r})")
     assert not wrong, "\n".join(wrong[:10])

@@ -834,6 +834,14 @@ class Box(_Frozen):
         return self
 
 
+MATCH_MARGIN_MAX_M = 0.5
+"""The most a detection may be matched beyond a track's reach [m]: ``tracking.association_margin_m`` plus three times
+the noise (``noise_std_m``) of each of the two trackers compared. A looser match lets one person's detection release
+another's track."""
+NOISE_SIGMAS_IN_MATCH = 3.0
+"""A tracker's ``noise_std_m`` counts this many times in the match margin (the gateway's tracks use it)."""
+
+
 class TrackingConfig(_Frozen):
     """People as tracks (``gateway/tracks.py``, docs/contract.md "Tracks"): what the trackers cover, where people
     may leave, and how a track is matched. A person no longer seen is *lost*, never gone: only a detection within
@@ -860,7 +868,7 @@ class TrackingConfig(_Frozen):
         description="Doors and walkways (boxes): when given, a person leaves only through them; empty = anywhere "
         "on the side faces of the covered volume.",
     )
-    association_margin_m: Annotated[float, Field(ge=0.0, le=0.5, allow_inf_nan=False)] = Field(
+    association_margin_m: Annotated[float, Field(ge=0.0, le=MATCH_MARGIN_MAX_M, allow_inf_nan=False)] = Field(
         0.1,
         description="Added to a track's reach when matching a detection to it: the tracker's stated position "
         "uncertainty beyond 3 × noise_std_m [m]. At most 0.5 m: a looser match lets one person's detection "
@@ -1041,6 +1049,22 @@ class CellConfig(_Frozen):
         if not value:
             raise ValueError("at least one entry is required")
         return value
+
+    @model_validator(mode="after")
+    def _match_margin_within_its_cap(self) -> CellConfig:
+        """The widest match the tracks make, ``association_margin_m`` + 3σ + 3σ of the noisiest tracker against itself,
+        within :data:`MATCH_MARGIN_MAX_M`: a tracker's stated noise must not loosen the cap on the margin."""
+        noisiest = max(self.trackers, key=lambda name: self.trackers[name].noise_std_m)
+        sigma_m = self.trackers[noisiest].noise_std_m
+        widest_m = self.tracking.association_margin_m + 2 * NOISE_SIGMAS_IN_MATCH * sigma_m
+        if widest_m > MATCH_MARGIN_MAX_M:
+            raise ValueError(
+                f"trackers.{noisiest}.noise_std_m = {sigma_m} m: the tracks match its detections within "
+                f"tracking.association_margin_m + 3 × {sigma_m} + 3 × {sigma_m} = {widest_m:.3f} m, more than "
+                f"{MATCH_MARGIN_MAX_M} m (a looser match lets one person's detection release another's track); "
+                f"allowed: association_margin_m + 6 × noise_std_m <= {MATCH_MARGIN_MAX_M} m"
+            )
+        return self
 
     @model_validator(mode="after")
     def _ros2_trackers_need_ros2(self) -> CellConfig:

@@ -248,6 +248,37 @@ def test_invalid_values_name_the_field(tmp_path: Path, old: str, new: str, field
     assert field in message
 
 
+@pytest.mark.parametrize(
+    ("noise_std_m", "margin_m", "accepted"),
+    [
+        (0.0666, 0.1, True),  # 0.1 + 6 × 0.0666 = 0.4996 m
+        (0.0667, 0.1, False),  # 0.5002 m: the margin's cap, loosened by the noise alone
+        (0.0, 0.5, True),
+        (0.001, 0.5, False),  # the margin at its cap: any noise breaks it
+        (1e9, 0.0, False),
+    ],
+)
+def test_a_trackers_noise_cannot_loosen_the_match_beyond_its_cap(
+    tmp_path: Path, noise_std_m: float, margin_m: float, accepted: bool
+) -> None:
+    """The tracks match a detection within association_margin_m + 3σ + 3σ (gateway/tracks.py): the noise a cell file
+    states for a tracker counts against the same 0.5 m cap as the margin, else one large noise_std_m would let one
+    person's detection release another's track."""
+
+    def edit(text: str) -> str:
+        text = replace_once("noise_std_m = 0.01\n", "noise_std_m = 0.0\n")(text)  # the side tracker the noisiest
+        text = replace_once("noise_std_m = 0.015", f"noise_std_m = {noise_std_m}")(text)
+        return f"{text}\n[tracking]\nassociation_margin_m = {margin_m}\n"
+
+    path = write_cell(tmp_path, cell=edit)
+    if accepted:
+        assert load_cell_config(path).trackers["side"].noise_std_m == noise_std_m
+        return
+    message = refuse(path)
+    assert "trackers.side.noise_std_m" in message
+    assert "association_margin_m + 6 × noise_std_m <= 0.5 m" in message
+
+
 def test_negative_link_radius(tmp_path: Path) -> None:
     message = refuse(write_cell(tmp_path, robot=_replace("radius_m = 0.08", "radius_m = -0.08")))
     assert "links.0.radius_m" in message

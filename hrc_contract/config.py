@@ -1067,6 +1067,36 @@ class CellConfig(_Frozen):
         return self
 
     @model_validator(mode="after")
+    def _robots_inside_the_covered_volume(self) -> CellConfig:
+        """Every robot's base inside the trackers' covered volume, and not where people leave it: within
+        ``tracking.exit_band_m`` of a side face (inside an exit zone, where the cell declares them), a person lost
+        beside the robot could be taken as having left (the tracks' rule (b))."""
+        tracking = self.tracking
+        band_m = tracking.exit_band_m
+        for name, robot in self.robots.items():
+            xyz = robot.base_pose_world.xyz
+            where = f"robots.{name}.base_pose_world {xyz}"
+            for axis, label in ((0, "x"), (1, "y")):
+                low_m, high_m = tracking.coverage_min_m[axis], tracking.coverage_max_m[axis]
+                if not low_m < xyz[axis] < high_m:
+                    raise ValueError(
+                        f"{where}: outside the trackers' covered volume ({label} from {low_m} to {high_m} m, "
+                        "tracking.coverage_min_m/max_m): nobody near it would be seen; allowed: inside it"
+                    )
+                in_band = xyz[axis] - low_m <= band_m or high_m - xyz[axis] <= band_m
+                in_exit_zone = not tracking.exit_zones or any(
+                    all(zone.min_m[k] <= xyz[k] <= zone.max_m[k] for k in range(3)) for zone in tracking.exit_zones
+                )
+                if in_band and in_exit_zone:
+                    raise ValueError(
+                        f"{where}: within tracking.exit_band_m = {band_m} m of the covered volume's {label} face "
+                        f"({label} from {low_m} to {high_m} m), where people leave: a person lost beside the robot "
+                        f"could be taken as having left; allowed: {low_m + band_m} < {label} < {high_m - band_m} m, "
+                        "or outside every exit zone"
+                    )
+        return self
+
+    @model_validator(mode="after")
     def _ros2_trackers_need_ros2(self) -> CellConfig:
         readers = [name for name, tracker in self.trackers.items() if tracker.ros2 is not None]
         if readers and not self.ros2.enabled:

@@ -279,6 +279,38 @@ def test_a_trackers_noise_cannot_loosen_the_match_beyond_its_cap(
     assert "association_margin_m + 6 × noise_std_m <= 0.5 m" in message
 
 
+@pytest.mark.parametrize(
+    ("base_x_m", "tracking", "refused_with"),
+    [
+        (5.2, "", "within tracking.exit_band_m = 0.4 m of the covered volume's x face"),  # 0.3 m from +x: in the band
+        (-5.2, "", "within tracking.exit_band_m = 0.4 m"),
+        (6.0, "", "outside the trackers' covered volume"),
+        (5.05, "", None),  # 0.45 m from the face: beyond the band
+        (5.0, "exit_band_m = 0.6", "within tracking.exit_band_m = 0.6 m"),  # 0.5 m from +x
+        # doors on the -x face only: a robot in the +x band is not where anyone leaves
+        (5.2, "exit_zones = [{ min_m = [-6.0, -1.0, -0.2], max_m = [-5.0, 1.0, 2.6] }]", None),
+        (-5.2, "exit_zones = [{ min_m = [-6.0, -1.0, -0.2], max_m = [-5.0, 1.0, 2.6] }]", "of the covered volume's x"),
+    ],
+)
+def test_a_robot_stands_inside_the_covered_volume_away_from_where_people_leave(
+    tmp_path: Path, base_x_m: float, tracking: str, refused_with: str | None
+) -> None:
+    """The exit rule releases a lost person whose every capsule lay in the exit band, moving out: a robot standing
+    there would have people lost beside it released as 'left'; a robot outside the covered volume has nobody seen."""
+
+    def edit(text: str) -> str:
+        text = replace_once("xyz = [0.0, 0.0, 0.8]", f"xyz = [{base_x_m}, 0.0, 0.8]")(text)
+        return f"{text}\n[tracking]\n{tracking}\n"
+
+    path = write_cell(tmp_path, cell=edit)
+    if refused_with is None:
+        assert load_cell_config(path).robots["ur5"].base_pose_world.xyz[0] == base_x_m
+        return
+    message = refuse(path)
+    assert "robots.ur5.base_pose_world" in message
+    assert refused_with in message
+
+
 def test_negative_link_radius(tmp_path: Path) -> None:
     message = refuse(write_cell(tmp_path, robot=_replace("radius_m = 0.08", "radius_m = -0.08")))
     assert "links.0.radius_m" in message

@@ -858,10 +858,11 @@ class TrackingConfig(_Frozen):
         description="A track last seen with its centre within this of a side face of the covered volume, moving out "
         "through that face, has left [m]. At most 2 m: deeper inside, a person who is lost has not left.",
     )
-    exit_speed_min_mps: Annotated[float, Field(ge=0.0, le=2.0, allow_inf_nan=False)] = Field(
+    exit_speed_min_mps: Annotated[float, Field(ge=0.1, le=2.0, allow_inf_nan=False)] = Field(
         0.2,
         description="Outward speed of the track's centre (over its last observations) above which it counts as "
-        "moving out [m/s]; noise of a standing person stays below it.",
+        "moving out [m/s]; noise of a standing person stays below it. At least 0.1 m/s: a person standing in the "
+        "exit band (or stepping in) is not leaving, and a lost one there has not left.",
     )
     exit_zones: list[Box] = Field(
         default_factory=list,

@@ -24,6 +24,7 @@ from hrc_contract.config import (
     PlausibilityConfig,
     SafetyConfig,
     StreamsConfig,
+    TrackingConfig,
     ZonesConfig,
     unsafe_allowed,
 )
@@ -309,6 +310,15 @@ def test_a_robot_stands_inside_the_covered_volume_away_from_where_people_leave(
     message = refuse(path)
     assert "robots.ur5.base_pose_world" in message
     assert refused_with in message
+
+
+@pytest.mark.parametrize("speed_mps", [0.0, 0.05])
+def test_standing_in_the_exit_band_is_not_leaving(tmp_path: Path, speed_mps: float) -> None:
+    """With exit_speed_min_mps at 0, a lost person standing in the exit band (or stepping in) would count as having
+    left: the cell file is refused, naming the field."""
+    message = refuse(write_cell(tmp_path, cell=lambda text: f"{text}\n[tracking]\nexit_speed_min_mps = {speed_mps}\n"))
+    assert "tracking.exit_speed_min_mps" in message
+    assert TrackingConfig(exit_speed_min_mps=0.1).exit_speed_min_mps == 0.1
 
 
 def test_negative_link_radius(tmp_path: Path) -> None:

@@ -4,6 +4,7 @@ __all__ = [
     "bodies",
     "bridge_view",
     "capsules_json",
+    "cell_warnings",
     "contact",
     "core",
     "daqp_direct",

@@ -31,6 +31,7 @@ import zenoh
 
 from gateway.bridge_view import BridgeView
 from gateway.capsules_json import check_capsules_json
+from gateway.cell_warnings import cell_warnings
 from gateway.core import RobotDecision
 from gateway.delay import NS_PER_S, WindowMax
 from gateway.events import EventLog
@@ -41,7 +42,6 @@ from gateway.open_robot import acceleration_warning
 from gateway.recording import GatewayRecorder
 from gateway.ros2_face import Ros2Face, ros2_session_options, running_ros2_face
 from gateway.ros2_trackers import check_ros2_inputs, running_ros2_trackers
-from gateway.separation import noise_beyond_clearance
 from gateway.stalls import STALL_SUMMARY_EVERY_S, Phase, StallMonitor, StallSummary
 from gateway.status import (
     StatusJob,
@@ -648,7 +648,7 @@ def build_node(config: CellConfig, wake: threading.Event | None, recorder: NodeR
     robots = {name: load_robot_model(name, robot) for name, robot in config.robots.items()}
     if config.safety.unsafe_ignore_delay_for_tests:
         log.warning("UNSAFE: unsafe_ignore_delay_for_tests is set: the measured delay is ignored (t_delay = 0)")
-    for line in noise_beyond_clearance(config):
+    for line in cell_warnings(config):
         log.warning("%s", line)
     node = GatewayNode(config, robots, on_tracker_change=None if wake is None else wake.set, recorder=recorder)
     for name, state in node.core.states.items():

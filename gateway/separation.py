@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 import numpy.typing as npt
 
-from hrc_contract.config import NOISE_SIGMAS_IN_MATCH, CellConfig, SafetyConfig
+from hrc_contract.config import SafetyConfig
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -167,20 +167,3 @@ def speed_aware_clearance_m(
     far_m = safety.clearance_static_m + safety.human_speed_mps * travel_s
     speed = safety.human_speed_close_mps if far_m < close_speed_below_m else safety.human_speed_mps
     return safety.clearance_static_m + speed * travel_s
-
-
-def noise_beyond_clearance(config: CellConfig) -> list[str]:
-    """One warning per tracker whose stated position noise, 3 × ``noise_std_m``, exceeds the static margin
-    ``safety.clearance_static_m`` (c: sensor uncertainty and model error, eq. (11)): the separation then does not
-    cover that tracker's error. A ROS 2 skeleton tracker is left out (its ``uncertainty_m`` grows every radius)."""
-    c_m = config.safety.clearance_static_m
-    lines = []
-    for name, tracker in config.trackers.items():
-        error_m = NOISE_SIGMAS_IN_MATCH * tracker.noise_std_m
-        if tracker.ros2 is None and error_m > c_m:
-            lines.append(
-                f"tracker {name!r}: its stated noise, 3 × noise_std_m = {error_m:.3f} m, exceeds "
-                f"safety.clearance_static_m = {c_m} m: the separation does not cover its position error; raise the "
-                "clearance to at least 3 σ of the noisiest tracker"
-            )
-    return lines

@@ -6,7 +6,6 @@ velocities against finite differences on the real UR5, then invariants over seed
 
 from __future__ import annotations
 
-import logging
 import math
 
 import numpy as np
@@ -28,17 +27,15 @@ from support.known_cases import (
 
 from gateway import kernels
 from gateway.kinematics import LinkKinematics
-from gateway.main import build_node
 from gateway.reference import separation as reference_separation
 from gateway.reference.kinematics import link_kinematics
 from gateway.separation import (
     ConstraintRows,
     clearance_m,
     decision_clearance_m,
-    noise_beyond_clearance,
     override_from_rows,
 )
-from hrc_contract.config import CellConfig, SafetyConfig
+from hrc_contract.config import SafetyConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
 from hrc_devices.robots.model import RobotModel
 
@@ -429,21 +426,3 @@ def test_a_bound_that_is_not_a_number_stops_the_robot() -> None:
     assert override_from_rows(rows) == 0.0
     assert override_from_rows(rows._replace(min_bound=-3.0)) == 0.0
     assert override_from_rows(rows._replace(min_bound=math.inf)) == 1.0
-
-
-def test_a_tracker_noisier_than_the_clearance_is_named_at_start_up(
-    cell_config: CellConfig, caplog: pytest.LogCaptureFixture
-) -> None:
-    """c covers the sensors' error (eq. (11)): a tracker whose stated 3σ exceeds it is named, once, at start-up; the
-    shipped cell's trackers (3σ = 0.03 and 0.045 m against c = 0.05 m) are not."""
-    assert noise_beyond_clearance(cell_config) == []
-    side = cell_config.trackers["side"].model_copy(update={"noise_std_m": 0.02})
-    noisy = cell_config.model_copy(update={"trackers": {**cell_config.trackers, "side": side}})
-    (line,) = noise_beyond_clearance(noisy)
-    assert "tracker 'side'" in line
-    assert "3 × noise_std_m = 0.060 m, exceeds safety.clearance_static_m = 0.05 m" in line
-    wider = noisy.model_copy(update={"safety": noisy.safety.model_copy(update={"clearance_static_m": 0.06})})
-    assert noise_beyond_clearance(wider) == []
-    with caplog.at_level(logging.WARNING, logger="hrc-gateway"):
-        build_node(noisy, None)
-    assert [r.getMessage() for r in caplog.records if "noise_std_m" in r.getMessage()] == [line]

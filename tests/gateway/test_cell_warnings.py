@@ -8,9 +8,14 @@ from pathlib import Path
 import pytest
 from support.paths import DEFAULT_CELL_PATH
 
-from gateway.cell_warnings import cell_warnings, noise_beyond_clearance, stale_between_frames
+from gateway.cell_warnings import (
+    cell_warnings,
+    exit_zones_nobody_leaves_by,
+    noise_beyond_clearance,
+    stale_between_frames,
+)
 from gateway.main import build_node
-from hrc_contract.config import CellConfig
+from hrc_contract.config import Box, CellConfig
 from hrc_runtime.config import load_cell_config
 
 
@@ -58,3 +63,25 @@ def test_the_gateway_logs_each_warning_once_at_start_up(
     with caplog.at_level(logging.WARNING, logger="hrc-gateway"):
         build_node(troubled, None)
     assert [r.getMessage() for r in caplog.records if r.getMessage() in expected] == expected
+
+
+@pytest.mark.parametrize(
+    ("min_m", "max_m", "warned"),
+    [
+        ((-6.0, -1.0, -0.2), (-5.0, 1.0, 2.6), False),  # a door on the -x face
+        ((-5.2, -1.0, 0.0), (-4.0, 1.0, 2.0), False),  # inside, but reaching into the -x band (-5.5 + 0.4)
+        ((-1.0, 5.2, 0.0), (1.0, 7.0, 2.0), False),  # the +y face
+        ((-1.0, -1.0, 0.0), (1.0, 1.0, 2.0), True),  # in the middle of the cell
+        ((-6.0, 6.0, 0.0), (-5.0, 7.0, 2.0), False),  # beyond the +y face, where the cell spans its x
+        ((-7.0, 6.0, 0.0), (-6.0, 7.0, 2.0), True),  # beyond a corner: the covered volume spans neither axis
+        ((-6.0, -1.0, 3.0), (-5.0, 1.0, 4.0), True),  # above the covered volume
+    ],
+)
+def test_an_exit_zone_nobody_can_leave_by_is_named(
+    cell_config: CellConfig, min_m: tuple[float, float, float], max_m: tuple[float, float, float], warned: bool
+) -> None:
+    tracking = cell_config.tracking.model_copy(update={"exit_zones": [Box(min_m=min_m, max_m=max_m)]})
+    lines = exit_zones_nobody_leaves_by(cell_config.model_copy(update={"tracking": tracking}))
+    assert len(lines) == warned
+    if warned:
+        assert lines[0].startswith("tracking.exit_zones[0]")

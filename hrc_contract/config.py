@@ -1077,6 +1077,9 @@ class CellConfig(_Frozen):
         for name, robot in self.robots.items():
             xyz = robot.base_pose_world.xyz
             where = f"robots.{name}.base_pose_world {xyz}"
+            in_exit_zone = not tracking.exit_zones or any(
+                all(zone.min_m[k] <= xyz[k] <= zone.max_m[k] for k in range(3)) for zone in tracking.exit_zones
+            )
             for axis, label in ((0, "x"), (1, "y")):
                 low_m, high_m = tracking.coverage_min_m[axis], tracking.coverage_max_m[axis]
                 if not low_m < xyz[axis] < high_m:
@@ -1085,9 +1088,6 @@ class CellConfig(_Frozen):
                         "tracking.coverage_min_m/max_m): nobody near it would be seen; allowed: inside it"
                     )
                 in_band = xyz[axis] - low_m <= band_m or high_m - xyz[axis] <= band_m
-                in_exit_zone = not tracking.exit_zones or any(
-                    all(zone.min_m[k] <= xyz[k] <= zone.max_m[k] for k in range(3)) for zone in tracking.exit_zones
-                )
                 if in_band and in_exit_zone:
                     raise ValueError(
                         f"{where}: within tracking.exit_band_m = {band_m} m of the covered volume's {label} face "

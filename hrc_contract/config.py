@@ -671,7 +671,11 @@ class TrackerConfig(_Frozen):
     )
     noise_std_m: NonNegativeFloat = 0.01
     drop_probability: Annotated[float, Field(ge=0.0, lt=1.0)] = 0.0
-    latency_s: NonNegativeFloat = Field(0.0, description="Capture-to-publish latency [s].")
+    latency_s: Annotated[float, Field(ge=0.0, le=MAX_GUARD_TIME_S, allow_inf_nan=False)] = Field(
+        0.0,
+        description="Capture-to-publish latency [s]. At most 1 s: a frame older than that is stale whatever the age "
+        "limit (safety.max_data_age_s is at most 1 s), and the emulator would hold every frame of the meantime.",
+    )
     position_m: tuple[Finite, Finite, Finite] | None = Field(
         None, description="Where the sensor sees from, world frame [m]; required with occlusion."
     )

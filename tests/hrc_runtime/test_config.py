@@ -242,6 +242,7 @@ def test_bad_robot_toml(tmp_path: Path) -> None:
         ("reduced_speed_below = 0.98", "reduced_speed_below = 98", "zones.reduced_speed_below"),
         ('cell = "demo"', 'cell = "Demo Cell"', "cell"),
         ("rate_hz = 250.0", "rate_hz = 1.0", "gateway.rate_hz"),
+        ("latency_s = 0.03", "latency_s = 1e9", "trackers.front.latency_s"),  # a frame held for ever, and each after
     ],
 )
 def test_invalid_values_name_the_field(tmp_path: Path, old: str, new: str, field: str) -> None:

@@ -247,13 +247,16 @@ class ThreeZones(SharedClearance):
         )
 
 
-def stop_only_distance_m(safety: SafetyConfig, t_delay_s: float, t_brake_s: float) -> float:
-    """ISO/TS 15066 S_p of a robot point moving straight at the human at ``stop_only_robot_speed_mps`` [m].
+def stop_only_distance_m(
+    safety: SafetyConfig, t_delay_s: float, t_brake_s: float, robot_speed_mps: float | None = None
+) -> float:
+    """ISO/TS 15066 S_p of a robot point moving straight at the human at ``robot_speed_mps`` (default
+    ``stop_only_robot_speed_mps``) [m].
 
     S_p = K (T_r + T_s) + v T_r + v² / (2 a_s) + C with T_r = t_delay, a_s = v / t_b (so T_s = t_b and the
     braking distance is v t_b / 2) and C = ``clearance_static_m`` (safety-math.md §7).
     """
-    v = safety.stop_only_robot_speed_mps
+    v = safety.stop_only_robot_speed_mps if robot_speed_mps is None else robot_speed_mps
     robot_m = v * (t_delay_s + 0.5 * t_brake_s) + safety.clearance_static_m
     far = safety.human_speed_mps * (t_delay_s + t_brake_s) + robot_m
     return human_speed_at_mps(safety, far) * (t_delay_s + t_brake_s) + robot_m
@@ -271,7 +274,14 @@ class StopOnly(SharedClearance):
         d = x.rows.surface_distance_m
         if not d.size:
             return 1.0
-        limit_m = stop_only_distance_m(self.safety, x.t_delay_s, float(x.robot.braking_time_s.max()))
+        # sized for the configured speed, or the robot's own programmed speed now where that is faster (a program
+        # faster than the zone was sized for must not walk into an undersized zone); a link point is no faster than
+        # its faster end
+        ends_mps = np.concatenate((x.links.v_a_world, x.links.v_b_world))
+        fastest_mps = math.sqrt(float((ends_mps * ends_mps).sum(axis=1).max()))  # nan stays nan: δ = 0 below
+        sized_mps = self.safety.stop_only_robot_speed_mps
+        speed_mps = sized_mps if fastest_mps <= sized_mps else fastest_mps
+        limit_m = stop_only_distance_m(self.safety, x.t_delay_s, float(x.robot.braking_time_s.max()), speed_mps)
         nearest_m = float(d.min())  # nan if any distance is nan
         # Only a finite distance beyond a finite limit lets the robot move: nan compares False, inf is no distance.
         return 1.0 if math.isfinite(nearest_m) and math.isfinite(limit_m) and nearest_m > limit_m else 0.0

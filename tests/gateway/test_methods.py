@@ -25,6 +25,7 @@ from gateway.methods import (
     build_method,
     finite_or_zero,
     point_surface_distance_m,
+    stop_only_distance_m,
     three_zones_override,
 )
 from gateway.reference import iso15066 as reference_iso15066
@@ -488,3 +489,29 @@ def test_stop_only_nan_distance_or_limit_stops(ur5: RobotModel) -> None:
     assert stop_only.bound(nan_row) == 0.0  # was 1.0: nan <= limit is False
     inf_rows = x._replace(rows=x.rows._replace(surface_distance_m=np.full_like(x.rows.surface_distance_m, math.inf)))
     assert stop_only.bound(inf_rows) == 0.0
+
+
+def test_stop_only_sizes_its_zone_for_the_programmed_speed_where_that_is_faster(ur5: RobotModel) -> None:
+    """The zone is sized for ``stop_only_robot_speed_mps``, a floor: a program whose links move faster than that now
+    gets the zone of its own speed (an undersized zone would let it drive at someone it cannot stop before)."""
+    person = HumanCapsules(
+        np.array([[2.2, 0.0, 0.2]]), np.array([[2.2, 0.0, 1.6]]), np.array([0.2]), ("near",), ("torso",)
+    )
+    x = decision(ur5, humans=person, qd_nominal_radps=QD_MOVING * 2.0)
+    ends = np.concatenate((x.links.v_a_world, x.links.v_b_world))
+    fastest_mps = float(np.sqrt((ends * ends).sum(axis=1)).max())
+    nearest_m = float(x.rows.surface_distance_m.min())
+    t_b = float(ur5.braking_time_s.max())
+    slow = SAFETY.model_copy(update={"method": "stop_only", "stop_only_robot_speed_mps": 0.1})
+    # the person is beyond the zone sized for 0.1 m/s and within the zone of the links' own speed
+    assert (
+        stop_only_distance_m(slow, x.t_delay_s, t_b)
+        < nearest_m
+        < stop_only_distance_m(slow, x.t_delay_s, t_b, fastest_mps)
+    )
+    assert StopOnly(slow).bound(x) == 0.0
+    sized = slow.model_copy(update={"stop_only_robot_speed_mps": fastest_mps / 2})  # slower than the zone's floor
+    still_beyond = x._replace(rows=x.rows._replace(surface_distance_m=x.rows.surface_distance_m + 10.0))
+    assert StopOnly(sized).bound(still_beyond) == 1.0
+    standing = decision(ur5, humans=person, qd_nominal_radps=np.zeros(6))  # not moving: the floor alone
+    assert StopOnly(slow).bound(standing) == 1.0

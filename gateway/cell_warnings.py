@@ -9,7 +9,7 @@ configuration in, the lines out.
 
 from __future__ import annotations
 
-from hrc_contract.config import NOISE_SIGMAS_IN_MATCH, CellConfig
+from hrc_contract.config import NOISE_SIGMAS, CellConfig
 
 
 def cell_warnings(config: CellConfig) -> list[str]:
@@ -25,7 +25,7 @@ def noise_beyond_clearance(config: CellConfig) -> list[str]:
     c_m = config.safety.clearance_static_m
     lines = []
     for name, tracker in config.trackers.items():
-        error_m = NOISE_SIGMAS_IN_MATCH * tracker.noise_std_m
+        error_m = NOISE_SIGMAS * tracker.noise_std_m
         if tracker.ros2 is None and error_m > c_m:
             lines.append(
                 f"tracker {name!r}: its stated noise, 3 × noise_std_m = {error_m:.3f} m, exceeds "

@@ -565,6 +565,7 @@ class SafetyCore:
                     clearance_m,
                     state.previous_delta,
                     period_s,
+                    speed_mps,
                 )
             )
             bound = bound if bound == bound else 0.0  # nan never moves a robot

@@ -101,6 +101,8 @@ class MethodInput(NamedTuple):
         clearance_m: the protective distance Δ of this decision [m].
         previous_delta: δ commanded in the previous cycle (after faults and zones).
         period_s: the gateway period [s].
+        link_speed_max_mps: the largest speed of a link end point at the programmed speed (of ``links``) [m/s]; no
+            point of a link is faster than its faster end.
     """
 
     robot: RobotModel
@@ -114,6 +116,7 @@ class MethodInput(NamedTuple):
     clearance_m: float
     previous_delta: float
     period_s: float
+    link_speed_max_mps: float
 
 
 class OverrideMethod(Protocol):
@@ -275,12 +278,9 @@ class StopOnly(SharedClearance):
         if not d.size:
             return 1.0
         # sized for the configured speed, or the robot's own programmed speed now where that is faster (a program
-        # faster than the zone was sized for must not walk into an undersized zone); a link point is no faster than
-        # its faster end
-        ends_mps = np.concatenate((x.links.v_a_world, x.links.v_b_world))
-        fastest_mps = math.sqrt(float((ends_mps * ends_mps).sum(axis=1).max()))  # nan stays nan: δ = 0 below
+        # faster than the zone was sized for must not walk into an undersized zone); nan stays nan: δ = 0 below
         sized_mps = self.safety.stop_only_robot_speed_mps
-        speed_mps = sized_mps if fastest_mps <= sized_mps else fastest_mps
+        speed_mps = sized_mps if x.link_speed_max_mps <= sized_mps else x.link_speed_max_mps
         limit_m = stop_only_distance_m(self.safety, x.t_delay_s, float(x.robot.braking_time_s.max()), speed_mps)
         nearest_m = float(d.min())  # nan if any distance is nan
         # Only a finite distance beyond a finite limit lets the robot move: nan compares False, inf is no distance.

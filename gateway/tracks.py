@@ -43,7 +43,7 @@ import numpy.typing as npt
 
 from gateway.bodies import check_within, covers, near, random_capsules, within
 from gateway.kernels import BodyBoxes, RowBoxes, frame_bodies, moved_within, others_maybe_near, slices_near
-from hrc_contract.config import NOISE_SIGMAS_IN_MATCH, CellConfig, ConfigError, TrackingConfig
+from hrc_contract.config import NOISE_SIGMAS, CellConfig, ConfigError, TrackingConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules, human_starts, merge_humans
 
 FloatArray = npt.NDArray[np.float64]
@@ -60,9 +60,6 @@ CENTRE_SAMPLE_NS = 50_000_000
 """A track's centre is remembered at most this often, its newest always [ns]."""
 VELOCITY_MIN_SPAN_NS = 60_000_000
 """At least this span of observations is needed to call a track 'moving out' [ns]."""
-NOISE_SIGMAS = NOISE_SIGMAS_IN_MATCH
-"""A tracker's position noise, ``noise_std_m``, counts this many times in the association margin (the cell file's
-check holds the widest margin within its cap: :data:`hrc_contract.config.MATCH_MARGIN_MAX_M`)."""
 REAPPEAR_MAX_S = 0.25
 """A track its tracker lost at most this long ago [s] is continued at the entry band by a detection of the same id
 inside its body grown by the motion meanwhile (:meth:`TrackSet._fragment_of`)."""

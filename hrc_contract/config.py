@@ -838,12 +838,13 @@ class Box(_Frozen):
         return self
 
 
+NOISE_SIGMAS = 3.0
+"""A tracker's position error is this many times its ``noise_std_m``: in the tracks' match margin, and against the
+static clearance (the gateway's start-up warnings)."""
 MATCH_MARGIN_MAX_M = 0.5
-"""The most a detection may be matched beyond a track's reach [m]: ``tracking.association_margin_m`` plus three times
-the noise (``noise_std_m``) of each of the two trackers compared. A looser match lets one person's detection release
-another's track."""
-NOISE_SIGMAS_IN_MATCH = 3.0
-"""A tracker's ``noise_std_m`` counts this many times in the match margin (the gateway's tracks use it)."""
+"""The most a detection may be matched beyond a track's reach [m]: ``tracking.association_margin_m`` plus
+:data:`NOISE_SIGMAS` times the noise of each of the two trackers compared. A looser match lets one person's detection
+release another's track."""
 
 
 class TrackingConfig(_Frozen):
@@ -1061,7 +1062,7 @@ class CellConfig(_Frozen):
         within :data:`MATCH_MARGIN_MAX_M`: a tracker's stated noise must not loosen the cap on the margin."""
         noisiest = max(self.trackers, key=lambda name: self.trackers[name].noise_std_m)
         sigma_m = self.trackers[noisiest].noise_std_m
-        widest_m = self.tracking.association_margin_m + 2 * NOISE_SIGMAS_IN_MATCH * sigma_m
+        widest_m = self.tracking.association_margin_m + 2 * NOISE_SIGMAS * sigma_m
         if widest_m > MATCH_MARGIN_MAX_M:
             raise ValueError(
                 f"trackers.{noisiest}.noise_std_m = {sigma_m} m: the tracks match its detections within "

@@ -32,3 +32,9 @@ def link_kinematics(robot: RobotModel, data: pin.Data, q_rad: FloatArray, qd_rad
     world = (base @ robot.R_world_base.T)[gather]  # (4, L, 3)
     world[:2] += robot.p_world_base
     return LinkKinematics(world[0], world[1], world[2], world[3])
+
+
+def link_speed_max_mps(links: LinkKinematics) -> float:
+    """The largest speed of a link end point [m/s]: the reference of the speed :func:`gateway.kernels.link_kinematics`
+    returns beside the links."""
+    return float(max(np.linalg.norm(links.v_a_world, axis=1).max(), np.linalg.norm(links.v_b_world, axis=1).max()))

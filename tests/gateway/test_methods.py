@@ -29,7 +29,7 @@ from gateway.methods import (
     three_zones_override,
 )
 from gateway.reference import iso15066 as reference_iso15066
-from gateway.reference.kinematics import link_kinematics
+from gateway.reference.kinematics import link_kinematics, link_speed_max_mps
 from gateway.reference.separation import build_rows
 from hrc_contract.config import SAFETY_METHODS, ConfigError, SafetyConfig
 from hrc_contract.humans import HumanCapsules
@@ -305,7 +305,9 @@ def test_three_zones_tool_point_default_and_configured(ur5: RobotModel) -> None:
     from hrc_contract.humans import NO_HUMANS
 
     rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, 0.53, NO_HUMANS, SAFETY, 0.1)
-    x = MethodInput(ur5, scratch, q, links, rows, NO_HUMANS, np.zeros(6), 0.1, 1.0, 0.0, 0.004)
+    x = MethodInput(
+        ur5, scratch, q, links, rows, NO_HUMANS, np.zeros(6), 0.1, 1.0, 0.0, 0.004, link_speed_max_mps(links)
+    )
     assert ThreeZones(SAFETY, {"ur5": ur5}).tool_point_world(x) == pytest.approx(tool0)
     at_wrist = ThreeZones(SafetyConfig(three_zones_tool_frame="wrist_2_link"), {"ur5": ur5})
     assert at_wrist.tool_point_world(x) == pytest.approx(wrist)
@@ -457,7 +459,20 @@ def decision(ur5: RobotModel, **bad: object) -> MethodInput:
     rows = build_rows(links, ur5.link_radius_m, ur5.t_brake_link_s, t_b, humans, SAFETY, t_delay)
     clearance = SAFETY.clearance_static_m + SAFETY.human_speed_mps * (t_b + t_delay)
     previous = float(bad.get("previous_delta", 1.0))  # type: ignore[arg-type]
-    return MethodInput(ur5, ur5.model.createData(), q, links, rows, humans, qd, t_delay, clearance, previous, 0.004)
+    return MethodInput(
+        ur5,
+        ur5.model.createData(),
+        q,
+        links,
+        rows,
+        humans,
+        qd,
+        t_delay,
+        clearance,
+        previous,
+        0.004,
+        link_speed_max_mps(links),
+    )
 
 
 def _with_nan(values: np.ndarray, index: int) -> np.ndarray:
@@ -498,8 +513,7 @@ def test_stop_only_sizes_its_zone_for_the_programmed_speed_where_that_is_faster(
         np.array([[2.2, 0.0, 0.2]]), np.array([[2.2, 0.0, 1.6]]), np.array([0.2]), ("near",), ("torso",)
     )
     x = decision(ur5, humans=person, qd_nominal_radps=QD_MOVING * 2.0)
-    ends = np.concatenate((x.links.v_a_world, x.links.v_b_world))
-    fastest_mps = float(np.sqrt((ends * ends).sum(axis=1)).max())
+    fastest_mps = x.link_speed_max_mps
     nearest_m = float(x.rows.surface_distance_m.min())
     t_b = float(ur5.braking_time_s.max())
     slow = SAFETY.model_copy(update={"method": "stop_only", "stop_only_robot_speed_mps": 0.1})
@@ -515,3 +529,5 @@ def test_stop_only_sizes_its_zone_for_the_programmed_speed_where_that_is_faster(
     assert StopOnly(sized).bound(still_beyond) == 1.0
     standing = decision(ur5, humans=person, qd_nominal_radps=np.zeros(6))  # not moving: the floor alone
     assert StopOnly(slow).bound(standing) == 1.0
+    for absurd in (math.nan, math.inf):  # a speed that is not a number sizes no zone: the robot stops
+        assert StopOnly(slow).bound(standing._replace(link_speed_max_mps=absurd)) == 0.0

@@ -15,7 +15,7 @@ import pytest
 from support.known_cases import HAND_AHEAD, LINK_RADIUS_M, LINK_UP, MS, NOW, QD_NOMINAL, SAFETY, Cell, Q
 
 from gateway.methods import MethodInput, SpeedAware, Zanchettin2016, build_method
-from gateway.reference.kinematics import link_kinematics
+from gateway.reference.kinematics import link_kinematics, link_speed_max_mps
 from gateway.reference.separation import build_rows
 from gateway.separation import decision_clearance_m, speed_aware_bounds, speed_aware_clearance_m
 from gateway.zones import Protection, next_zone, zone_thresholds
@@ -156,7 +156,9 @@ def test_nobody_seen_is_full_speed(ur5: RobotModel) -> None:
     assert speed_aware_bounds(
         rows.surface_distance_m, rows.e_m2ps, ur5.t_brake_link_s, 0.1, rows.f_m2, C
     ).min_bound == (math.inf)
-    x = MethodInput(ur5, ur5.model.createData(), q, links, rows, NO_HUMANS, qd, 0.1, 1.0, 0.0, 0.004)
+    x = MethodInput(
+        ur5, ur5.model.createData(), q, links, rows, NO_HUMANS, qd, 0.1, 1.0, 0.0, 0.004, link_speed_max_mps(links)
+    )
     assert SpeedAware(SAFETY).bound(x) == 1.0
     assert Zanchettin2016(SAFETY).bound(x) == 1.0
 

@@ -29,12 +29,7 @@ from gateway import kernels
 from gateway.kinematics import LinkKinematics
 from gateway.reference import separation as reference_separation
 from gateway.reference.kinematics import link_kinematics
-from gateway.separation import (
-    ConstraintRows,
-    clearance_m,
-    decision_clearance_m,
-    override_from_rows,
-)
+from gateway.separation import ConstraintRows, clearance_m, decision_clearance_m, override_from_rows
 from hrc_contract.config import SafetyConfig
 from hrc_contract.humans import NO_HUMANS, HumanCapsules
 from hrc_devices.robots.model import RobotModel
